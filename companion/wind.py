@@ -23,18 +23,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 WIND_MODELS = ("paper", "none")
-
-# (amplitude, angular frequency rad/s, phase rad) of eq. 49, and its mean.
-_EQ49_TERMS = (
-    (0.14, 1.5 * math.pi, -3.0),
-    (-0.05, 2.0 * math.pi, 7.0),
-    (0.08, 0.6 * math.pi, -4.0),
-    (0.09, 0.3 * math.pi, 5.0),
-    (-0.10, 3.0 * math.pi, 3.5),
-)
-_EQ49_MEAN = 0.23
 
 
 @dataclass(frozen=True)
@@ -52,9 +43,22 @@ class WindConfig:
             raise ValueError(f"scale: must be in [0, 10], got {self.scale}")
 
 
+@njit(cache=True)
 def eq49_signal(t_s: float) -> float:
-    """The scalar w(t) of eq. 49 (N or N·m) at time ``t_s`` seconds."""
-    return _EQ49_MEAN + sum(a * math.sin(w * t_s + ph) for a, w, ph in _EQ49_TERMS)
+    """The scalar w(t) of eq. 49 (N or N·m) at time ``t_s`` seconds (compiled; callable from kernels)."""
+    return (
+        0.23
+        + 0.14 * math.sin(1.5 * math.pi * t_s - 3.0)
+        - 0.05 * math.sin(2.0 * math.pi * t_s + 7.0)
+        + 0.08 * math.sin(0.6 * math.pi * t_s - 4.0)
+        + 0.09 * math.sin(0.3 * math.pi * t_s + 5.0)
+        - 0.10 * math.sin(3.0 * math.pi * t_s + 3.5)
+    )
+
+
+def wind_scale_factor(cfg: WindConfig) -> float:
+    """The factor multiplying w(t) on every channel: ``cfg.scale``, or 0 for model "none"."""
+    return 0.0 if cfg.model == "none" else float(cfg.scale)
 
 
 def wind_disturbance(t_s: float, cfg: WindConfig) -> np.ndarray:

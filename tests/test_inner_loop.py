@@ -1,0 +1,116 @@
+"""The bundled vehicle's inner loop (attitude SMC + mixer) and its physics wrapper."""
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.model import VehicleParams
+from companion.rotations import euler_from_quat, quat_from_euler
+from companion.wind import WindConfig, eq49_signal, wind_disturbance
+from sim_bridge.inner_loop import RotorConfig, max_rotor_thrust_n, mix, mixer_matrix
+from sim_bridge.physics import VehicleSim
+
+P = VehicleParams()
+
+
+def _airborne_sim(wind: WindConfig) -> VehicleSim:
+    x0 = np.zeros(16)
+    x0[2] = -5.0
+    sim = VehicleSim(P, wind, x0=x0)
+    sim.armed = True
+    sim.set_attitude_target(quat_from_euler(0, 0, 0), P.hover_thrust_n)
+    sim.step(1000)
+    return sim
+
+
+def test_roll_step_15deg_reached_in_half_a_second_and_held_under_wind_with_payload():
+    sim = _airborne_sim(WindConfig("paper", 1.0))
+    target = math.radians(15.0)
+    sim.set_attitude_target(quat_from_euler(target, 0, 0), P.hover_thrust_n / math.cos(target))
+    err_deg = []
+    for _ in range(2000):  # 2 s
+        sim.step(1)
+        err_deg.append(abs(math.degrees(sim.euler_rad[0] - target)))
+    err_deg = np.array(err_deg)
+    reached = int(np.argmax(err_deg < 1.0))
+    assert err_deg[reached] < 1.0 and reached < 500, f"reached 1° band after {reached} ms"
+    assert err_deg[reached:].max() < 1.0, "left the 1° band after reaching it"
+    # payload attached and swinging as the vehicle accelerates sideways
+    assert abs(sim.swing[1]) > 0.01
+
+
+def test_wind_torque_would_flip_an_uncontrolled_vehicle():
+    """Guard that the roll test is meaningful: with the inner loop off (zero torque) eq. 49 tips it over."""
+    from companion.model import rk4_step
+
+    x = np.zeros(16)
+    x[2] = -5.0
+    for k in range(500):
+        d = wind_disturbance(k * 1e-3, WindConfig())
+        x = rk4_step(x, [P.hover_thrust_n, 0, 0, 0], d, P, 1e-3, 1)
+    assert abs(math.degrees(x[3])) > 30.0
+
+
+def test_hover_attitude_held_under_wind():
+    """Roll/pitch within 0.5°, yaw within 1° while eq. 49 pushes on all three axes."""
+    sim = _airborne_sim(WindConfig("paper", 1.0))
+    worst = np.zeros(3)
+    for _ in range(3000):
+        sim.step(1)
+        worst = np.maximum(worst, np.abs(np.degrees(sim.euler_rad)))
+    assert worst[0] < 0.5 and worst[1] < 0.5 and worst[2] < 1.0, worst
+
+
+def test_mixer_is_eq13_and_respects_rotor_limits():
+    rotor = RotorConfig()
+    f_max = max_rotor_thrust_n(rotor, P)
+    a = mixer_matrix(rotor)
+    # small command: exact
+    f = mix(P.hover_thrust_n, np.array([0.1, -0.05, 0.02]), rotor, f_max)
+    np.testing.assert_allclose(a @ f, [P.hover_thrust_n, 0.1, -0.05, 0.02], atol=1e-12)
+    # eq. 13 sign pattern: roll torque from rotors 1 and 4 against 2 and 3
+    s = math.sqrt(2) / 2 * rotor.arm_m
+    np.testing.assert_allclose(a[1], [s, -s, -s, s])
+    np.testing.assert_allclose(a[3], rotor.c_m_over_c_t_m * np.array([1, -1, 1, -1]))
+    # huge command: stays within [0, f_max], keeps roll sign, gives up yaw first
+    f = mix(3 * P.hover_thrust_n, np.array([5.0, 0.0, 5.0]), rotor, f_max)
+    assert np.all(f >= 0.0) and np.all(f <= f_max + 1e-12)
+    out = a @ f
+    assert out[1] > 0.5
+
+
+def test_thrust_target_clipped_to_rotor_limit():
+    sim = _airborne_sim(WindConfig("none"))
+    sim.set_attitude_target(None, 1e6)
+    assert sim.target_thrust_n == pytest.approx(sim.max_thrust_n)
+    assert sim.max_thrust_n == pytest.approx(2.5 * P.hover_thrust_n)
+
+
+def test_ground_holds_until_thrust_exceeds_weight_then_lands_again():
+    sim = VehicleSim(P, WindConfig("paper"))
+    assert sim.landed
+    sim.armed = True
+    sim.set_attitude_target(quat_from_euler(0, 0, 0), 0.9 * P.hover_thrust_n)
+    sim.step(500)
+    assert sim.landed and sim.pos_ned_m[2] == 0.0
+    sim.set_attitude_target(quat_from_euler(0, 0, 0), 1.3 * P.hover_thrust_n)
+    sim.step(1000)
+    assert not sim.landed and sim.pos_ned_m[2] < -0.5
+    sim.set_attitude_target(quat_from_euler(0, 0, 0), 0.8 * P.hover_thrust_n)
+    sim.step(4000)
+    assert sim.landed and sim.pos_ned_m[2] == 0.0 and np.all(sim.vel_ned_mps == 0.0)
+
+
+def test_quaternion_roundtrip():
+    for e in ([0.1, -0.2, 3.0], [-0.5, 0.3, -2.0]):
+        np.testing.assert_allclose(euler_from_quat(quat_from_euler(*e)), e, atol=1e-12)
+
+
+def test_eq49_values():
+    w = np.array([eq49_signal(t) for t in np.arange(0.0, 40.0, 1e-3)])
+    assert w.mean() == pytest.approx(0.23, abs=2e-3)
+    assert w.min() == pytest.approx(-0.0954, abs=1e-3)
+    assert w.max() == pytest.approx(0.5919, abs=1e-3)
+    np.testing.assert_array_equal(wind_disturbance(1.0, WindConfig("none")), np.zeros(6))
+    np.testing.assert_allclose(wind_disturbance(1.0, WindConfig("paper", 2.0)), np.full(6, 2 * eq49_signal(1.0)))
