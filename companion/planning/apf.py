@@ -1,0 +1,72 @@
+"""The paper's potential-field planners, as printed: traditional (eqs. 22–26) and improved (eqs. 27–28).
+
+Both evaluate the field at the measured airframe position ξ* (the paper's "real flight trajectory").
+ρ_oi is the distance between centres (vehicle to obstacle axis). Repulsion acts while ρ_oi <= ρ0 with
+
+* traditional: ρ0 = l + r_oi + Δd_min (cable length as the fixed avoidance distance),
+* improved:    ρ* = R_max + r_oi + Δd_min (the live envelope radius of eq. 21).
+
+From force to reference (not in the paper; our choice): the resultant force is read as a desired velocity,
+``v_des = sat(F_all, v_max)`` (gradient flow on the potential, units: ka in 1/s, kr in m³/s), and the
+reference generator integrates it with acceleration and jerk limits. Far from the goal F_att saturates to
+v_max, near it the approach is exponential with rate ka.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from companion.obstacles import Obstacle
+from companion.planning.base import PlanInput, PlanOutput, saturate
+from companion.planning.params import PlannerParams
+
+
+def attractive_force(pos_m: np.ndarray, goal_m: np.ndarray, ka: float) -> np.ndarray:
+    """F_att = ka·ρ(ξ_T, ξ*)·∇ρ (eq. 23): ka times the vector to the goal (2,)."""
+    return ka * (np.asarray(goal_m, dtype=np.float64) - np.asarray(pos_m, dtype=np.float64))
+
+
+def repulsive_force(pos_m: np.ndarray, obstacle_m: np.ndarray, kr: float, rho0_m: float) -> np.ndarray:
+    """F_rep = kr·(1/ρ − 1/ρ0)·(1/ρ²)·∇ρ for ρ <= ρ0, else 0 (eqs. 25 and 27); ∇ρ points away from it."""
+    d = np.asarray(pos_m, dtype=np.float64) - np.asarray(obstacle_m, dtype=np.float64)
+    rho = float(np.linalg.norm(d))
+    if rho > rho0_m or rho <= 1e-9:
+        return np.zeros(2)
+    return kr * (1.0 / rho - 1.0 / rho0_m) / (rho * rho) * (d / rho)
+
+
+def rho0_traditional_m(o: Obstacle, cable_l_m: float) -> float:
+    """ρ0 = l + r_oi + Δd_min."""
+    return cable_l_m + o.radius_m + o.safe_distance_m
+
+
+def rho_star_improved_m(o: Obstacle, r_max_m: float) -> float:
+    """ρ* = R_max + r_oi + Δd_min (eq. 27)."""
+    return r_max_m + o.radius_m + o.safe_distance_m
+
+
+class ApfPlanner:
+    """``traditional`` or ``improved`` APF (see module docstring); ``none`` is attraction only."""
+
+    def __init__(self, kind: str, params: PlannerParams) -> None:
+        if kind not in ("traditional", "improved", "none"):
+            raise ValueError(f"planner: unknown APF kind {kind!r}")
+        self.name = kind
+        self.params = params
+
+    def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
+        """Resultant force (eq. 26 / 28) at the measured position, read as desired velocity."""
+        p = self.params
+        f_att = attractive_force(inp.pos_m, inp.goal_m, p.ka)
+        f_rep = np.zeros(2)
+        if self.name != "none":
+            for o in obstacles:
+                if self.name == "traditional":
+                    rho0 = rho0_traditional_m(o, inp.cable_l_m)
+                else:
+                    rho0 = rho_star_improved_m(o, inp.r_max_m)
+                f_rep = f_rep + repulsive_force(inp.pos_m, np.array([o.x_m, o.y_m]), p.kr, rho0)
+        v = saturate(f_att + f_rep, p.v_max_mps)
+        return PlanOutput(v_des_mps=v, force_att=f_att, force_rep=f_rep)

@@ -1,0 +1,67 @@
+"""What every planner consumes and produces.
+
+A planner maps the situation (vehicle and reference positions, envelope radius, swing, obstacles, goal) to
+a desired horizontal velocity ``v_des_mps`` in NED (2,). The potential-field planners read their virtual
+force as that velocity (gradient flow: ``v_des = sat(F_all, v_max)``; see :mod:`companion.planning.apf`),
+the safe planner builds it directly. The :class:`~companion.planning.reference.ReferenceGenerator` turns
+the desired velocity into a flyable reference (position, velocity, acceleration) with acceleration and jerk
+limits; the position controller tracks that reference.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from companion.obstacles import Obstacle
+
+
+@dataclass(frozen=True, slots=True)
+class PlanInput:
+    """Inputs for one planning step. Horizontal NED vectors (2,), metres and m/s.
+
+    pos_m / vel_mps: measured airframe; ref_pos_m / ref_vel_mps: current reference; goal_m: goal;
+    r_max_m: envelope radius now (eq. 21, or the full cable without swing sensing); swing: [α, β, α̇, β̇]
+    or None; cable_l_m, airframe_r_m (r_uav + L_uav); z_ned_m: airframe altitude (NED z, m) for "below the trunk's top"
+    tests; t_s: time.
+    """
+
+    t_s: float
+    pos_m: np.ndarray
+    vel_mps: np.ndarray
+    ref_pos_m: np.ndarray
+    ref_vel_mps: np.ndarray
+    goal_m: np.ndarray
+    r_max_m: float
+    swing: np.ndarray | None
+    cable_l_m: float
+    airframe_r_m: float
+    g_mps2: float = 9.81
+    z_ned_m: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class PlanOutput:
+    """Desired horizontal velocity (2,) m/s, and the attractive / repulsive parts for plots and telemetry."""
+
+    v_des_mps: np.ndarray
+    force_att: np.ndarray
+    force_rep: np.ndarray
+    mode: str = "track"
+
+
+class Planner(Protocol):
+    """A planner: ``plan(inp, obstacles) -> PlanOutput``; ``name`` is its registry name."""
+
+    name: str
+
+    def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput: ...
+
+
+def saturate(v: np.ndarray, limit: float) -> np.ndarray:
+    """``v`` scaled down to norm ``limit`` if longer."""
+    n = float(np.linalg.norm(v))
+    return v * (limit / n) if n > limit else v
