@@ -49,7 +49,7 @@ SDD = {n: sp.Symbol(n + "_dd") for n in NAMES}
 def plain(expr: sp.Expr) -> sp.Expr:
     """Replace the functions of t by plain symbols (second derivatives first)."""
     rep = {}
-    for n, v, vd, vdd in zip(NAMES, q, qd, qdd, strict=True):
+    for n, vd, vdd in zip(NAMES, qd, qdd, strict=True):
         rep[vdd] = SDD[n]
         rep[vd] = SD[n]
     expr = expr.subs(rep)
