@@ -1,0 +1,128 @@
+"""Command line of the bundled vehicle: ``slungpilot sitl`` and ``python -m sim_bridge``."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import dataclasses
+import logging
+import sys
+
+from companion.config import dataclass_from_table
+from companion.errors import ConfigError
+from companion.model import VehicleParams, load_vehicle_params
+from companion.wind import WindConfig
+from sim_bridge.vehicle import SitlConfig, SitlVehicle
+
+log = logging.getLogger(__name__)
+
+
+def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the SITL vehicle's options to ``parser``."""
+    g = parser.add_argument_group("SITL vehicle")
+    g.add_argument("--instance", type=int, default=0,
+                   help="instance i: ports +i, vehicle sysid 1+i, payload sysid 2 (i=0) or 200+i")
+    g.add_argument("--lockstep", action="store_true",
+                   help="advance one control period per SET_ATTITUDE_TARGET on the onboard link (docs/sitl.md)")
+    g.add_argument("--control-period-ms", type=int, default=4, help="control period, ms (multiple of 1 ms)")
+    g.add_argument("--vehicle", metavar="FILE", help="vehicle TOML ([vehicle] table, config/vehicle.toml format)")
+    g.add_argument("--payload-mass", type=float, help="payload mass m, kg (overrides --vehicle)")
+    g.add_argument("--cable-length", type=float, help="cable length l, m (overrides --vehicle)")
+    g.add_argument("--wind", choices=["paper", "none"], default="paper", help="wind model (eq. 49 or none)")
+    g.add_argument("--wind-scale", type=float, default=1.0, help="wind scale factor")
+    g.add_argument("--thr-hover", type=float, help="MPC_THR_HOVER (default 1/thrust_to_weight = 0.4)")
+    g.add_argument("--offboard-timeout", type=float, default=0.5, help="offboard loss timeout, s (sim time)")
+    g.add_argument("--takeoff-alt", type=float, default=2.5, help="MIS_TAKEOFF_ALT, m above home")
+    g.add_argument("--home-lat", type=float, default=47.397742, help="home latitude, deg")
+    g.add_argument("--home-lon", type=float, default=8.545594, help="home longitude, deg")
+    g.add_argument("--home-alt", type=float, default=488.0, help="home altitude AMSL, m")
+    g.add_argument("--address", default="127.0.0.1", help="address the vehicle binds to")
+    g.add_argument("--onboard-port", type=int, help="onboard link bind port (default 14580+i)")
+    g.add_argument("--onboard-remote", default="127.0.0.1:14540",
+                   help="where onboard telemetry goes until someone talks (port +i)")
+    g.add_argument("--gcs-port", type=int, help="GCS link bind port (default 18570+i)")
+    g.add_argument("--gcs-remote", default="127.0.0.1:14550", help="where GCS telemetry goes first")
+    g.add_argument("--sysid", type=int, help="vehicle system id (default 1+i)")
+    g.add_argument("--compid", type=int, default=1, help="vehicle component id")
+    g.add_argument("--payload-sysid", type=int, help="payload system id (default 2, or 200+i for i>0)")
+    g.add_argument("--duration", type=float, help="stop after this many simulated seconds")
+
+
+def _hostport(text: str, flag: str, shift: int) -> tuple[str, int]:
+    host, _, port = text.rpartition(":")
+    try:
+        return host or "127.0.0.1", int(port) + shift
+    except ValueError:
+        raise ConfigError(f"{flag}: expected HOST:PORT, got {text!r}") from None
+
+
+def config_from_args(args: argparse.Namespace) -> SitlConfig:
+    """Build and validate the :class:`SitlConfig`; raises :class:`ConfigError` naming the flag or key."""
+    i = args.instance
+    if not 0 <= i <= 54:
+        raise ConfigError(f"--instance: must be in 0..54, got {i}")
+    params = load_vehicle_params(args.vehicle) if args.vehicle else VehicleParams()
+    over = {}
+    if args.payload_mass is not None:
+        over["m"] = args.payload_mass
+    if args.cable_length is not None:
+        over["l"] = args.cable_length
+    if over:
+        params = dataclass_from_table(VehicleParams, over, where="--payload-mass/--cable-length:", base=params)
+    wind = dataclass_from_table(WindConfig, {"model": args.wind, "scale": args.wind_scale}, where="--wind-scale:")
+    cfg = SitlConfig(
+        params=params,
+        wind=wind,
+        lockstep=args.lockstep,
+        control_period_us=int(args.control_period_ms) * 1000,
+        thr_hover=args.thr_hover,
+        offboard_timeout_s=args.offboard_timeout,
+        takeoff_alt_m=args.takeoff_alt,
+        home=(args.home_lat, args.home_lon, args.home_alt),
+        onboard_bind=(args.address, args.onboard_port if args.onboard_port is not None else 14580 + i),
+        onboard_remote=_hostport(args.onboard_remote, "--onboard-remote", i),
+        gcs_bind=(args.address, args.gcs_port if args.gcs_port is not None else 18570 + i),
+        gcs_remote=_hostport(args.gcs_remote, "--gcs-remote", 0),
+        sysid=args.sysid if args.sysid is not None else 1 + i,
+        compid=args.compid,
+        payload_sysid=args.payload_sysid if args.payload_sysid is not None else (2 if i == 0 else 200 + i),
+        duration_s=args.duration,
+    )
+    try:
+        cfg.validate()
+        if not (0.0 < cfg.offboard_timeout_s <= 60.0):
+            raise ValueError("offboard_timeout: must be in (0, 60] s")
+    except ValueError as exc:
+        raise ConfigError(f"sitl options: {exc}") from None
+    return dataclasses.replace(cfg)
+
+
+def run_sitl(args: argparse.Namespace) -> int:
+    """Run the vehicle until SIGINT/SIGTERM or --duration; prints ``SITL READY ...`` once bound."""
+    cfg = config_from_args(args)
+
+    def ready(v: SitlVehicle) -> None:
+        print(f"SITL READY onboard={cfg.onboard_bind[0]}:{cfg.onboard_bind[1]} "
+              f"gcs={cfg.gcs_bind[0]}:{cfg.gcs_bind[1]} sysid={cfg.sysid}", flush=True)
+
+    try:
+        return asyncio.run(SitlVehicle(cfg).run(ready_cb=ready))
+    except OSError as exc:
+        raise ConfigError(f"cannot bind the SITL ports: {exc}") from None
+    except KeyboardInterrupt:
+        return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m sim_bridge``: the same as ``slungpilot sitl``."""
+    parser = argparse.ArgumentParser(prog="python -m sim_bridge", description="The bundled SITL vehicle.")
+    parser.add_argument("-v", "--verbose", action="count", default=0)
+    add_sitl_arguments(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return run_sitl(args)
+    except ConfigError as exc:
+        print(f"sim_bridge: error: {exc}", file=sys.stderr)
+        return exc.exit_code

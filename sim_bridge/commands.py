@@ -1,0 +1,166 @@
+"""COMMAND_LONG / COMMAND_INT, the PARAM protocol and SET_ATTITUDE_TARGET checks of the bundled vehicle.
+
+Every command addressed to the vehicle gets exactly one COMMAND_ACK: ACCEPTED, DENIED (with a STATUSTEXT
+that says why), or UNSUPPORTED. The functions here take the running :class:`sim_bridge.vehicle.SitlVehicle`
+(``v``) and the link the request came in on; they never raise on bad input.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from sim_bridge import px4_modes
+from sim_bridge.params import param_id_str
+
+log = logging.getLogger(__name__)
+
+M = mavlink2
+FORCE_DISARM_MAGIC = 21196
+ACCEPTED, DENIED, UNSUPPORTED, FAILED = (
+    M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_DENIED, M.MAV_RESULT_UNSUPPORTED, M.MAV_RESULT_FAILED,
+)
+
+# SET_ATTITUDE_TARGET.type_mask bits
+RATE_IGNORE_BITS = (1, 2, 4)
+THRUST_IGNORE = 64
+ATTITUDE_IGNORE = 128
+TICK_ONLY_MASK = 1 | 2 | 4 | THRUST_IGNORE | ATTITUDE_IGNORE
+
+
+def parse_attitude_target(msg: Any) -> tuple[str | None, np.ndarray | None, np.ndarray | None, float | None]:
+    """Check a SET_ATTITUDE_TARGET; returns (rejection kind or None, q, body rates, normalized thrust).
+
+    Ignored fields (type_mask) are returned as None and not checked (they may be NaN, as some senders do).
+    Rejection kinds: ``nonfinite``, ``bad_quaternion`` (|‖q‖ − 1| > 1e-3), ``thrust_range`` (outside 0..1).
+    """
+    mask = int(msg.type_mask)
+    q = None
+    rates = None
+    thrust = None
+    if not mask & ATTITUDE_IGNORE:
+        q = np.array([float(c) for c in msg.q])
+        if not np.all(np.isfinite(q)):
+            return "nonfinite", None, None, None
+        if abs(math.sqrt(float(q @ q)) - 1.0) > 1e-3:
+            return "bad_quaternion", None, None, None
+    raw_rates = (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)
+    if any(not mask & b for b in RATE_IGNORE_BITS):
+        rates = np.array([0.0 if mask & b else float(r) for b, r in zip(RATE_IGNORE_BITS, raw_rates, strict=True)])
+        if not np.all(np.isfinite(rates)):
+            return "nonfinite", None, None, None
+    if not mask & THRUST_IGNORE:
+        thrust = float(msg.thrust)
+        if not math.isfinite(thrust):
+            return "nonfinite", None, None, None
+        if not 0.0 <= thrust <= 1.0:
+            return "thrust_range", None, None, None
+    return None, q, rates, thrust
+
+
+# ------------------------------------------------------------------------------------------------ commands
+def handle_command(v: Any, link: Any, msg: Any, is_int: bool) -> None:
+    """Execute a COMMAND_LONG/COMMAND_INT for the vehicle and ACK it on ``link``."""
+    cmd = int(msg.command)
+    if is_int:
+        p = [msg.param1, msg.param2, msg.param3, msg.param4, float(msg.x), float(msg.y), float(msg.z)]
+    else:
+        p = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
+    after: list = []
+    try:
+        result, why = _dispatch(v, link, cmd, p, after)
+    except Exception:  # a handler bug must still give the client an answer
+        log.exception("command %d failed", cmd)
+        result, why = FAILED, "internal error"
+    if why:
+        v.statustext(M.MAV_SEVERITY_WARNING if result != ACCEPTED else M.MAV_SEVERITY_INFO, why)
+    link.mav.command_ack_send(cmd, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+    for fn in after:  # messages requested by the command go out after the ACK
+        fn()
+
+
+def _dispatch(v: Any, link: Any, cmd: int, p: list[float], after: list) -> tuple[int, str]:
+    if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:
+        if p[0] >= 0.5:
+            return v.arm()
+        return v.disarm(force=round(p[1]) == FORCE_DISARM_MAGIC)
+    if cmd == M.MAV_CMD_DO_SET_MODE:
+        if not int(p[0]) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            return DENIED, "Only custom (PX4) modes are supported"
+        mode = px4_modes.Px4Mode(int(p[1]), int(p[2]) if int(p[1]) == px4_modes.MAIN_AUTO else 0)
+        return v.set_mode(mode)
+    if cmd == M.MAV_CMD_NAV_TAKEOFF:
+        return v.takeoff(p[6])
+    if cmd == M.MAV_CMD_NAV_LAND:
+        return v.set_mode(px4_modes.AUTO_LAND)
+    if cmd == M.MAV_CMD_SET_MESSAGE_INTERVAL:
+        if not link.scheduler.set_interval(int(p[0]), p[1], v.t_us):
+            return DENIED, f"Cannot stream message {int(p[0])}"
+        return ACCEPTED, ""
+    if cmd in (M.MAV_CMD_REQUEST_MESSAGE, M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+               M.MAV_CMD_REQUEST_PROTOCOL_VERSION):
+        if cmd == M.MAV_CMD_REQUEST_MESSAGE:
+            msgid = int(p[0])
+        elif cmd == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            msgid = M.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+        else:
+            msgid = 300
+        if not v.can_send(msgid):
+            return DENIED, f"Message {msgid} not available"
+        after.append(lambda: v.send_message(msgid, link))
+        return ACCEPTED, ""
+    if cmd == M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
+        if round(p[0]) != 1:
+            return DENIED, "Only autopilot reboot (param1=1) is simulated"
+        return v.reboot()
+    return UNSUPPORTED, ""
+
+
+# ------------------------------------------------------------------------------------------------ params
+def send_param(v: Any, link: Any, index: int) -> None:
+    """PARAM_VALUE of the parameter at ``index``."""
+    prm = v.params.by_index(index)
+    if prm is not None:
+        link.mav.param_value_send(prm.name.encode(), prm.current(), prm.mav_type, len(v.params), index)
+
+
+def handle_param_request_list(v: Any, link: Any) -> None:
+    """All parameters, in index order."""
+    for i in range(len(v.params)):
+        send_param(v, link, i)
+
+
+def handle_param_request_read(v: Any, link: Any, msg: Any) -> None:
+    """One parameter by index (param_index >= 0) or by name."""
+    if msg.param_index >= 0:
+        if v.params.by_index(msg.param_index) is None:
+            v.counters.reject("bad_param", f"no parameter at index {msg.param_index}")
+            return
+        send_param(v, link, msg.param_index)
+        return
+    name = param_id_str(msg.param_id)
+    if v.params.get(name) is None:
+        v.counters.reject("bad_param", f"unknown parameter {name!r}")
+        return
+    send_param(v, link, v.params.index_of(name))
+
+
+def handle_param_set(v: Any, link: Any, msg: Any) -> None:
+    """Set and echo the (possibly unchanged) value; refusals also get a STATUSTEXT."""
+    name = param_id_str(msg.param_id)
+    prm = v.params.get(name)
+    if prm is None:
+        v.counters.reject("bad_param", f"PARAM_SET of unknown {name!r}")
+        v.statustext(M.MAV_SEVERITY_WARNING, f"Unknown parameter {name}")
+        return
+    ok, why = v.params.set(name, float(msg.param_value))
+    if not ok:
+        v.counters.reject("bad_param", why)
+        v.statustext(M.MAV_SEVERITY_WARNING, why)
+    elif prm.reboot:
+        v.statustext(M.MAV_SEVERITY_NOTICE, f"{name} takes effect at next start/reboot")
+    send_param(v, link, v.params.index_of(name))

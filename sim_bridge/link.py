@@ -1,0 +1,189 @@
+"""One MAVLink 2 link over UDP (asyncio), with strict framing and counted rejections.
+
+Each datagram is cut into frames here (UDP keeps frame boundaries, so nothing is carried over between
+datagrams): bytes before a frame marker are *garbage*, a MAVLink 1 frame (0xFE) is *mavlink1*, a frame longer
+than what is left is *truncated*, unknown incompatibility flags or a signed frame is *bad_flags*, then
+pymavlink's ``MAVLink.decode`` checks CRC and length (*bad_crc*) and knows the id (*unknown_id*). Only
+decoded MAVLink 2 messages reach the handler. The link answers whoever talked to it last.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+log = logging.getLogger(__name__)
+
+REJECT_KINDS = (
+    "garbage",
+    "bad_crc",
+    "truncated",
+    "unknown_id",
+    "mavlink1",
+    "bad_flags",
+    "other_target",
+    "nonfinite",
+    "bad_quaternion",
+    "thrust_range",
+    "bad_param",
+)
+
+_V2_HEADER = 10
+_V1_HEADER = 6
+
+
+class RejectCounters:
+    """Counts rejected input by kind; logs one warning per kind at most once per wall second."""
+
+    def __init__(self) -> None:
+        self.counts: dict[str, int] = dict.fromkeys(REJECT_KINDS, 0)
+        self._last_log: dict[str, float] = {}
+
+    def reject(self, kind: str, detail: str = "") -> None:
+        """Count one rejected input of ``kind`` (one of :data:`REJECT_KINDS`)."""
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+        now = time.monotonic()
+        if now - self._last_log.get(kind, -1e9) >= 1.0:
+            self._last_log[kind] = now
+            log.warning("rejected input (%s, %d so far)%s", kind, self.counts[kind], f": {detail}" if detail else "")
+
+    @property
+    def total(self) -> int:
+        """All rejections so far."""
+        return sum(self.counts.values())
+
+
+class _Writer:
+    """The ``file`` object pymavlink's MAVLink writes packed frames to: sends to the link's remote."""
+
+    def __init__(self, link: MavUdpLink) -> None:
+        self._link = link
+
+    def write(self, buf: bytes) -> None:
+        self._link.send_bytes(buf)
+
+
+class MavUdpLink(asyncio.DatagramProtocol):
+    """A UDP MAVLink 2 endpoint: ``link.mav`` sends as the vehicle; ``link.sender(sys, comp)`` as others.
+
+    ``on_message(link, msg)`` is called for every decoded message, in arrival order.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        remote: tuple[str, int],
+        sysid: int,
+        compid: int,
+        counters: RejectCounters,
+        on_message: Callable[[MavUdpLink, mavlink2.MAVLink_message], None],
+    ) -> None:
+        self.name = name
+        self.remote = remote
+        self.counters = counters
+        self.on_message = on_message
+        self.transport: asyncio.DatagramTransport | None = None
+        self.mav = self.sender(sysid, compid)
+        self.rx_messages = 0
+        self.scheduler: Any = None  # the vehicle's per-link telemetry schedule (rates are per link, as PX4)
+        self.tx_errors = 0
+
+    def sender(self, sysid: int, compid: int) -> mavlink2.MAVLink:
+        """A pymavlink ``MAVLink`` encoder with its own sequence numbers that writes to this link."""
+        mav = mavlink2.MAVLink(_Writer(self), srcSystem=sysid, srcComponent=compid)
+        return mav
+
+    # asyncio callbacks -------------------------------------------------------------------------------
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport  # type: ignore[assignment]
+
+    def error_received(self, exc: Exception) -> None:
+        # e.g. ICMP port unreachable when nobody listens on the remote: normal for a SITL
+        self.tx_errors += 1
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.remote = (addr[0], addr[1])
+        for msg in self._frames(data):
+            self.rx_messages += 1
+            try:
+                self.on_message(self, msg)
+            except Exception:  # a handler bug must not kill the vehicle; say it loudly
+                log.exception("error while handling %s", msg.get_type())
+
+    # sending ------------------------------------------------------------------------------------------
+    def send_bytes(self, buf: bytes) -> None:
+        """Send raw bytes to the current remote (silently dropped before the socket exists)."""
+        if self.transport is not None:
+            try:
+                self.transport.sendto(bytes(buf), self.remote)
+            except OSError:
+                self.tx_errors += 1
+
+    # framing ------------------------------------------------------------------------------------------
+    def _frames(self, data: bytes) -> list[mavlink2.MAVLink_message]:
+        out: list[mavlink2.MAVLink_message] = []
+        i = 0
+        n = len(data)
+        garbage = False
+        while i < n:
+            b = data[i]
+            if b != mavlink2.PROTOCOL_MARKER_V2 and b != mavlink2.PROTOCOL_MARKER_V1:
+                garbage = True
+                i += 1
+                continue
+            if i + 3 > n:
+                self.counters.reject("truncated", f"{n - i} bytes of header from {self.name}")
+                break
+            plen = data[i + 1]
+            if b == mavlink2.PROTOCOL_MARKER_V1:
+                total = _V1_HEADER + plen + 2
+                if i + total > n:
+                    self.counters.reject("truncated", f"MAVLink 1 frame cut short on {self.name}")
+                    break
+                self.counters.reject("mavlink1", f"MAVLink 1 frame on {self.name} (MAVLink 2 only)")
+                i += total
+                continue
+            flags = data[i + 2]
+            total = _V2_HEADER + plen + 2 + (13 if flags & mavlink2.MAVLINK_IFLAG_SIGNED else 0)
+            if i + total > n:
+                self.counters.reject("truncated", f"frame needs {total} bytes, {n - i} left on {self.name}")
+                break
+            frame = bytearray(data[i : i + total])
+            i += total
+            if flags != 0:
+                self.counters.reject("bad_flags", f"incompat_flags 0x{flags:02x} (signing not supported)")
+                continue
+            try:
+                msg = self.mav.decode(frame)
+            except Exception as exc:  # MAVError, struct.error, ...: never fatal
+                self.counters.reject("bad_crc", f"{exc} on {self.name}")
+                continue
+            if isinstance(msg, mavlink2.MAVLink_unknown) or msg.get_type() == "BAD_DATA":
+                self.counters.reject("unknown_id", f"message id {msg.get_msgId()} on {self.name}")
+                continue
+            out.append(msg)
+        if garbage:
+            self.counters.reject("garbage", f"bytes outside MAVLink frames on {self.name}")
+        return out
+
+
+async def open_link(
+    name: str,
+    bind: tuple[str, int],
+    remote: tuple[str, int],
+    sysid: int,
+    compid: int,
+    counters: RejectCounters,
+    on_message: Callable[[MavUdpLink, mavlink2.MAVLink_message], None],
+) -> MavUdpLink:
+    """Bind a UDP socket at ``bind`` and return the link (raises OSError if the port is taken)."""
+    loop = asyncio.get_running_loop()
+    _, proto = await loop.create_datagram_endpoint(
+        lambda: MavUdpLink(name, remote, sysid, compid, counters, on_message), local_addr=bind
+    )
+    return proto

@@ -1,0 +1,194 @@
+"""What the bundled vehicle sends, how often (simulated time), and how each message is packed.
+
+Rates are kept per message id in integer microseconds of simulated time, so lockstep runs are exact.
+``set_interval`` follows MAV_CMD_SET_MESSAGE_INTERVAL: -1 disables, 0 restores the default, > 0 sets µs.
+Every message carries simulated time (time_boot_ms / time_usec).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from sim_bridge.position_hold import quat_from_euler
+
+MSG_HEARTBEAT = mavlink2.MAVLINK_MSG_ID_HEARTBEAT
+MSG_SYS_STATUS = mavlink2.MAVLINK_MSG_ID_SYS_STATUS
+MSG_SYSTEM_TIME = mavlink2.MAVLINK_MSG_ID_SYSTEM_TIME
+MSG_ATTITUDE = mavlink2.MAVLINK_MSG_ID_ATTITUDE
+MSG_ATTITUDE_QUATERNION = mavlink2.MAVLINK_MSG_ID_ATTITUDE_QUATERNION
+MSG_LOCAL_POSITION_NED = mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+MSG_GLOBAL_POSITION_INT = mavlink2.MAVLINK_MSG_ID_GLOBAL_POSITION_INT
+MSG_ATTITUDE_TARGET = mavlink2.MAVLINK_MSG_ID_ATTITUDE_TARGET
+MSG_EXTENDED_SYS_STATE = mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE
+MSG_AUTOPILOT_VERSION = mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+MSG_DEBUG_FLOAT_ARRAY = mavlink2.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY
+MSG_PROTOCOL_VERSION = 300  # not in pymavlink's common dialect; packed by ProtocolVersionMessage
+
+SWING_NAME = b"SWING"
+SWING_ARRAY_ID = 1
+
+CAPABILITIES = (
+    mavlink2.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+)
+SW_VERSION = (0 << 24) | (1 << 16) | (0 << 8) | 255  # slungpilot 0.1.0, release
+
+_WGS84_A = 6378137.0
+_WGS84_E2 = 6.69437999014e-3
+
+
+def default_intervals_us(control_period_us: int) -> dict[int, int]:
+    """Default telemetry intervals (µs of simulated time) of the vehicle system."""
+    return {
+        MSG_HEARTBEAT: 1_000_000,
+        MSG_SYS_STATUS: 1_000_000,
+        MSG_ATTITUDE: 10_000,
+        MSG_ATTITUDE_QUATERNION: 20_000,
+        MSG_LOCAL_POSITION_NED: 20_000,
+        MSG_GLOBAL_POSITION_INT: 20_000,
+        MSG_EXTENDED_SYS_STATE: 200_000,
+        MSG_ATTITUDE_TARGET: 20_000,
+        MSG_DEBUG_FLOAT_ARRAY: control_period_us,
+    }
+
+
+class RateScheduler:
+    """Which messages are due at a simulated time; intervals in µs, 0 = disabled."""
+
+    def __init__(self, defaults_us: dict[int, int]) -> None:
+        self.defaults_us = dict(defaults_us)
+        self.intervals_us = dict(defaults_us)
+        self._next_us: dict[int, int] = dict.fromkeys(defaults_us, 0)
+
+    def set_interval(self, msgid: int, interval_us: float, now_us: int) -> bool:
+        """MAV_CMD_SET_MESSAGE_INTERVAL semantics; returns False for a message this vehicle cannot stream."""
+        if msgid not in self.defaults_us and msgid not in _STREAMABLE:
+            return False
+        if interval_us < 0:
+            self.intervals_us[msgid] = 0
+        elif interval_us == 0:
+            self.intervals_us[msgid] = self.defaults_us.get(msgid, 0)
+        else:
+            self.intervals_us[msgid] = max(1, int(interval_us))
+        self._next_us[msgid] = now_us
+        return True
+
+    def due(self, now_us: int) -> list[int]:
+        """Message ids due at ``now_us`` (each at most once per call; no catch-up bursts)."""
+        out = []
+        for msgid, iv in self.intervals_us.items():
+            if iv <= 0 or self._next_us.get(msgid, 0) > now_us:
+                continue
+            out.append(msgid)
+            nxt = self._next_us.get(msgid, 0) + iv
+            self._next_us[msgid] = nxt if nxt > now_us else now_us + iv
+        return out
+
+
+def ned_to_geodetic(ned_m: np.ndarray, lat0_deg: float, lon0_deg: float, alt0_m: float) -> tuple[float, float, float]:
+    """Latitude, longitude (deg) and altitude AMSL (m) of a NED offset from home (WGS-84 local radii)."""
+    lat0 = math.radians(lat0_deg)
+    s2 = math.sin(lat0) ** 2
+    r_n = _WGS84_A * (1.0 - _WGS84_E2) / (1.0 - _WGS84_E2 * s2) ** 1.5  # meridian radius
+    r_e = _WGS84_A / math.sqrt(1.0 - _WGS84_E2 * s2)  # prime vertical radius
+    lat = lat0_deg + math.degrees(float(ned_m[0]) / (r_n + alt0_m))
+    lon = lon0_deg + math.degrees(float(ned_m[1]) / ((r_e + alt0_m) * math.cos(lat0)))
+    return lat, lon, alt0_m - float(ned_m[2])
+
+
+class ProtocolVersionMessage(mavlink2.MAVLink_message):
+    """PROTOCOL_VERSION (id 300), missing from pymavlink's common dialect; CRC extra 217."""
+
+    id = MSG_PROTOCOL_VERSION
+    msgname = "PROTOCOL_VERSION"
+    crc_extra = 217
+
+    def __init__(self, version: int, min_version: int, max_version: int) -> None:
+        mavlink2.MAVLink_message.__init__(self, self.id, self.msgname)
+        self.version, self.min_version, self.max_version = version, min_version, max_version
+
+    def pack(self, mav: Any, force_mavlink1: bool = False) -> bytes:
+        payload = np.array([self.version, self.min_version, self.max_version], "<u2").tobytes() + bytes(16)
+        return self._pack(mav, self.crc_extra, payload, force_mavlink1=False)
+
+
+def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any) -> bool:
+    """Send one message of the vehicle system, ``v`` being the running vehicle; False if unknown here."""
+    sim = v.sim
+    t_ms = v.t_us // 1000
+    if msgid == MSG_HEARTBEAT:
+        mav.heartbeat_send(
+            mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_PX4, v.base_mode, v.mode.custom_mode,
+            mavlink2.MAV_STATE_ACTIVE if v.armed else mavlink2.MAV_STATE_STANDBY,
+        )
+    elif msgid == MSG_SYS_STATUS:
+        sensors = 0x3FFFFF & ~(0x20000 | 0x10000 | 0x100 | 0x80)  # no RC, no laser, no optical flow, no vision
+        mav.sys_status_send(sensors, sensors, sensors, 0, 16000, -1, 100, 0, min(v.counters.total, 65535),
+                            0, 0, 0, 0)
+    elif msgid == MSG_SYSTEM_TIME:
+        mav.system_time_send(0, t_ms & 0xFFFFFFFF)
+    elif msgid == MSG_ATTITUDE:
+        e = sim.euler_rad
+        w = sim.body_rates_frd_rad_s
+        mav.attitude_send(t_ms, e[0], e[1], e[2], w[0], w[1], w[2])
+    elif msgid == MSG_ATTITUDE_QUATERNION:
+        q = sim.quat_wxyz
+        w = sim.body_rates_frd_rad_s
+        mav.attitude_quaternion_send(t_ms, q[0], q[1], q[2], q[3], w[0], w[1], w[2])
+    elif msgid == MSG_LOCAL_POSITION_NED:
+        p, vel = sim.pos_ned_m, sim.vel_ned_mps
+        mav.local_position_ned_send(t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
+    elif msgid == MSG_GLOBAL_POSITION_INT:
+        _send_global(mav, t_ms, sim.pos_ned_m, sim.vel_ned_mps, float(sim.euler_rad[2]), v.home)
+    elif msgid == MSG_ATTITUDE_TARGET:
+        q = quat_from_euler(*sim.target_euler_rad)
+        r = sim.target_rates_frd_rad_s if sim.target_rates_frd_rad_s is not None else np.zeros(3)
+        mav.attitude_target_send(t_ms, 0, q, r[0], r[1], r[2], v.normalized_thrust(sim.target_thrust_n))
+    elif msgid == MSG_EXTENDED_SYS_STATE:
+        mav.extended_sys_state_send(mavlink2.MAV_VTOL_STATE_UNDEFINED, v.landed_state)
+    elif msgid == MSG_DEBUG_FLOAT_ARRAY:
+        s = sim.swing
+        data = [float(s[0]), float(s[1]), float(s[2]), float(s[3]), float(sim.params.l)] + [0.0] * 53
+        mav.debug_float_array_send(v.t_us, SWING_NAME, SWING_ARRAY_ID, data)
+    elif msgid == MSG_AUTOPILOT_VERSION:
+        mav.autopilot_version_send(CAPABILITIES, SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
+                                   v.sysid)
+    elif msgid == MSG_PROTOCOL_VERSION:
+        mav.send(ProtocolVersionMessage(200, 100, 200))
+    else:
+        return False
+    return True
+
+
+def send_payload_messages(mav: mavlink2.MAVLink, v: Any, heartbeat: bool) -> None:
+    """The payload system's HEARTBEAT (if ``heartbeat``), GLOBAL_POSITION_INT and LOCAL_POSITION_NED."""
+    sim = v.sim
+    t_ms = v.t_us // 1000
+    if heartbeat:
+        mav.heartbeat_send(mavlink2.MAV_TYPE_GENERIC, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, mavlink2.MAV_STATE_ACTIVE)
+    p, vel = sim.payload_pos_ned_m, sim.payload_vel_ned_mps
+    _send_global(mav, t_ms, p, vel, 0.0, v.home)
+    mav.local_position_ned_send(t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
+
+
+def _send_global(mav, t_ms: int, p, vel, yaw_rad: float, home: tuple[float, float, float]) -> None:
+    lat, lon, alt = ned_to_geodetic(p, *home)
+    hdg = round(math.degrees(yaw_rad) * 100.0) % 36000
+    mav.global_position_int_send(
+        t_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0),
+        round(-float(p[2]) * 1000.0),
+        _i16(vel[0] * 100.0), _i16(vel[1] * 100.0), _i16(vel[2] * 100.0), hdg,
+    )
+
+
+def _i16(x: float) -> int:
+    return int(max(-32768, min(32767, round(float(x)))))
+
+
+_STREAMABLE = {MSG_SYSTEM_TIME, MSG_AUTOPILOT_VERSION}

@@ -1,0 +1,457 @@
+"""The bundled SITL vehicle: VehicleSim physics behind two PX4-like MAVLink 2 UDP links.
+
+Owns flight modes, the offboard rule, arming, land detection, telemetry scheduling and the two clocks:
+real time (physics on a monotonic wall clock) and lockstep (one control period per SET_ATTITUDE_TARGET
+from the onboard link, then the due telemetry, then SYSTEM_TIME as end-of-step marker). See docs/sitl.md.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import dataclasses
+import logging
+import math
+import signal
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.model import VehicleParams
+from companion.wind import WindConfig
+from sim_bridge import commands, px4_modes, telemetry
+from sim_bridge.link import MavUdpLink, RejectCounters, open_link
+from sim_bridge.params import build_param_table, gains_from_params
+from sim_bridge.physics import InnerLoopGains, RotorConfig, VehicleSim
+from sim_bridge.position_hold import PositionHoldGains, position_hold_target
+
+log = logging.getLogger(__name__)
+M = mavlink2
+
+DISARM_LAND_S = 2.0  # PX4's COM_DISARM_LAND: disarm after this long on the ground after a flight
+MARKER_RESEND_S = 0.2  # lockstep: re-send SYSTEM_TIME after this much wall time without an answer
+TAKEOFF_DONE_M = 0.15  # AUTO.TAKEOFF switches to AUTO.LOITER within this distance of the takeoff altitude
+
+
+@dataclass(frozen=True)
+class SitlConfig:
+    """Everything the vehicle needs to start (the CLI fills it from flags)."""
+
+    params: VehicleParams = field(default_factory=VehicleParams)
+    wind: WindConfig = field(default_factory=WindConfig)
+    rotor: RotorConfig = field(default_factory=RotorConfig)
+    lockstep: bool = False
+    control_period_us: int = 4000
+    physics_dt_us: int = 1000
+    thr_hover: float | None = None  # default 1 / thrust_to_weight
+    offboard_timeout_s: float = 0.5
+    takeoff_alt_m: float = 2.5
+    home: tuple[float, float, float] = (47.397742, 8.545594, 488.0)
+    onboard_bind: tuple[str, int] = ("127.0.0.1", 14580)
+    onboard_remote: tuple[str, int] = ("127.0.0.1", 14540)
+    gcs_bind: tuple[str, int] = ("127.0.0.1", 18570)
+    gcs_remote: tuple[str, int] = ("127.0.0.1", 14550)
+    sysid: int = 1
+    compid: int = M.MAV_COMP_ID_AUTOPILOT1
+    payload_sysid: int = 2
+    payload_compid: int = M.MAV_COMP_ID_AUTOPILOT1
+    payload_interval_us: int = 100_000
+    duration_s: float | None = None
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` for inconsistent settings."""
+        if self.control_period_us <= 0 or self.control_period_us % self.physics_dt_us:
+            raise ValueError("control_period_ms: must be a positive multiple of the 1 ms physics step")
+        for k in ("sysid", "payload_sysid"):
+            if not 1 <= getattr(self, k) <= 255:
+                raise ValueError(f"{k}: must be in 1..255")
+        if self.sysid == self.payload_sysid:
+            raise ValueError("payload_sysid: must differ from the vehicle's sysid")
+        if not 0.05 <= (self.thr_hover or 0.4) <= 0.95:
+            raise ValueError("thr_hover: must be in [0.05, 0.95]")
+
+
+class SitlVehicle:
+    """The running vehicle. Create, then ``await run()`` (returns the exit code)."""
+
+    def __init__(self, cfg: SitlConfig) -> None:
+        self.cfg = cfg
+        self.sysid = cfg.sysid
+        self.home = cfg.home
+        self.counters = RejectCounters()
+        self.params = build_param_table(
+            thr_hover=cfg.thr_hover or 1.0 / cfg.rotor.thrust_to_weight,
+            offboard_timeout_s=cfg.offboard_timeout_s, wind_model=cfg.wind.model, wind_scale=cfg.wind.scale,
+            payload_mass_kg=cfg.params.m, cable_length_m=cfg.params.l, takeoff_alt_m=cfg.takeoff_alt_m,
+            gains=InnerLoopGains(), counters=self.counters.counts,
+        )
+        self.params.on_change = self._param_changed
+        self.sim = self._new_sim(cfg.params, 0.0)
+        self.hold_gains = PositionHoldGains()
+        self.t_us = 0
+        self.mode = px4_modes.AUTO_LOITER
+        self.hold_pos_ned_m = np.zeros(3)
+        self.hold_yaw_rad = 0.0
+        self._sp_times_us: collections.deque[int] = collections.deque()
+        self._last_sp: tuple[np.ndarray | None, float | None, np.ndarray | None] | None = None
+        self._airborne = False
+        self._landed_since_us: int | None = None
+        self._next_payload_us = 0
+        self._payload_hb_count = 0
+        self._statustext_id = 0
+        self.onboard: MavUdpLink | None = None
+        self.gcs: MavUdpLink | None = None
+        self._payload_mavs: list = []
+        self._stop: asyncio.Event | None = None
+        self._last_marker_wall = 0.0
+        self._last_hb_wall = 0.0
+        self.steps = 0
+
+    # ------------------------------------------------------------------ construction helpers
+    def _new_sim(self, params: VehicleParams, t0_s: float) -> VehicleSim:
+        wind = WindConfig("paper" if self.params.value("SIM_WIND_MODEL") >= 0.5 else "none",
+                          self.params.value("SIM_WIND_SCALE"))
+        gains = gains_from_params(self.params, InnerLoopGains())
+        return VehicleSim(params, wind=wind, rotor=self.cfg.rotor, gains=gains,
+                          dt_s=self.cfg.physics_dt_us * 1e-6, t0_s=t0_s)
+
+    def _param_changed(self, prm) -> None:
+        if prm.name.startswith("SIM_WIND"):
+            self.sim.wind = WindConfig("paper" if self.params.value("SIM_WIND_MODEL") >= 0.5 else "none",
+                                       self.params.value("SIM_WIND_SCALE"))
+        elif prm.name.startswith("SMC_"):
+            try:
+                g = gains_from_params(self.params, self.sim.gains)
+                g.validate()
+                self.sim.gains = g
+            except ValueError as exc:
+                self.statustext(M.MAV_SEVERITY_WARNING, f"gains not applied: {exc}")
+
+    # ------------------------------------------------------------------ small views
+    @property
+    def armed(self) -> bool:
+        return bool(self.sim.armed)
+
+    @property
+    def base_mode(self) -> int:
+        b = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | M.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if self.mode.main in (px4_modes.MAIN_AUTO, px4_modes.MAIN_OFFBOARD):
+            b |= M.MAV_MODE_FLAG_GUIDED_ENABLED | M.MAV_MODE_FLAG_AUTO_ENABLED
+        if self.armed:
+            b |= M.MAV_MODE_FLAG_SAFETY_ARMED
+        return b
+
+    @property
+    def landed_state(self) -> int:
+        if self.sim.landed:
+            return M.MAV_LANDED_STATE_ON_GROUND
+        if self.mode == px4_modes.AUTO_TAKEOFF:
+            return M.MAV_LANDED_STATE_TAKEOFF
+        if self.mode == px4_modes.AUTO_LAND:
+            return M.MAV_LANDED_STATE_LANDING
+        return M.MAV_LANDED_STATE_IN_AIR
+
+    @property
+    def hover_thrust_n(self) -> float:
+        return self.sim.params.hover_thrust_n
+
+    def normalized_thrust(self, thrust_n: float) -> float:
+        """Newtons → PX4's normalized thrust (MPC_THR_HOVER at hover)."""
+        return thrust_n * self.params.value("MPC_THR_HOVER") / self.hover_thrust_n
+
+    def _links(self) -> list[MavUdpLink]:
+        return [lk for lk in (self.onboard, self.gcs) if lk is not None]
+
+    # ------------------------------------------------------------------ messages out
+    def statustext(self, severity: int, text: str) -> None:
+        """STATUSTEXT on both links (chunked by MAVLink 2's id/chunk_seq when longer than 50 chars)."""
+        log.info("STATUSTEXT: %s", text)
+        raw = text.encode("utf-8", errors="replace")
+        chunks = [raw[i : i + 50] for i in range(0, len(raw), 50)] or [b""]
+        self._statustext_id = self._statustext_id % 65535 + 1
+        sid = self._statustext_id if len(chunks) > 1 else 0
+        for lk in self._links():
+            for k, c in enumerate(chunks):
+                lk.mav.statustext_send(severity, c, sid, k)
+
+    def can_send(self, msgid: int) -> bool:
+        return msgid in telemetry.default_intervals_us(1) or msgid in (
+            telemetry.MSG_AUTOPILOT_VERSION, telemetry.MSG_PROTOCOL_VERSION, telemetry.MSG_SYSTEM_TIME)
+
+    def send_message(self, msgid: int, link: MavUdpLink) -> None:
+        telemetry.send_vehicle_message(msgid, link.mav, self)
+
+    def _send_due_telemetry(self) -> None:
+        hb = False
+        for lk in self._links():
+            for msgid in lk.scheduler.due(self.t_us):
+                telemetry.send_vehicle_message(msgid, lk.mav, self)
+                hb = hb or msgid == M.MAVLINK_MSG_ID_HEARTBEAT
+        if self.t_us >= self._next_payload_us:
+            self._next_payload_us += self.cfg.payload_interval_us
+            hb = self._payload_hb_count % max(1, 1_000_000 // self.cfg.payload_interval_us) == 0
+            self._payload_hb_count += 1
+            for pm in self._payload_mavs:
+                telemetry.send_payload_messages(pm, self, hb)
+        if hb:
+            self._last_hb_wall = time.monotonic()
+
+    # ------------------------------------------------------------------ arming and modes
+    def arm(self) -> tuple[int, str]:
+        if self.armed:
+            return commands.ACCEPTED, ""
+        if self.mode == px4_modes.OFFBOARD and not self._stream_ok():
+            return commands.DENIED, "Arming denied: no offboard setpoint stream"
+        self.sim.armed = True
+        self._airborne = not self.sim.landed
+        self._landed_since_us = None
+        if self.mode != px4_modes.OFFBOARD:
+            self._hold_here()
+        self.statustext(M.MAV_SEVERITY_INFO, "Armed")
+        return commands.ACCEPTED, ""
+
+    def disarm(self, force: bool = False) -> tuple[int, str]:
+        if not self.armed:
+            return commands.ACCEPTED, ""
+        if not self.sim.landed and not force:
+            return commands.DENIED, "Disarming denied: not landed (use force)"
+        self._do_disarm("Disarmed" + (" (forced)" if force else ""))
+        return commands.ACCEPTED, ""
+
+    def _do_disarm(self, why: str) -> None:
+        self.sim.armed = False
+        self._airborne = False
+        self._landed_since_us = None
+        self.statustext(M.MAV_SEVERITY_INFO, why)
+
+    def set_mode(self, mode: px4_modes.Px4Mode) -> tuple[int, str]:
+        if mode not in px4_modes.SUPPORTED_MODES:
+            return commands.DENIED, f"Mode {mode.name} not supported by the SITL vehicle"
+        if mode == self.mode:
+            return commands.ACCEPTED, ""
+        if mode == px4_modes.OFFBOARD:
+            if not self._stream_ok():
+                return commands.DENIED, "Offboard denied: no setpoint stream (>2 Hz)"
+            if self._last_sp is not None:
+                self.sim.set_attitude_target(*self._sp_newtons(self._last_sp))
+        elif mode == px4_modes.AUTO_TAKEOFF:
+            self._hold_here()
+            self.hold_pos_ned_m[2] = -self.params.value("MIS_TAKEOFF_ALT")
+        elif mode != px4_modes.AUTO_LAND:
+            self._hold_here()
+        else:
+            self._hold_here()
+        self.mode = mode
+        self.statustext(M.MAV_SEVERITY_INFO, f"Mode: {mode.name}")
+        return commands.ACCEPTED, ""
+
+    def takeoff(self, alt_amsl_m: float) -> tuple[int, str]:
+        """MAV_CMD_NAV_TAKEOFF: climb to param7 (AMSL, NaN = MIS_TAKEOFF_ALT above home)."""
+        if not self.armed:
+            return commands.DENIED, "Takeoff denied: arm first"
+        alt = self.params.value("MIS_TAKEOFF_ALT")
+        if math.isfinite(alt_amsl_m) and alt_amsl_m > self.home[2]:
+            alt = alt_amsl_m - self.home[2]
+        res, why = self.set_mode(px4_modes.AUTO_TAKEOFF)
+        if res == commands.ACCEPTED:
+            self.hold_pos_ned_m[2] = -alt
+        return res, why
+
+    def reboot(self) -> tuple[int, str]:
+        if self.armed:
+            return commands.DENIED, "Reboot denied: disarm first"
+        p = dataclasses.replace(self.sim.params, m=self.params.value("SIM_PLD_MASS"),
+                                l=self.params.value("SIM_CABLE_LEN"))
+        self.sim = self._new_sim(p, self.t_us * 1e-6)
+        self.mode = px4_modes.AUTO_LOITER
+        self._hold_here()
+        return commands.ACCEPTED, f"Rebooted: payload {p.m:g} kg, cable {p.l:g} m"
+
+    def _hold_here(self) -> None:
+        self.hold_pos_ned_m = self.sim.pos_ned_m
+        self.hold_yaw_rad = float(self.sim.euler_rad[2])
+
+    # ------------------------------------------------------------------ offboard setpoints
+    def _stream_ok(self) -> bool:
+        now = self.t_us
+        while self._sp_times_us and self._sp_times_us[0] < now - 1_000_000:
+            self._sp_times_us.popleft()
+        recent = len(self._sp_times_us) > 2
+        fresh = bool(self._sp_times_us) and now - self._sp_times_us[-1] <= self._timeout_us()
+        return recent and fresh
+
+    def _timeout_us(self) -> int:
+        return round(self.params.value("COM_OF_LOSS_T") * 1e6)
+
+    def _sp_newtons(self, sp):
+        q, n, rates = sp
+        t = None if n is None else n * self.hover_thrust_n / self.params.value("MPC_THR_HOVER")
+        return q, t, rates
+
+    def on_attitude_target(self, link: MavUdpLink, msg) -> None:
+        kind, q, rates, thrust = commands.parse_attitude_target(msg)
+        if kind is not None:
+            self.counters.reject(kind, "SET_ATTITUDE_TARGET")
+            return
+        if q is not None or rates is not None or thrust is not None:
+            self._sp_times_us.append(self.t_us)
+            if len(self._sp_times_us) > 4096:
+                self._sp_times_us.popleft()
+            self._last_sp = (q, thrust, rates)
+            if self.mode == px4_modes.OFFBOARD:
+                self.sim.set_attitude_target(*self._sp_newtons(self._last_sp))
+        if self.cfg.lockstep and link is self.onboard:
+            self.advance()
+            self._send_marker()
+
+    # ------------------------------------------------------------------ one control period
+    def advance(self) -> None:
+        """Fly one control period: internal controller, physics, mode logic, due telemetry."""
+        sim = self.sim
+        if self.mode != px4_modes.OFFBOARD and sim.armed:
+            self._internal_control()
+        sim.step(self.cfg.control_period_us // self.cfg.physics_dt_us)
+        self.t_us += self.cfg.control_period_us
+        self.steps += 1
+        self._after_step()
+        self._send_due_telemetry()
+        if self.cfg.duration_s is not None and self.t_us >= self.cfg.duration_s * 1e6 and self._stop:
+            self._stop.set()
+
+    def _internal_control(self) -> None:
+        sim = self.sim
+        target = self.hold_pos_ned_m.copy()
+        descent = None
+        if self.mode == px4_modes.AUTO_LAND:
+            target[2] = sim.pos_ned_m[2] + 5.0
+            descent = 0.7
+        q, thrust = position_hold_target(sim.pos_ned_m, sim.vel_ned_mps, target, self.hold_yaw_rad,
+                                         sim.params.total_mass, sim.params.g, self.hold_gains, descent)
+        if sim.landed and (self.mode == px4_modes.AUTO_LAND or target[2] > -0.3):
+            thrust = 0.5 * self.hover_thrust_n  # idle on the ground: no hopping
+        sim.set_attitude_target(q, thrust)
+
+    def _after_step(self) -> None:
+        sim = self.sim
+        if self.mode == px4_modes.OFFBOARD and (
+            not self._sp_times_us or self.t_us - self._sp_times_us[-1] > self._timeout_us()
+        ):
+            self._hold_here()
+            self.mode = px4_modes.POSCTL
+            self.statustext(M.MAV_SEVERITY_WARNING, "Offboard setpoints lost: switching to POSCTL hold")
+        if self.mode == px4_modes.AUTO_TAKEOFF and sim.armed and abs(
+            sim.pos_ned_m[2] - self.hold_pos_ned_m[2]) < TAKEOFF_DONE_M:
+            self.mode = px4_modes.AUTO_LOITER
+            self.statustext(M.MAV_SEVERITY_INFO, "Takeoff done: AUTO.LOITER")
+        if not sim.armed:
+            return
+        if not sim.landed:
+            self._airborne = True
+            self._landed_since_us = None
+        elif self._airborne:
+            if self._landed_since_us is None:
+                self._landed_since_us = self.t_us
+            elif self.t_us - self._landed_since_us >= DISARM_LAND_S * 1e6:
+                self._do_disarm("Landing detected: disarmed")
+
+    # ------------------------------------------------------------------ incoming messages
+    def on_message(self, link: MavUdpLink, msg) -> None:
+        tgt = getattr(msg, "target_system", None)
+        if tgt is not None and tgt not in (0, self.sysid):
+            self.counters.reject("other_target", f"{msg.get_type()} for system {tgt}")
+            return
+        comp = getattr(msg, "target_component", None)
+        if comp is not None and comp not in (0, self.cfg.compid):
+            self.counters.reject("other_target", f"{msg.get_type()} for component {comp}")
+            return
+        t = msg.get_type()
+        if t == "SET_ATTITUDE_TARGET":
+            self.on_attitude_target(link, msg)
+        elif t == "COMMAND_LONG":
+            commands.handle_command(self, link, msg, is_int=False)
+        elif t == "COMMAND_INT":
+            commands.handle_command(self, link, msg, is_int=True)
+        elif t == "PARAM_REQUEST_LIST":
+            commands.handle_param_request_list(self, link)
+        elif t == "PARAM_REQUEST_READ":
+            commands.handle_param_request_read(self, link, msg)
+        elif t == "PARAM_SET":
+            commands.handle_param_set(self, link, msg)
+        elif t == "SET_MODE":
+            self.set_mode(px4_modes.Px4Mode.from_custom_mode(msg.custom_mode))
+        elif t == "TIMESYNC" and msg.tc1 == 0:
+            link.mav.timesync_send(self.t_us * 1000, msg.ts1)
+
+    # ------------------------------------------------------------------ clocks
+    def _send_marker(self) -> None:
+        if self.onboard is not None:
+            telemetry.send_vehicle_message(telemetry.MSG_SYSTEM_TIME, self.onboard.mav, self)
+        self._last_marker_wall = time.monotonic()
+
+    async def _lockstep_watchdog(self) -> None:
+        while True:
+            await asyncio.sleep(0.05)
+            now = time.monotonic()
+            if now - self._last_marker_wall >= MARKER_RESEND_S:
+                self._send_marker()
+            if now - self._last_hb_wall >= 1.0:
+                self._last_hb_wall = now
+                for lk in self._links():
+                    telemetry.send_vehicle_message(M.MAVLINK_MSG_ID_HEARTBEAT, lk.mav, self)
+
+    async def _realtime_loop(self) -> None:
+        period = self.cfg.control_period_us * 1e-6
+        t0 = time.monotonic()
+        done = 0
+        while True:
+            due = int((time.monotonic() - t0) / period)
+            if due - done > 50:  # far behind (machine stalled): skip ahead instead of racing
+                log.warning("real-time loop %d periods behind; skipping ahead", due - done)
+                t0 += (due - done - 1) * period
+                due = done + 1
+            while done < due:
+                self.advance()
+                done += 1
+            await asyncio.sleep(max(0.0, t0 + (done + 1) * period - time.monotonic()))
+
+    async def run(self, ready_cb=None) -> int:
+        """Bind both links, fly until SIGINT/SIGTERM or ``duration_s``; returns 0."""
+        cfg = self.cfg
+        self._stop = asyncio.Event()
+        warm = self._new_sim(self.sim.params, 0.0)  # load the compiled kernels before the clock starts
+        warm.armed = True
+        warm.step(2)
+        self.onboard = await open_link("onboard", cfg.onboard_bind, cfg.onboard_remote, cfg.sysid, cfg.compid,
+                                       self.counters, self.on_message)
+        self.gcs = await open_link("gcs", cfg.gcs_bind, cfg.gcs_remote, cfg.sysid, cfg.compid,
+                                   self.counters, self.on_message)
+        self.onboard.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us))
+        gcs_rates = telemetry.default_intervals_us(cfg.control_period_us)
+        gcs_rates[telemetry.MSG_DEBUG_FLOAT_ARRAY] = max(cfg.control_period_us, 100_000)
+        self.gcs.scheduler = telemetry.RateScheduler(gcs_rates)
+        self._payload_mavs = [lk.sender(cfg.payload_sysid, cfg.payload_compid) for lk in self._links()]
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(NotImplementedError, RuntimeError):  # not the main thread
+                loop.add_signal_handler(sig, self._stop.set)
+        if ready_cb is not None:
+            ready_cb(self)
+        self._send_due_telemetry()
+        if cfg.lockstep:
+            self._send_marker()
+            task = asyncio.create_task(self._lockstep_watchdog())
+        else:
+            task = asyncio.create_task(self._realtime_loop())
+        try:
+            await self._stop.wait()
+        finally:
+            task.cancel()
+            for lk in self._links():
+                if lk.transport is not None:
+                    lk.transport.close()
+        log.info("stopped at t = %.3f s sim after %d control periods; rejected %s", self.t_us * 1e-6,
+                 self.steps, {k: v for k, v in self.counters.counts.items() if v})
+        return 0
