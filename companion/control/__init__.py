@@ -1,0 +1,26 @@
+"""Controllers by name (``smc_ff``, ``smc``, ``pid``), attitude/thrust from force, and their gains."""
+
+from companion.control.attitude import attitude_from_force, limit_force
+from companion.control.params import ControllerConfig, load_controller_config
+from companion.control.position import (
+    PositionOutput,
+    SwingAccelEstimator,
+    feedforward_acc,
+    make_position_controller,
+    payload_reaction_n,
+)
+
+CONTROLLER_NAMES = ("smc_ff", "smc", "pid")
+
+__all__ = [
+    "CONTROLLER_NAMES",
+    "ControllerConfig",
+    "PositionOutput",
+    "SwingAccelEstimator",
+    "attitude_from_force",
+    "feedforward_acc",
+    "limit_force",
+    "load_controller_config",
+    "make_position_controller",
+    "payload_reaction_n",
+]

@@ -1,0 +1,137 @@
+"""Controller gains and limits (tables of ``config/controller.toml``), SI units, per axis [x, y, z] NED."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from pathlib import Path
+
+from companion.config import dataclass_from_table, read_toml
+from companion.errors import ConfigError
+from companion.planning.params import PlannerParams
+
+Vec3 = tuple[float, float, float]
+
+
+def _check_positive(obj: object, allow_zero: tuple[str, ...] = ()) -> None:
+    for f in fields(obj):  # type: ignore[arg-type]
+        v = getattr(obj, f.name)
+        vals = v if isinstance(v, tuple) else (v,)
+        for x in vals:
+            if not math.isfinite(x):
+                raise ValueError(f"{f.name}: must be finite, got {v}")
+            if x < 0.0 or (x == 0.0 and f.name not in allow_zero):
+                raise ValueError(f"{f.name}: must be {'>= 0' if f.name in allow_zero else '> 0'}, got {v}")
+
+
+@dataclass(frozen=True)
+class SmcGains:
+    """Position SMC, eqs. 30–37: S = c·e + ė; F = m_tot·(c·ė + r̈ + k·S) − f + k_sat·sat(S/Δ).
+
+    c (1/s), k (1/s), k_sat (N, >= wind bound λ), boundary Δ (m/s) — per axis x, y, z.
+    """
+
+    c: Vec3 = (1.6, 1.6, 2.0)
+    k: Vec3 = (2.5, 2.5, 3.0)
+    k_sat: Vec3 = (0.6, 0.6, 0.8)
+    boundary: Vec3 = (0.3, 0.3, 0.3)
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` for non-positive gains."""
+        _check_positive(self, allow_zero=("k_sat",))
+
+
+@dataclass(frozen=True)
+class FeedForwardGains:
+    """Anti-swing feed-forward (eq. 48 plus swing angle and rate terms), added to the commanded acceleration.
+
+    u_x = +l·(k_angle·α + k_rate·α̇ − a1·α̈), u_y = −l·(k_angle·β + k_rate·β̇ − a2·β̈),
+    u_z = −l·a3·(α̈ + β̈) (m/s², NED); signs derived in :mod:`companion.control.position`.
+    a1, a2, a3 dimensionless (eq. 48), k_angle in 1/s², k_rate in 1/s; ``rate_filter_s`` is the time
+    constant of the filtered derivative that estimates α̈, β̈.
+    """
+
+    a1: float = 0.1
+    a2: float = 0.1
+    a3: float = 0.0
+    k_angle: float = 8.0
+    k_rate: float = 1.9
+    rate_filter_s: float = 0.02
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` for negative gains or a1, a2 >= 0.5 (algebraic loop gain)."""
+        _check_positive(self, allow_zero=("a1", "a2", "a3", "k_angle", "k_rate"))
+        for key in ("a1", "a2", "a3"):
+            if getattr(self, key) >= 0.5:
+                raise ValueError(f"{key}: must be < 0.5 (α̈ depends on the acceleration it commands), got "
+                                 f"{getattr(self, key)}")
+
+
+@dataclass(frozen=True)
+class PidGains:
+    """Cascade PID baseline: v_sp = ṙ + kp·e; a = r̈ + kv·(v_sp − v) + ki·∫(v_sp − v) (per axis)."""
+
+    kp: Vec3 = (1.2, 1.2, 1.5)
+    kv: Vec3 = (2.5, 2.5, 3.0)
+    ki: Vec3 = (0.3, 0.3, 0.5)
+    i_limit_mps2: float = 2.0
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` for negative gains."""
+        _check_positive(self, allow_zero=("ki",))
+
+
+@dataclass(frozen=True)
+class LimitGains:
+    """Output limits: max tilt (rad), thrust range as fractions of hover thrust, max acceleration (m/s²)."""
+
+    tilt_max_rad: float = 0.6
+    thrust_min_frac: float = 0.2
+    thrust_max_frac: float = 2.2
+    acc_max_mps2: float = 6.0
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` for values outside their physical range."""
+        _check_positive(self)
+        if self.tilt_max_rad >= 1.4:
+            raise ValueError(f"tilt_max_rad: must be < 1.4 rad, got {self.tilt_max_rad}")
+        if self.thrust_min_frac >= 1.0 or self.thrust_max_frac <= 1.0:
+            raise ValueError("thrust_max_frac: thrust range must contain hover (min < 1 < max)")
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Every tunable of the flight core, as loaded from ``config/controller.toml``."""
+
+    smc: SmcGains = SmcGains()
+    feedforward: FeedForwardGains = FeedForwardGains()
+    pid: PidGains = PidGains()
+    limits: LimitGains = LimitGains()
+    planner: PlannerParams = PlannerParams()
+
+
+_TABLES = {
+    "smc": SmcGains,
+    "feedforward": FeedForwardGains,
+    "pid": PidGains,
+    "limits": LimitGains,
+    "planner": PlannerParams,
+}
+
+DEFAULT_CONTROLLER_TOML = Path(__file__).resolve().parents[2] / "config" / "controller.toml"
+
+
+def load_controller_config(path: str | Path | None = None) -> ControllerConfig:
+    """Load gains from a TOML file (default ``config/controller.toml``); missing tables/keys keep defaults.
+
+    Raises :class:`ConfigError` naming file, table and key for unknown keys, wrong types or bad values.
+    """
+    p = Path(path) if path is not None else DEFAULT_CONTROLLER_TOML
+    data = read_toml(p)
+    unknown = sorted(set(data) - set(_TABLES))
+    if unknown:
+        raise ConfigError(f"{p}: unknown table {unknown[0]!r} (known: {', '.join(_TABLES)})")
+    parts = {
+        name: dataclass_from_table(cls, data.get(name, {}), where=f"{p}: [{name}]") for name, cls in _TABLES.items()
+    }
+    return ControllerConfig(**parts)

@@ -1,0 +1,205 @@
+"""Position controllers: sliding-mode (eqs. 30–37) with payload reaction and anti-swing feed-forward, PID.
+
+Every controller returns the desired thrust force F (NED, N) that :mod:`companion.control.attitude`
+turns into attitude and thrust. Position dynamics (eq. 29, NED, z down):
+
+    (M+m)·ξ̈ = F + f + d + (M+m)·g·e_z,    f = −m·r̈,   r = l·[sα·cβ, −sβ, cα·cβ]  (payload offset)
+
+so f = −m·(J·s̈ + J̇·ṡ) with s = [α, β] — the payload's reaction on the airframe (f1–f3 of eq. 29, taken
+from the model's Lagrangian rather than the printed expressions). The SMC law (eqs. 32, 37) per axis:
+
+    S = c·e + ė,   F = (M+m)·(c·ė + r̈_ref + k·S + u_ff) + k_sat·sat(S/Δ) − f − (M+m)·g·e_z.
+
+Where and with which sign the feed-forward enters (the paper leaves it open). Linearising the swing
+equations around the hanging position with airframe acceleration a (the cable offset is r ≈ l·[α, −β, 1]):
+
+    l·α̈ = −g·α − a_x,     l·β̈ = −g·β + a_y.
+
+An acceleration a_x = +k_rate·l·α̇ alone gives l·α̈ + k_rate·l·α̇ + g·α = 0, damped for k_rate > 0; for β
+the sign flips, a_y = −k_rate·l·β̇. In words: the vehicle accelerates along the payload's motion relative
+to it, and towards the side the payload hangs out to (angle term). With the position loop closed around
+the same acceleration the rate term alone leaves the pendulum mode barely damped (the loop pulls the
+vehicle back), so we place the closed-loop poles with an angle term too: for the default SMC gains the
+linearised loop (x, ẋ, α, α̇) has every pole at Re <= −1.6 /s with k_angle ≈ 8 /s², k_rate ≈ 1.9 /s, a1 = 0.1.
+Eq. 48's term u1 = a1·α̈ enters with the opposite sign, acc_x −= l·a1·α̈: since l·α̈ ≈ −g·α − a_x it is
+an angle feedback a1·g·α plus an acceleration echo a1·a_x (loop gain a1 < 1, hence the a1 < 0.5 limit);
+entered with +, it destabilises the swing. u3 (vertical) does not couple to the swing at first order; its
+gain a3 defaults to 0. The feed-forward adds to the commanded acceleration before the mass multiplication
+(m/s²), so it passes the same limits as the rest of the command. A test flies both signs closed-loop
+(correct sign damps, flipped sign grows).
+
+The PID baseline (cascade: position P → velocity PI) ignores the payload completely.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.control.params import FeedForwardGains, PidGains, SmcGains
+from companion.model import VehicleParams
+
+
+@dataclass(frozen=True, slots=True)
+class PositionOutput:
+    """Desired thrust force (N, NED), commanded acceleration and feed-forward (m/s²), payload reaction (N),
+    sliding variable S (m/s)."""
+
+    force_ned_n: np.ndarray
+    acc_cmd_mps2: np.ndarray
+    ff_acc_mps2: np.ndarray
+    f_payload_n: np.ndarray
+    sliding: np.ndarray
+
+
+def payload_reaction_n(swing: np.ndarray, swing_acc: np.ndarray, m_kg: float, l_m: float) -> np.ndarray:
+    """f = −m·(J·s̈ + J̇·ṡ) (N, NED): the force the swinging payload exerts on the airframe beyond its weight.
+
+    swing = [α, β, α̇, β̇] (rad, rad/s), swing_acc = [α̈, β̈] (rad/s²).
+    """
+    al, be, dal, dbe = (float(v) for v in swing)
+    dda, ddb = (float(v) for v in swing_acc)
+    ca, sa, cb, sb = math.cos(al), math.sin(al), math.cos(be), math.sin(be)
+    j_s = l_m * np.array([ca * cb * dda - sa * sb * ddb, -cb * ddb, -sa * cb * dda - ca * sb * ddb])
+    jd_s = l_m * np.array(
+        [
+            -sa * cb * dal * dal - 2.0 * ca * sb * dal * dbe - sa * cb * dbe * dbe,
+            sb * dbe * dbe,
+            -ca * cb * (dal * dal + dbe * dbe) + 2.0 * sa * sb * dal * dbe,
+        ]
+    )
+    return -m_kg * (j_s + jd_s)
+
+
+def feedforward_acc(
+    swing: np.ndarray, swing_acc: np.ndarray, ff: FeedForwardGains, l_m: float, sign: float = 1.0
+) -> np.ndarray:
+    """Anti-swing acceleration (m/s², NED), see module docstring; ``sign`` −1 flips it (for the test)."""
+    al, be, dal, dbe = (float(v) for v in swing)
+    dda, ddb = (float(v) for v in swing_acc)
+    ux = ff.k_angle * al + ff.k_rate * dal - ff.a1 * dda
+    uy = -(ff.k_angle * be + ff.k_rate * dbe - ff.a2 * ddb)
+    uz = -ff.a3 * (dda + ddb)
+    return sign * l_m * np.array([ux, uy, uz])
+
+
+class SwingAccelEstimator:
+    """α̈, β̈ (rad/s²) by a first-order filtered derivative of the measured rates (time constant τ)."""
+
+    def __init__(self, tau_s: float) -> None:
+        self.tau_s = tau_s
+        self._last: np.ndarray | None = None
+        self._t = 0.0
+        self.value = np.zeros(2)
+
+    def update(self, t_s: float, rates: np.ndarray) -> np.ndarray:
+        """Feed [α̇, β̇] at time ``t_s``; returns the filtered [α̈, β̈]."""
+        r = np.asarray(rates, dtype=np.float64)
+        if self._last is not None:
+            dt = t_s - self._t
+            if dt > 0.0:
+                raw = (r - self._last) / dt
+                k = dt / (self.tau_s + dt)
+                self.value = self.value + k * (raw - self.value)
+        self._last = r.copy()
+        self._t = t_s
+        return self.value
+
+    def reset(self) -> None:
+        """Forget history (e.g. when the swing source drops out)."""
+        self._last = None
+        self.value = np.zeros(2)
+
+
+def _sat(x: np.ndarray, boundary: np.ndarray) -> np.ndarray:
+    return np.clip(x / boundary, -1.0, 1.0)
+
+
+def _limit_horizontal(a: np.ndarray, a_max: float) -> np.ndarray:
+    h = math.hypot(a[0], a[1])
+    if h > a_max:
+        a = a.copy()
+        a[:2] *= a_max / h
+    a[2] = min(max(a[2], -a_max), a_max)
+    return a
+
+
+class SmcPositionController:
+    """Sliding-mode position controller (eqs. 30–37); ``feedforward`` given = ``smc_ff``, None = ``smc``."""
+
+    def __init__(
+        self, gains: SmcGains, params: VehicleParams, feedforward: FeedForwardGains | None, acc_max_mps2: float
+    ) -> None:
+        self.gains = gains
+        self.params = params
+        self.ff = feedforward
+        self.ff_sign = 1.0  # −1 only to demonstrate the wrong sign in tests
+        self.acc_max = acc_max_mps2
+        self._c = np.array(gains.c)
+        self._k = np.array(gains.k)
+        self._ks = np.array(gains.k_sat)
+        self._bl = np.array(gains.boundary)
+
+    def update(
+        self, pos, vel, ref_pos, ref_vel, ref_acc, swing: np.ndarray | None, swing_acc: np.ndarray, dt_s: float
+    ) -> PositionOutput:
+        """One control step; arrays NED (3,), SI units. Without swing: no payload reaction, no FF."""
+        p = self.params
+        mt = p.M + p.m
+        e = np.asarray(ref_pos) - np.asarray(pos)
+        de = np.asarray(ref_vel) - np.asarray(vel)
+        s = self._c * e + de
+        if swing is not None:
+            f_pay = payload_reaction_n(swing, swing_acc, p.m, p.l)
+            ff = feedforward_acc(swing, swing_acc, self.ff, p.l, self.ff_sign) if self.ff is not None else np.zeros(3)
+        else:
+            f_pay = np.zeros(3)
+            ff = np.zeros(3)
+        acc = np.asarray(ref_acc) + self._c * de + self._k * s + ff
+        acc = _limit_horizontal(acc, self.acc_max)
+        force = mt * acc + self._ks * _sat(s, self._bl) - f_pay
+        force[2] -= mt * p.g
+        return PositionOutput(force, acc, ff, f_pay, s)
+
+
+class PidPositionController:
+    """Cascade PID baseline: position P → velocity PI with anti-windup clamp; no payload knowledge."""
+
+    def __init__(self, gains: PidGains, params: VehicleParams, acc_max_mps2: float) -> None:
+        self.gains = gains
+        self.params = params
+        self.acc_max = acc_max_mps2
+        self._kp = np.array(gains.kp)
+        self._kv = np.array(gains.kv)
+        self._ki = np.array(gains.ki)
+        self.integral = np.zeros(3)
+
+    def update(
+        self, pos, vel, ref_pos, ref_vel, ref_acc, swing: np.ndarray | None, swing_acc: np.ndarray, dt_s: float
+    ) -> PositionOutput:
+        """One control step (the swing arguments are ignored)."""
+        p = self.params
+        mt = p.M + p.m
+        v_sp = np.asarray(ref_vel) + self._kp * (np.asarray(ref_pos) - np.asarray(pos))
+        ev = v_sp - np.asarray(vel)
+        lim = self.gains.i_limit_mps2
+        self.integral = np.clip(self.integral + self._ki * ev * dt_s, -lim, lim)
+        acc = np.asarray(ref_acc) + self._kv * ev + self.integral
+        acc = _limit_horizontal(acc, self.acc_max)
+        force = mt * acc
+        force[2] -= mt * p.g
+        return PositionOutput(force, acc, np.zeros(3), np.zeros(3), ev)
+
+
+def make_position_controller(name: str, cfg, params: VehicleParams):
+    """``smc_ff`` | ``smc`` | ``pid`` from a :class:`~companion.control.params.ControllerConfig`."""
+    a_max = cfg.limits.acc_max_mps2
+    if name == "smc_ff":
+        return SmcPositionController(cfg.smc, params, cfg.feedforward, a_max)
+    if name == "smc":
+        return SmcPositionController(cfg.smc, params, None, a_max)
+    if name == "pid":
+        return PidPositionController(cfg.pid, params, a_max)
+    raise ValueError(f"controller: unknown controller {name!r} (known: smc_ff, smc, pid)")
