@@ -28,6 +28,18 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     raise SlungpilotError(f"bench target {args.target!r} is not available in this build")
 
 
+def _cmd_fly(args: argparse.Namespace) -> int:
+    from companion.fly import run_fly
+
+    return run_fly(args)
+
+
+def _cmd_sitl(args: argparse.Namespace) -> int:
+    from sim_bridge.cli import run_sitl
+
+    return run_sitl(args)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser with every subcommand; ``--help`` on each explains it."""
     parser = argparse.ArgumentParser(
@@ -39,6 +51,36 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    from companion.fly import add_fly_arguments
+
+    fly = sub.add_parser(
+        "fly",
+        help="fly a mission: plan around obstacles with the live swing envelope, stream SET_ATTITUDE_TARGET",
+        description=(
+            "Fly a mission file against an autopilot over MAVLink/UDP (PX4, ArduPilot) or, with --sitl, against "
+            "the bundled vehicle started on free local ports (lockstep: as fast as possible, deterministic). "
+            "Waits for the heartbeat, streams setpoints, arms, switches to OFFBOARD, climbs, flies to the goal, "
+            "holds, lands, and writes a run folder: report.json, plots, flight.tlog. Ctrl-C holds, lands and "
+            "still writes the report. Exit 0 when the goal was reached, 1 when not, 2 on a broken mission file."
+        ),
+    )
+    add_fly_arguments(fly)
+    fly.set_defaults(func=_cmd_fly)
+
+    from sim_bridge.cli import add_sitl_arguments
+
+    sitl = sub.add_parser(
+        "sitl",
+        help="run the bundled SITL vehicle (PX4-like MAVLink on UDP 14580/18570 → 14540/14550)",
+        description=(
+            "The bundled software-in-the-loop vehicle: flies the paper's quadrotor-payload model with its own "
+            "attitude loop and eq. 49 wind, and speaks MAVLink 2 like PX4's SITL (HEARTBEAT, telemetry, commands, "
+            "OFFBOARD via SET_ATTITUDE_TARGET, params). See docs/sitl.md for messages and the lockstep handshake."
+        ),
+    )
+    add_sitl_arguments(sitl)
+    sitl.set_defaults(func=_cmd_sitl)
 
     bench = sub.add_parser(
         "bench",

@@ -1,0 +1,369 @@
+"""The companion's flight application: asyncio around the pure flight core.
+
+Data flows one way, once per control tick::
+
+    MAVLink telemetry ─▶ VehicleState ─▶ Estimate ─▶ FlightCore (plan ▶ control) ─▶ SET_ATTITUDE_TARGET
+
+Two coroutines share the work inside a ``TaskGroup``:
+
+* the **tick loop** answers every control period with a setpoint. In real time it runs on a monotonic
+  schedule (deadlines ``t0 + k·period``, no drift; a tick that starts more than one period late is counted
+  as late and skipped deadlines are not made up). In lockstep it is driven by the vehicle's end-of-step
+  marker (``SYSTEM_TIME``): every new marker is answered by exactly one setpoint, which is what advances
+  simulated time.
+* the **sequencer** does what a pilot would, PX4's way: wait for the autopilot's HEARTBEAT, request the
+  message rates it needs, let setpoints stream for a second, arm, switch to OFFBOARD, fly the mission
+  (the flight core climbs, cruises and holds at the goal), then command AUTO.LAND and wait for landed and
+  disarmed. Ctrl-C (or :meth:`FlightApp.request_abort`) switches the vehicle to AUTO.LOITER (hold), lands
+  if asked, and ends the run; the caller then writes the report.
+
+Our own HEARTBEAT (MAV_TYPE_ONBOARD_CONTROLLER, component 191) goes out at 1 Hz.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.errors import LinkError
+from companion.estimate import Estimate
+from companion.flight_core import Command, FlightCore
+from companion.mavlink_io import MavlinkLink
+from companion.metrics import FlightLog
+from companion.mission import Mission
+from companion.model import payload_offset_ned_m
+from companion.obstacles import Obstacle
+from companion.profile import VehicleProfile
+from companion.rotations import quat_from_euler
+from companion.vehicle_state import VehicleState
+
+log = logging.getLogger(__name__)
+
+PX4_MAIN_AUTO, PX4_MAIN_POSCTL, PX4_MAIN_OFFBOARD = 4, 3, 6
+PX4_SUB_AUTO_LOITER, PX4_SUB_AUTO_LAND = 3, 6
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+# SET_ATTITUDE_TARGET type_mask: attitude + thrust used, body rates ignored
+ATT_TYPE_MASK = (
+    mavlink2.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
+    | mavlink2.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
+    | mavlink2.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE
+)
+
+
+class TelemetrySink(Protocol):
+    """Where the app publishes per-tick data (the Zenoh streams implement this)."""
+
+    def on_tick(self, est: Any, cmd: Command | None, app: FlightApp) -> None: ...
+
+
+@dataclass
+class FlyOptions:
+    """Everything a flight needs besides the mission itself."""
+
+    connect: str = "udpin://0.0.0.0:14540"
+    rate_hz: float = 250.0
+    lockstep: bool = False
+    profile: VehicleProfile | None = None
+    gains: Any = None
+    payload_sysid: int | None = 2
+    heartbeat_timeout_s: float = 20.0
+    prestream_s: float = 1.0
+    land_on_abort: bool = True
+    land_timeout_s: float = 30.0
+    tlog_path: Path | None = None
+    wall_timeout_s: float | None = None
+    obstacle_source: Callable[[float], Sequence[Obstacle]] | None = None
+    telemetry: TelemetrySink | None = None
+
+
+@dataclass
+class LoopStats:
+    """Tick timing: compute time per tick (receive → setpoint sent) and lateness in real time."""
+
+    ticks: int = 0
+    late_ticks: int = 0
+    tick_s: list[float] = field(default_factory=list)
+    jitter_s: list[float] = field(default_factory=list)
+
+    def summary(self) -> dict[str, float | int]:
+        """ticks, tick time p50/p99 (ms), late ticks, jitter p99 (ms)."""
+        t = np.array(self.tick_s) if self.tick_s else np.zeros(1)
+        j = np.array(self.jitter_s) if self.jitter_s else np.zeros(1)
+        return {
+            "ticks": self.ticks,
+            "tick_ms_p50": float(np.percentile(t, 50) * 1e3),
+            "tick_ms_p99": float(np.percentile(t, 99) * 1e3),
+            "tick_ms_max": float(t.max() * 1e3),
+            "late_ticks": self.late_ticks,
+            "jitter_ms_p99": float(np.percentile(np.abs(j), 99) * 1e3),
+        }
+
+
+class FlightApp:
+    """One mission flown over one MAVLink link. Use ``await app.run()``; then read ``app.log`` etc."""
+
+    def __init__(self, mission: Mission, opts: FlyOptions) -> None:
+        self.mission = mission
+        self.opts = opts
+        self.state = VehicleState(cable_length_m=mission.vehicle.l, payload_sysid=opts.payload_sysid)
+        self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path)
+        self.core = FlightCore(mission, gains=opts.gains, profile=opts.profile)
+        self.log = FlightLog(
+            planner=mission.planner, controller=mission.controller, mission=mission.name, obstacles=mission.obstacles
+        )
+        self.stats = LoopStats()
+        self.phase = "connect"
+        self.outcome = "running"
+        self.abort_reason: str | None = None
+        self.last_cmd: Command | None = None
+        self._marker = asyncio.Event()
+        self._last_marker_ms = -1
+        self._marker_seen_wall = 0.0
+        self._acks: dict[int, asyncio.Future] = {}
+        self._abort = asyncio.Event()
+        self._done = asyncio.Event()
+        self._core_active = False
+        self._hold_started_s: float | None = None
+        self._t_wall0 = time.monotonic()
+
+    # ------------------------------------------------------------------ input
+    def _on_message(self, msg: Any) -> None:
+        mtype = self.state.ingest(msg)
+        if mtype == "COMMAND_ACK" and msg.get_srcSystem() == self.state.vehicle_sysid:
+            fut = self._acks.get(int(msg.command))
+            if fut is not None and not fut.done():
+                fut.set_result(int(msg.result))
+        elif mtype == "SYSTEM_TIME" and msg.get_srcSystem() == self.state.vehicle_sysid:
+            now = time.monotonic()
+            # A repeated marker (same time) is the vehicle re-asking after a lost answer: answer again only
+            # if we have not answered for 0.5 s, so duplicates never double-step a lockstep simulation.
+            if msg.time_boot_ms != self._last_marker_ms or now - self._marker_seen_wall > 0.5:
+                self._last_marker_ms = msg.time_boot_ms
+                self._marker_seen_wall = now
+                self._marker.set()
+
+    # ------------------------------------------------------------------ public
+    def request_abort(self, reason: str = "operator abort (Ctrl-C)") -> None:
+        """Stop the mission: hold, land if configured, finish. Safe to call from a signal handler."""
+        if not self._abort.is_set():
+            log.warning("abort requested: %s", reason)
+            self.abort_reason = reason
+            self._abort.set()
+
+    async def run(self) -> str:
+        """Fly the mission; returns the outcome ("completed", "aborted", "timeout", "link_lost", ...)."""
+        async with self.link:
+            try:
+                async with asyncio.TaskGroup() as tg:
+                    tg.create_task(self._tick_loop())
+                    tg.create_task(self._heartbeat_loop())
+                    tg.create_task(self._sequencer())
+            except* LinkError as eg:
+                self.outcome = "link_error"
+                raise eg.exceptions[0] from None
+        return self.outcome
+
+    # ------------------------------------------------------------------ loops
+    async def _heartbeat_loop(self) -> None:
+        while not self._done.is_set():
+            if self.link.connected:
+                self.link.mav.heartbeat_send(
+                    mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0,
+                    mavlink2.MAV_STATE_ACTIVE,
+                )
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(1.0):
+                    await self._done.wait()
+
+    async def _tick_loop(self) -> None:
+        period = 1.0 / self.opts.rate_hz
+        loop = asyncio.get_running_loop()
+        t0 = loop.time()
+        k = 0
+        while not self._done.is_set():
+            if self.opts.lockstep:
+                waiter = asyncio.ensure_future(self._marker.wait())
+                done_w = asyncio.ensure_future(self._done.wait())
+                await asyncio.wait({waiter, done_w}, return_when=asyncio.FIRST_COMPLETED)
+                waiter.cancel()
+                done_w.cancel()
+                if self._done.is_set():
+                    break
+                self._marker.clear()
+            else:
+                k += 1
+                deadline = t0 + k * period
+                delay = deadline - loop.time()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+                lateness = loop.time() - deadline
+                self.stats.jitter_s.append(lateness)
+                if lateness > period:
+                    self.stats.late_ticks += 1
+                    k += int(lateness // period)  # skip the missed deadlines, no catch-up burst
+            self._tick()
+
+    def _tick(self) -> None:
+        start = time.perf_counter()
+        est = self.state.estimate()
+        cmd: Command | None = None
+        if est is not None and self._core_active:
+            obstacles = self.opts.obstacle_source(est.t_s) if self.opts.obstacle_source else self.mission.obstacles
+            cmd = self.core.update(est, obstacles)
+            self.last_cmd = cmd
+            self._send_setpoint(est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm)
+            self._record(est, cmd)
+        else:
+            # Idle stream (before OFFBOARD, or while the vehicle flies an internal mode): level, zero thrust.
+            yaw = float(est.euler_rad[2]) if est is not None else 0.0
+            self._send_setpoint(est.t_s if est is not None else 0.0, quat_from_euler(0.0, 0.0, yaw), 0.0)
+            if est is not None and self.phase in ("land", "abort"):
+                self._record(est, None)
+        self.stats.ticks += 1
+        self.stats.tick_s.append(time.perf_counter() - start)
+        if self.opts.telemetry is not None and est is not None:
+            try:
+                self.opts.telemetry.on_tick(est, cmd, self)
+            except Exception:
+                log.exception("telemetry sink failed; continuing")
+
+    def _record(self, est: Estimate, cmd: Command | None) -> None:
+        """One log row; the payload point from the cable angles when known, else the payload's own stream."""
+        if est.swing is not None:
+            payload = est.pos_ned_m + payload_offset_ned_m(est.swing[0], est.swing[1], self.mission.vehicle.l)
+        else:
+            payload = self.state.payload_pos_ned_m
+        self.log.append(est.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, est.swing, payload, cmd)
+
+    def _send_setpoint(self, t_s: float, q: np.ndarray, thrust_norm: float) -> None:
+        if not self.link.connected:
+            return
+        self.link.mav.set_attitude_target_send(
+            int(t_s * 1e3) & 0xFFFFFFFF, self.state.vehicle_sysid or 1, self.state.vehicle_compid, ATT_TYPE_MASK,
+            [float(v) for v in q], 0.0, 0.0, 0.0, float(thrust_norm),
+        )
+
+    # ------------------------------------------------------------------ sequencer
+    async def _command(self, command: int, params: Sequence[float], retries: int = 3, timeout_s: float = 1.0) -> int:
+        """COMMAND_LONG with retries; returns MAV_RESULT. Raises LinkError when never acknowledged."""
+        p = list(params) + [0.0] * (7 - len(params))
+        for attempt in range(retries):
+            fut: asyncio.Future = asyncio.get_running_loop().create_future()
+            self._acks[command] = fut
+            self.link.mav.command_long_send(
+                self.state.vehicle_sysid or 1, self.state.vehicle_compid, command, attempt, *p
+            )
+            try:
+                async with asyncio.timeout(timeout_s):
+                    return await fut
+            except TimeoutError:
+                log.warning("no COMMAND_ACK for command %d (attempt %d)", command, attempt + 1)
+            finally:
+                self._acks.pop(command, None)
+        raise LinkError(f"vehicle never acknowledged MAVLink command {command}")
+
+    async def _set_mode(self, main: int, sub: int = 0) -> int:
+        return await self._command(
+            mavlink2.MAV_CMD_DO_SET_MODE, [MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub]
+        )
+
+    async def _wait_until(self, cond: Callable[[], bool], timeout_s: float, what: str) -> bool:
+        try:
+            async with asyncio.timeout(timeout_s):
+                while not cond():
+                    if self._abort.is_set():
+                        return False
+                    await asyncio.sleep(0.01)
+        except TimeoutError:
+            log.warning("timed out waiting for %s", what)
+            return False
+        return True
+
+    def _sim_time(self) -> float:
+        return self.state.t_s
+
+    async def _sequencer(self) -> None:
+        try:
+            await self._fly_sequence()
+        finally:
+            self._done.set()
+
+    async def _fly_sequence(self) -> None:
+        o = self.opts
+        self.phase = "connect"
+        if not await self._wait_until(lambda: self.state.heartbeats > 0 and self.state.ready(), o.heartbeat_timeout_s,
+                                      "the autopilot's heartbeat and telemetry"):
+            if self._abort.is_set():
+                self.outcome = "aborted"
+                return
+            raise LinkError(f"no autopilot heartbeat/telemetry on {o.connect} within {o.heartbeat_timeout_s:.0f} s")
+        log.info("connected to system %s in mode %s", self.state.vehicle_sysid, self.state.mode_name)
+        interval_us = 1e6 / o.rate_hz
+        for msg_id, us in ((mavlink2.MAVLINK_MSG_ID_ATTITUDE, interval_us),
+                           (mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED, interval_us),
+                           (mavlink2.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY, interval_us),
+                           (mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 1e5)):
+            res = await self._command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, [msg_id, us])
+            if res != mavlink2.MAV_RESULT_ACCEPTED:
+                log.warning("vehicle refused message interval for id %d (result %d)", msg_id, res)
+        self.phase = "prestream"
+        t_start = self._sim_time()
+        await self._wait_until(lambda: self._sim_time() - t_start >= o.prestream_s, 30.0, "setpoint pre-stream")
+        if self._abort.is_set():
+            return await self._abort_sequence()
+        self.phase = "arm"
+        res = await self._command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, [1.0])
+        if res != mavlink2.MAV_RESULT_ACCEPTED:
+            raise LinkError(f"arming refused (MAV_RESULT {res}); vehicle said: {self.state.statustext[-3:]}")
+        self.phase = "offboard"
+        self._core_active = True
+        res = await self._set_mode(PX4_MAIN_OFFBOARD)
+        if res != mavlink2.MAV_RESULT_ACCEPTED:
+            self._core_active = False
+            raise LinkError(f"OFFBOARD refused (MAV_RESULT {res}); vehicle said: {self.state.statustext[-3:]}")
+        self.phase = "mission"
+        t_mission0 = self._sim_time()
+        finished = await self._wait_until(
+            lambda: self.core.phase == "done" or self._sim_time() - t_mission0 > self.mission.timeout_s,
+            self.opts.wall_timeout_s or 1e9, "the mission",
+        )
+        if self._abort.is_set():
+            return await self._abort_sequence()
+        self.outcome = "completed" if finished and self.core.phase == "done" else "timeout"
+        if self.mission.land:
+            await self._land()
+
+    async def _land(self) -> None:
+        self.phase = "land"
+        self._core_active = False
+        res = await self._command(mavlink2.MAV_CMD_NAV_LAND, [0, 0, 0, math.nan, math.nan, math.nan, math.nan])
+        if res != mavlink2.MAV_RESULT_ACCEPTED:
+            log.warning("NAV_LAND refused (result %d); trying AUTO.LAND mode", res)
+            await self._set_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND)
+        t0 = self._sim_time()
+        await self._wait_until(
+            lambda: (self.state.on_ground and not self.state.armed) or self._sim_time() - t0 > self.opts.land_timeout_s,
+            120.0, "landing",
+        )
+        self.phase = "landed" if self.state.on_ground else "land_timeout"
+
+    async def _abort_sequence(self) -> None:
+        self.outcome = "aborted"
+        self.phase = "abort"
+        self._core_active = False
+        with contextlib.suppress(LinkError):
+            await self._set_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER)
+            if self.opts.land_on_abort and self.state.armed:
+                self._abort.clear()  # let the landing wait run
+                await self._land()
+                self.outcome = "aborted"
