@@ -23,8 +23,8 @@ class PlannerParams:
     ka: float = 1.5
     kr: float = 3.0
     v_max_mps: float = 2.0
-    a_max_mps2: float = 2.5
-    j_max_mps3: float = 12.0
+    a_max_mps2: float = 1.6
+    j_max_mps3: float = 6.0
     k_vel: float = 3.0
     vz_max_mps: float = 1.5
     az_max_mps2: float = 2.0

@@ -99,7 +99,7 @@ class SafePlanner:
         if not near and (not self.locked or dg < self.lock_goal_dist_m):
             self.side = 0
             self.locked = False
-        heading_in = [(g, n) for g, n, _ in near if float(v_nom @ n) < 0.0 or self.locked]
+        heading_in = [(g, n) for g, n, o in near if self._in_path(inp, e_dir, g, n, o)]
         v_dir = e_dir
         w = 0.0
         t = np.zeros(2)
@@ -128,16 +128,33 @@ class SafePlanner:
         f_rep = v - v_nom
         return PlanOutput(v_des_mps=v, force_att=v_nom, force_rep=f_rep, mode="escape" if self.locked else "track")
 
+    def _in_path(self, inp: PlanInput, e_dir: np.ndarray, gap: float, n: np.ndarray, o: Obstacle) -> bool:
+        """Is obstacle ``o`` in the way: ahead along the goal direction and within the swept corridor?"""
+        if self.locked:
+            return True
+        rel = np.array([o.x_m, o.y_m]) - inp.ref_pos_m
+        along = float(rel @ e_dir)
+        if along <= 0.0:
+            return False
+        lateral = abs(float(rel[0] * e_dir[1] - rel[1] * e_dir[0]))
+        dist = float(np.hypot(rel[0], rel[1]))
+        clearance = dist - gap  # = r_o + Δd + R_env + margins
+        return lateral < clearance + self.params.track_margin_m
+
     def _choose_side(self, n0: np.ndarray, e_dir: np.ndarray, inp: PlanInput, gaps) -> int:
         cross = float(n0[0] * e_dir[1] - n0[1] * e_dir[0])
         if abs(cross) > 0.2:
             return 1 if cross > 0.0 else -1
-        # head-on: go where there is more room one metre along each tangent
+        # head-on: pass on the side with more room next to the obstacle
+        g0, _, o0 = min(gaps, key=lambda gno: abs(float(gno[1] @ n0) - 1.0))
+        c0 = np.array([o0.x_m, o0.y_m])
+        reach = float(np.hypot(*(inp.ref_pos_m - c0))) - g0 + 0.3
         best, best_room = 1, -math.inf
         for s in (1, -1):
-            probe = inp.ref_pos_m + s * np.array([-n0[1], n0[0]])
+            side_dir = s * np.array([-n0[1], n0[0]])
+            probe = c0 + reach * side_dir
             room = min(
-                (float(np.hypot(*(probe - np.array([o.x_m, o.y_m])))) - o.radius_m for _, _, o in gaps),
+                (float(np.hypot(*(probe - np.array([o.x_m, o.y_m])))) - o.radius_m for _, _, o in gaps if o is not o0),
                 default=math.inf,
             )
             if room > best_room + 1e-9:

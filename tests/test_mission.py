@@ -1,0 +1,89 @@
+"""Mission files: the shipped ones load; bad ones are refused naming file and key."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.errors import ConfigError
+from companion.mission import load_mission, mission_to_toml
+
+ROOT = Path(__file__).resolve().parents[1]
+FOREST = ROOT / "config" / "missions" / "forest.toml"
+
+GOOD = """
+[mission]
+name = "t"
+start_ned_m = [0.0, 0.0, -2.0]
+goal_ned_m = [10.0, 0.0, -2.0]
+planner = "safe"
+controller = "smc_ff"
+timeout_s = 40.0
+[wind]
+model = "paper"
+scale = 1.0
+[[obstacles]]
+x_m = 5.0
+y_m = 2.0
+radius_m = 0.3
+height_m = 4.0
+safe_distance_m = 0.1
+"""
+
+
+def _write(tmp_path, text):
+    p = tmp_path / "m.toml"
+    p.write_text(text)
+    return p
+
+
+def test_forest_is_table_2():
+    m = load_mission(FOREST)
+    assert m.planner == "safe" and m.controller == "smc_ff" and m.wind.model == "paper"
+    np.testing.assert_allclose(m.start_ned_m, [0, 0, -2])
+    np.testing.assert_allclose(m.goal_ned_m, [10, 0, -2])
+    xs = [(o.x_m, o.y_m, o.radius_m) for o in m.obstacles]
+    assert xs == [(3.0, -0.22, 0.3), (6.0, 0.5, 0.2), (5.0, 1.2, 0.3), (4.0, -1.0, 0.3), (8.0, -0.4, 0.3)]
+    assert all(o.height_m == 4.0 and o.safe_distance_m == 0.1 for o in m.obstacles)
+
+
+def test_group1():
+    m = load_mission(ROOT / "config" / "missions" / "group1.toml")
+    assert m.planner == "none" and not m.obstacles
+    np.testing.assert_allclose(m.goal_ned_m, [3, 4, -5])
+
+
+def test_good_and_roundtrip(tmp_path):
+    m = load_mission(_write(tmp_path, GOOD))
+    m2 = load_mission(_write(tmp_path, mission_to_toml(m)))
+    assert m2.obstacles == m.obstacles and m2.vehicle == m.vehicle and m2.wind == m.wind
+    np.testing.assert_allclose(m2.goal_ned_m, m.goal_ned_m)
+
+
+@pytest.mark.parametrize(
+    "old,new,needle",
+    [
+        ('timeout_s = 40.0', 'timeout_s = 40.0\nspeed = 3.0', "[mission]: unknown key 'speed'"),
+        ('timeout_s = 40.0\n', '', "missing required key 'timeout_s'"),
+        ('timeout_s = 40.0', 'timeout_s = "long"', "[mission] timeout_s: expected float"),
+        ('radius_m = 0.3', 'radius_m = -0.3', "[[obstacles]] #0 radius_m: must be in"),
+        ('goal_ned_m = [10.0, 0.0, -2.0]', 'goal_ned_m = [5.0, 2.5, -2.0]', "[mission] goal_ned_m:"),
+        ('start_ned_m = [0.0, 0.0, -2.0]', 'start_ned_m = [5.1, 1.9, -2.0]', "[mission] start_ned_m:"),
+        ('planner = "safe"', 'planner = "magic"', "[mission] planner: must be one of"),
+        ('height_m = 4.0', 'height_m = 4.0\nsource = "x"', "unknown key 'source'"),
+        ('[wind]', '[weather]\nx = 1\n[wind]', "unknown table or key 'weather'"),
+        ('model = "paper"', 'model = "gale"', "[wind] model:"),
+    ],
+)
+def test_bad_missions_name_file_and_key(tmp_path, old, new, needle):
+    assert old in GOOD
+    p = _write(tmp_path, GOOD.replace(old, new))
+    with pytest.raises(ConfigError) as ei:
+        load_mission(p)
+    assert str(p) in str(ei.value)
+    assert needle in str(ei.value)
+
+
+def test_goal_above_obstacle_top_is_fine(tmp_path):
+    m = load_mission(_write(tmp_path, GOOD.replace("goal_ned_m = [10.0, 0.0, -2.0]", "goal_ned_m = [5.0, 2.0, -6.0]")))
+    np.testing.assert_allclose(m.goal_ned_m, [5, 2, -6])
