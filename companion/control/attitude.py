@@ -3,7 +3,7 @@
 Model (eqs. 11–12): the rotor thrust in NED is −R_F·[0, 0, T], gravity is +z. A desired thrust force F
 (NED, N) is realised by turning the body's −z axis along F and setting T = |F|:
 
-    z_b = −F/|F|,  x_c = [cos ψ_d, sin ψ_d, 0],  y_b = (z_b × x_c)/|z_b × x_c|,  x_b = y_b × z_b,
+    z_b = −F/|F|,  y_c = [−sin ψ_d, cos ψ_d, 0],  x_b = (y_c × z_b)/|y_c × z_b|,  y_b = z_b × x_b,
     R_F = [x_b y_b z_b],  φ = atan2(R₃₂, R₃₃),  θ = −asin(R₃₁),  ψ = atan2(R₂₁, R₁₁).
 
 Limits, in this order: F_z <= −T_min (always some lift), |F_horizontal| <= |F_z|·tan(tilt_max), and
@@ -39,14 +39,15 @@ def attitude_from_force(force_ned_n: np.ndarray, yaw_rad: float) -> tuple[np.nda
         z_b = np.array([0.0, 0.0, 1.0])
     else:
         z_b = -f / thrust
-    x_c = np.array([math.cos(yaw_rad), math.sin(yaw_rad), 0.0])
-    y_b = np.cross(z_b, x_c)
-    ny = float(np.linalg.norm(y_b))
-    if ny < 1e-6:  # thrust horizontal along the heading: not reachable within tilt limits anyway
-        y_b = np.array([-math.sin(yaw_rad), math.cos(yaw_rad), 0.0])
+    # ZYX Euler: the body x axis lies in the vertical plane of the heading, so x_b ⟂ y_c and ψ is exact
+    y_c = np.array([-math.sin(yaw_rad), math.cos(yaw_rad), 0.0])
+    x_b = np.cross(y_c, z_b)
+    nx = float(np.linalg.norm(x_b))
+    if nx < 1e-6:  # thrust horizontal across the heading: not reachable within tilt limits anyway
+        x_b = np.array([math.cos(yaw_rad), math.sin(yaw_rad), 0.0])
     else:
-        y_b = y_b / ny
-    x_b = np.cross(y_b, z_b)
+        x_b = x_b / nx
+    y_b = np.cross(z_b, x_b)
     phi = math.atan2(y_b[2], z_b[2])
     theta = -math.asin(max(-1.0, min(1.0, x_b[2])))
     psi = math.atan2(x_b[1], x_b[0])
