@@ -34,7 +34,7 @@ def test_hover_force_is_level():
 @pytest.mark.parametrize("f,yaw", [([3.0, -2.0, -14.0], 0.0), ([-4.0, 1.0, -12.0], 1.0), ([0.5, 5.0, -20.0], -2.5)])
 def test_thrust_vector_matches_desired_force(f, yaw):
     f = np.array(f)
-    q, t, e = attitude_from_force(f, yaw)
+    _q, t, e = attitude_from_force(f, yaw)
     # model convention: thrust in NED is -R_F [0, 0, T]
     np.testing.assert_allclose(-rotation_body_to_ned(*e) @ np.array([0.0, 0.0, t]), f, atol=1e-9)
     assert e[2] == pytest.approx(yaw)

@@ -35,18 +35,13 @@ def attitude_from_force(force_ned_n: np.ndarray, yaw_rad: float) -> tuple[np.nda
     """(quaternion [w, x, y, z] body FRD→NED, thrust N, Euler [φ, θ, ψ] rad) that produce ``force_ned_n``."""
     f = np.asarray(force_ned_n, dtype=np.float64)
     thrust = float(np.linalg.norm(f))
-    if thrust < 1e-9:
-        z_b = np.array([0.0, 0.0, 1.0])
-    else:
-        z_b = -f / thrust
+    z_b = np.array([0.0, 0.0, 1.0]) if thrust < 1e-09 else -f / thrust
     # ZYX Euler: the body x axis lies in the vertical plane of the heading, so x_b ⟂ y_c and ψ is exact
     y_c = np.array([-math.sin(yaw_rad), math.cos(yaw_rad), 0.0])
     x_b = np.cross(y_c, z_b)
     nx = float(np.linalg.norm(x_b))
-    if nx < 1e-6:  # thrust horizontal across the heading: not reachable within tilt limits anyway
-        x_b = np.array([math.cos(yaw_rad), math.sin(yaw_rad), 0.0])
-    else:
-        x_b = x_b / nx
+    # (nx ~ 0: thrust horizontal across the heading, never reached within the tilt limits)
+    x_b = x_b / nx if nx >= 1e-6 else np.array([math.cos(yaw_rad), math.sin(yaw_rad), 0.0])
     y_b = np.cross(z_b, x_b)
     phi = math.atan2(y_b[2], z_b[2])
     theta = -math.asin(max(-1.0, min(1.0, x_b[2])))

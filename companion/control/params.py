@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from companion.config import dataclass_from_table, read_toml
@@ -103,11 +103,11 @@ class LimitGains:
 class ControllerConfig:
     """Every tunable of the flight core, as loaded from ``config/controller.toml``."""
 
-    smc: SmcGains = SmcGains()
-    feedforward: FeedForwardGains = FeedForwardGains()
-    pid: PidGains = PidGains()
-    limits: LimitGains = LimitGains()
-    planner: PlannerParams = PlannerParams()
+    smc: SmcGains = field(default_factory=SmcGains)
+    feedforward: FeedForwardGains = field(default_factory=FeedForwardGains)
+    pid: PidGains = field(default_factory=PidGains)
+    limits: LimitGains = field(default_factory=LimitGains)
+    planner: PlannerParams = field(default_factory=PlannerParams)
 
 
 _TABLES = {

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from companion.planning.apf import ApfPlanner
-from companion.planning.base import Planner, PlanInput, PlanOutput
+from companion.planning.base import PlanInput, Planner, PlanOutput
 from companion.planning.params import PlannerParams
 from companion.planning.reference import ReferenceGenerator
 from companion.planning.safe import SafePlanner

@@ -1,0 +1,85 @@
+"""FlightCore per-tick glue and the vehicle profiles (thrust newtons -> normalized)."""
+
+import numpy as np
+import pytest
+
+from companion.estimate import Estimate
+from companion.flight_core import FlightCore
+from companion.mission import Mission
+from companion.obstacles import Obstacle
+from companion.profile import VehicleProfile, profile_by_name
+
+
+def _mission(planner="safe", controller="smc_ff"):
+    return Mission("t", np.array([0.0, 0.0, -2.0]), np.array([4.0, 0.0, -2.0]), planner, controller, 30.0,
+                   obstacles=(Obstacle(2.0, 1.5, 0.3),), hold_s=1.0)
+
+
+def _est(t, pos, swing=(0.0, 0.0, 0.0, 0.0)):
+    return Estimate(t, np.array(pos, float), np.zeros(3), np.zeros(3), np.zeros(3),
+                    None if swing is None else np.array(swing, float), "cable_sensor" if swing else "none")
+
+
+def test_profiles():
+    b = profile_by_name("bundled")
+    assert b.thrust_to_norm(14.715, 14.715) == pytest.approx(0.4)
+    assert b.thrust_to_norm(100.0, 14.715) == 1.0 and b.thrust_to_norm(-1.0, 14.715) == 0.0
+    assert profile_by_name("px4").thrust_to_norm(7.0, 14.0) == pytest.approx(0.25)
+    assert profile_by_name("px4", 0.6).hover_thrust_norm == 0.6
+    with pytest.raises(ValueError, match="profile"):
+        profile_by_name("betaflight")
+    with pytest.raises(ValueError, match="hover_thrust_norm"):
+        VehicleProfile("px4", 1.5).validate()
+
+
+def test_on_ground_climbs_first_with_hover_ish_thrust():
+    core = FlightCore(_mission())
+    cmd = core.update(_est(0.0, [0.0, 0.0, 0.0]))
+    assert core.phase == "climb" and cmd.phase == "climb"
+    for k in range(1, 50):
+        cmd = core.update(_est(0.004 * k, [0.0, 0.0, 0.0]))
+    assert cmd.ref_vel_ned_mps[2] < 0.0  # reference rises
+    assert cmd.thrust_n > core.params.hover_thrust_n  # pushing up
+    assert abs(cmd.euler_cmd_rad[0]) < 1e-6 and abs(cmd.euler_cmd_rad[1]) < 1e-6
+    assert cmd.thrust_norm == pytest.approx(0.4 * cmd.thrust_n / core.params.hover_thrust_n)
+
+
+def test_phases_cruise_hold_done():
+    core = FlightCore(_mission())
+    cmd = core.update(_est(0.0, [0.0, 0.0, -2.0]))
+    assert core.phase == "cruise"
+    assert cmd.ref_vel_ned_mps[0] >= 0.0
+    core.update(_est(0.1, [3.95, 0.0, -2.0]))
+    assert core.phase == "hold"
+    core.update(_est(0.6, [4.0, 0.0, -2.0]))
+    assert core.phase == "hold"
+    cmd = core.update(_est(1.2, [4.0, 0.0, -2.0]))
+    assert core.phase == "done" and cmd.phase == "done" and not core.timed_out
+
+
+def test_timeout():
+    core = FlightCore(_mission())
+    core.update(_est(0.0, [0.0, 0.0, -2.0]))
+    core.update(_est(31.0, [0.0, 0.0, -2.0]))
+    assert core.phase == "done" and core.timed_out
+
+
+def test_no_swing_sensor_uses_full_cable_and_no_feedforward():
+    core = FlightCore(_mission())
+    cmd = core.update(_est(0.0, [0.0, 0.0, -2.0], swing=None))
+    assert cmd.envelope_mode == "full_cable" and cmd.r_max_m == pytest.approx(1.0)
+    assert np.all(cmd.ff_accel == 0.0)
+    core2 = FlightCore(_mission())
+    cmd2 = core2.update(_est(0.0, [0.0, 0.0, -2.0], swing=(0.4, 0.0, 1.0, 0.0)))
+    assert cmd2.envelope_mode == "swing" and cmd2.r_max_m == pytest.approx(np.sin(0.4))
+    assert cmd2.ff_accel[0] > 0.0  # payload out to +x and moving +x: accelerate +x
+
+
+@pytest.mark.parametrize("planner", ["traditional", "improved", "safe", "none"])
+@pytest.mark.parametrize("controller", ["smc_ff", "smc", "pid"])
+def test_every_combination_gives_a_finite_unit_quaternion(planner, controller):
+    core = FlightCore(_mission(planner, controller))
+    for k in range(20):
+        cmd = core.update(_est(0.004 * k, [0.5 + 0.01 * k, 0.1, -2.0], swing=(0.05, -0.02, 0.1, 0.1)))
+    assert np.isfinite(cmd.thrust_n) and np.linalg.norm(cmd.q_ned_frd_wxyz) == pytest.approx(1.0)
+    assert 0.0 <= cmd.thrust_norm <= 1.0
