@@ -185,12 +185,11 @@ class MavlinkLink:
                 continue
             good = True
             self.received += 1
+            if self._tlog is not None:  # one record per frame, even when a datagram carries several
+                self._tlog.write(bytes(msg.get_msgbuf()))
             try:
                 self.handler(msg)
             except Exception:  # a bug in a handler must not kill the socket; log it loudly
                 log.exception("handler failed on %s", msg.get_type())
-        if good:
-            if self.url.mode == "udpin":
-                self._remote = addr
-            if self._tlog is not None:
-                self._tlog.write(data)
+        if good and self.url.mode == "udpin":
+            self._remote = addr

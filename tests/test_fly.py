@@ -1,0 +1,117 @@
+"""The companion app end to end: real processes, real UDP, real MAVLink, the bundled vehicle in lockstep."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+FOREST = ROOT / "config" / "missions" / "forest.toml"
+
+
+def _slungpilot(*args: str, timeout: float = 240.0, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "companion.cli", *args], capture_output=True, text=True, timeout=timeout,
+        cwd=cwd or ROOT,
+    )
+
+
+@pytest.fixture(scope="module")
+def forest_run(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
+    run_dir = tmp_path_factory.mktemp("forest")
+    proc = _slungpilot("fly", "--sitl", "--mission", str(FOREST), "--run-dir", str(run_dir),
+                       "--report", str(run_dir / "copy.json"))
+    return proc, run_dir
+
+
+def test_forest_mission_flies_over_mavlink_in_lockstep(forest_run):
+    proc, run_dir = forest_run
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rep = json.loads((run_dir / "report.json").read_text())
+    assert rep == json.loads((run_dir / "copy.json").read_text())
+    assert rep["reached_goal"] is True
+    assert rep["collisions"] == 0 and rep["min_clearance_m"] > 0.0
+    assert rep["time_to_goal_s"] <= 10.0
+    assert rep["lockstep"] is True and rep["outcome"] == "completed"
+    assert rep["loop"]["ticks"] > 1000
+    for key in ("path_length_m", "payload_path_length_m", "max_swing_rad", "swing_settle_s", "sim_time_s",
+                "wall_time_s", "planner", "controller"):
+        assert key in rep
+    assert "reached goal" in proc.stdout  # the one-screen summary
+    for png in ("plan.png", "timeseries.png", "trajectory3d.png"):
+        assert (run_dir / png).stat().st_size > 10_000
+
+
+def test_tlog_is_readable_by_pymavlink(forest_run):
+    from pymavlink import mavutil
+
+    _, run_dir = forest_run
+    mlog = mavutil.mavlink_connection(str(run_dir / "flight.tlog"))
+    types: dict[str, int] = {}
+    while True:
+        msg = mlog.recv_match()
+        if msg is None:
+            break
+        types[msg.get_type()] = types.get(msg.get_type(), 0) + 1
+    assert types.get("SET_ATTITUDE_TARGET", 0) > 1000  # what we sent
+    assert types.get("ATTITUDE", 0) > 1000 and types.get("HEARTBEAT", 0) > 5  # what we received
+    assert types.get("COMMAND_ACK", 0) >= 3
+
+
+@pytest.mark.parametrize(
+    ("edit", "match"),
+    [
+        (lambda s: s.replace('name = "forest"', 'name = "forest"\ncolour = "red"'), "unknown key 'colour'"),
+        (lambda s: s.replace('timeout_s = 40.0', ''), "missing required key 'timeout_s'"),
+        (lambda s: s.replace('timeout_s = 40.0', 'timeout_s = "long"'), "timeout_s"),
+        (lambda s: s.replace('radius_m = 0.2', 'radius_m = -0.2'), "radius_m"),
+        (lambda s: s.replace('goal_ned_m = [10.0, 0.0, -2.0]', 'goal_ned_m = [3.0, -0.22, -2.0]'), "goal"),
+    ],
+)
+def test_bad_mission_file_refused_before_takeoff_with_exit_2(tmp_path, edit, match):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(edit(FOREST.read_text()))
+    proc = _slungpilot("fly", "--sitl", "--mission", str(bad), "--run-dir", str(tmp_path / "run"), timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert str(bad) in proc.stderr and match in proc.stderr
+    assert proc.stderr.count("\n") <= 2, "one clear message, no traceback"
+    assert not (tmp_path / "run" / "flight.tlog").exists(), "nothing was flown"
+
+
+def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
+    run_dir = tmp_path / "abort"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "companion.cli", "-v", "fly", "--sitl", "--realtime", "--mission", str(FOREST),
+         "--run-dir", str(run_dir)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )
+    try:
+        deadline = time.monotonic() + 90
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            if "Mode: OFFBOARD" in line:
+                break
+            assert time.monotonic() < deadline, "never reached OFFBOARD"
+        time.sleep(3.0)  # mid-flight, in the air
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err[-2000:]
+    rep = json.loads((run_dir / "report.json").read_text())
+    assert rep["outcome"] == "aborted" and rep["reached_goal"] is False
+    assert rep["final_phase"] in ("landed", "land_timeout")
+    assert rep["sim_time_s"] > 3.0
+    from pymavlink import mavutil
+
+    mlog = mavutil.mavlink_connection(str(run_dir / "flight.tlog"))
+    n = 0
+    while mlog.recv_match(type="SET_ATTITUDE_TARGET") is not None:
+        n += 1
+    assert n > 100
