@@ -33,6 +33,7 @@ REJECT_KINDS = (
     "bad_param",
 )
 
+BATCH_MAX_BYTES = 1400  # stay below a typical Ethernet MTU
 _V2_HEADER = 10
 _V1_HEADER = 6
 
@@ -90,6 +91,7 @@ class MavUdpLink(asyncio.DatagramProtocol):
         self.transport: asyncio.DatagramTransport | None = None
         self.mav = self.sender(sysid, compid)
         self.rx_messages = 0
+        self._batch: bytearray | None = None
         self.scheduler: Any = None  # the vehicle's per-link telemetry schedule (rates are per link, as PX4)
         self.tx_errors = 0
 
@@ -116,8 +118,29 @@ class MavUdpLink(asyncio.DatagramProtocol):
                 log.exception("error while handling %s", msg.get_type())
 
     # sending ------------------------------------------------------------------------------------------
+    def begin_batch(self) -> None:
+        """Collect outgoing frames into few datagrams (several MAVLink frames per datagram, as PX4 does)
+        until :meth:`flush`."""
+        if self._batch is None:
+            self._batch = bytearray()
+
+    def flush(self) -> None:
+        """Send what :meth:`begin_batch` collected and return to one datagram per frame."""
+        buf, self._batch = self._batch, None
+        if buf:
+            self._sendto(buf)
+
     def send_bytes(self, buf: bytes) -> None:
         """Send raw bytes to the current remote (silently dropped before the socket exists)."""
+        if self._batch is not None:
+            if len(self._batch) + len(buf) > BATCH_MAX_BYTES:
+                self._sendto(self._batch)
+                self._batch = bytearray()
+            self._batch += buf
+            return
+        self._sendto(buf)
+
+    def _sendto(self, buf: bytes | bytearray) -> None:
         if self.transport is not None:
             try:
                 self.transport.sendto(bytes(buf), self.remote)

@@ -7,7 +7,11 @@ re-send the answer if only the old marker comes back (lost datagram).
 
 from __future__ import annotations
 
+import select
+import signal
 import socket
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 from typing import Any
@@ -41,6 +45,7 @@ class MavClient:
         self.last: dict[str, Any] = {}
         self.on_message: Callable[[Any], None] | None = None
         self.sim_time_ms = -1
+        self.statustexts: list[str] = []
 
     def close(self) -> None:
         self.sock.close()
@@ -63,7 +68,10 @@ class MavClient:
         for m in self._parser.parse_buffer(data) or []:
             if m.get_type() == "BAD_DATA":
                 continue
-            self.last[m.get_type()] = m
+            if m.get_srcSystem() == self.target_sysid:
+                self.last[m.get_type()] = m  # the vehicle's latest of each type (not the payload's)
+                if m.get_type() == "STATUSTEXT":
+                    self.statustexts.append(m.text)
             if m.get_type() == "SYSTEM_TIME" and m.get_srcSystem() == self.target_sysid:
                 self.sim_time_ms = max(self.sim_time_ms, m.time_boot_ms)
             if self.on_message is not None:
@@ -124,3 +132,48 @@ class MavClient:
                         self.send_attitude_target(q, thrust, type_mask, rates)
                         resend_at = time.monotonic() + 0.3
         raise TimeoutError(f"lockstep: no marker after t = {before} ms within {timeout_s} s")
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def spawn_vehicle(*extra_args: str, ready_timeout_s: float = 30.0) -> tuple[subprocess.Popen, int, int]:
+    """Start ``python -m sim_bridge`` on free ports (GCS telemetry to a free port nobody reads).
+
+    Returns (process, onboard port, gcs port) once it printed ``SITL READY``; the caller terminates it.
+    """
+    onboard, gcs, sink = free_udp_port(), free_udp_port(), free_udp_port()
+    cmd = [sys.executable, "-m", "sim_bridge", "--onboard-port", str(onboard), "--gcs-port", str(gcs),
+           "--gcs-remote", f"127.0.0.1:{sink}", "--onboard-remote", f"127.0.0.1:{sink}", *extra_args]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    end = time.monotonic() + ready_timeout_s
+    line = ""
+    while time.monotonic() < end and proc.poll() is None:
+        r, _, _ = select.select([proc.stdout], [], [], 0.1)
+        if r:
+            line = proc.stdout.readline()
+            break
+    if not line.startswith("SITL READY"):
+        proc.kill()
+        err = proc.stderr.read() if proc.stderr else ""
+        raise RuntimeError(f"vehicle did not start: {line!r} {err[-2000:]}")
+    return proc, onboard, gcs
+
+
+def stop_vehicle(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
+    """SIGTERM the vehicle and return its exit code (kills it if it does not stop)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout_s)
+    for f in (proc.stdout, proc.stderr):
+        if f is not None:
+            f.close()
+    return proc.returncode

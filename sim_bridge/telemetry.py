@@ -8,6 +8,7 @@ Every message carries simulated time (time_boot_ms / time_usec).
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any
 
 import numpy as np
@@ -118,6 +119,22 @@ class ProtocolVersionMessage(mavlink2.MAVLink_message):
         return self._pack(mav, self.crc_extra, payload, force_mavlink1=False)
 
 
+_SWING_PREFIX = struct.Struct("<QH10s5f")
+
+
+class SwingMessage(mavlink2.MAVLink_debug_float_array_message):
+    """DEBUG_FLOAT_ARRAY "SWING" with data[5:] = 0, packed without its 53 zero floats.
+
+    MAVLink 2 strips trailing zero bytes from every payload anyway; packing only the used prefix gives the
+    same bytes on the wire and skips pymavlink's byte-by-byte trimming of 212 zeros (the hot path).
+    """
+
+    def pack(self, mav: Any, force_mavlink1: bool = False) -> bytes:
+        d = self.data
+        payload = _SWING_PREFIX.pack(self.time_usec, self.array_id, self._name_raw, d[0], d[1], d[2], d[3], d[4])
+        return self._pack(mav, self.crc_extra, payload, force_mavlink1=False)
+
+
 def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any) -> bool:
     """Send one message of the vehicle system, ``v`` being the running vehicle; False if unknown here."""
     sim = v.sim
@@ -155,7 +172,7 @@ def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any) -> bool:
     elif msgid == MSG_DEBUG_FLOAT_ARRAY:
         s = sim.swing
         data = [float(s[0]), float(s[1]), float(s[2]), float(s[3]), float(sim.params.l)] + [0.0] * 53
-        mav.debug_float_array_send(v.t_us, SWING_NAME, SWING_ARRAY_ID, data)
+        mav.send(SwingMessage(v.t_us, SWING_NAME, SWING_ARRAY_ID, data))
     elif msgid == MSG_AUTOPILOT_VERSION:
         mav.autopilot_version_send(CAPABILITIES, SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
                                    v.sysid)

@@ -304,8 +304,13 @@ class SitlVehicle:
             if self.mode == px4_modes.OFFBOARD:
                 self.sim.set_attitude_target(*self._sp_newtons(self._last_sp))
         if self.cfg.lockstep and link is self.onboard:
+            links = self._links()
+            for lk in links:
+                lk.begin_batch()
             self.advance()
             self._send_marker()
+            for lk in links:
+                lk.flush()
 
     # ------------------------------------------------------------------ one control period
     def advance(self) -> None:
@@ -401,6 +406,8 @@ class SitlVehicle:
                 self._last_hb_wall = now
                 for lk in self._links():
                     telemetry.send_vehicle_message(M.MAVLINK_MSG_ID_HEARTBEAT, lk.mav, self)
+                for pm in self._payload_mavs:
+                    telemetry.send_payload_messages(pm, self, heartbeat=True)
 
     async def _realtime_loop(self) -> None:
         period = self.cfg.control_period_us * 1e-6
@@ -412,9 +419,14 @@ class SitlVehicle:
                 log.warning("real-time loop %d periods behind; skipping ahead", due - done)
                 t0 += (due - done - 1) * period
                 due = done + 1
+            links = self._links()
+            for lk in links:
+                lk.begin_batch()
             while done < due:
                 self.advance()
                 done += 1
+            for lk in links:
+                lk.flush()
             await asyncio.sleep(max(0.0, t0 + (done + 1) * period - time.monotonic()))
 
     async def run(self, ready_cb=None) -> int:

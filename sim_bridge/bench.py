@@ -1,0 +1,108 @@
+"""``slungpilot bench sitl``: lockstep real-time factor of the bundled vehicle.
+
+Starts the vehicle (``python -m sim_bridge --lockstep``, 1 kHz physics, 4 ms control period) as a
+subprocess and drives it from this process over real UDP with a minimal 250 Hz hover client: it decodes
+only the SYSTEM_TIME marker and LOCAL_POSITION_NED (other frames are skipped by message id) and answers
+each marker with a level-attitude SET_ATTITUDE_TARGET whose thrust holds 2 m. Prints and returns simulated
+seconds per wall second. Nothing is asserted.
+"""
+
+from __future__ import annotations
+
+import time
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
+
+M = mavlink2
+_ID_SYSTEM_TIME = M.MAVLINK_MSG_ID_SYSTEM_TIME
+_ID_LOCAL_POSITION_NED = M.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+
+
+def _hover_thrust(z: float, vz: float, z_sp: float = -2.0) -> float:
+    return min(0.9, max(0.05, 0.4 + 0.12 * (z - z_sp) + 0.12 * vz))
+
+
+def run_bench_sitl(seconds: float = 3.0) -> dict[str, float]:
+    """Fly a lockstep hover for ``seconds`` of wall time; returns real-time factor and step timings."""
+    proc, port, _ = spawn_vehicle("--lockstep", "--control-period-ms", "4")
+    try:
+        with MavClient(port) as c:
+            c.heartbeat()
+            c.wait_marker(10.0)
+            for _ in range(20):
+                c.step(thrust=0.0)
+            if c.set_mode(6) != M.MAV_RESULT_ACCEPTED or c.arm() != M.MAV_RESULT_ACCEPTED:
+                raise RuntimeError("bench: vehicle refused OFFBOARD or arming")
+            res = _fast_loop(c, seconds)
+    finally:
+        stop_vehicle(proc)
+    return res
+
+
+def _fast_loop(c: MavClient, seconds: float) -> dict[str, float]:
+    sock = c.sock
+    sock.settimeout(5.0)
+    decoder = M.MAVLink(None)
+    z, vz = 0.0, 0.0
+    t_ms = c.sim_time_ms
+    t_start_ms = t_ms
+    steps = 0
+    wall0 = time.perf_counter()
+    deadline = wall0 + seconds
+    c.send_attitude_target(thrust=_hover_thrust(z, vz))
+    while True:
+        try:
+            data = sock.recv(65536)
+        except TimeoutError:
+            c.send_attitude_target(thrust=_hover_thrust(z, vz))  # lost datagram: answer again
+            continue
+        new_step = False
+        i, n = 0, len(data)
+        while i + 12 <= n and data[i] == M.PROTOCOL_MARKER_V2:  # walk the frames of the datagram
+            end = i + 12 + data[i + 1]
+            msgid = data[i + 7] | (data[i + 8] << 8) | (data[i + 9] << 16)
+            if msgid == _ID_LOCAL_POSITION_NED:
+                m = decoder.decode(bytearray(data[i:end]))
+                z, vz = m.z, m.vz
+            elif msgid == _ID_SYSTEM_TIME:
+                m = decoder.decode(bytearray(data[i:end]))
+                if m.time_boot_ms > t_ms:
+                    t_ms = m.time_boot_ms
+                    new_step = True
+            i = end
+        if not new_step:
+            continue
+        c.sim_time_ms = t_ms
+        steps += 1
+        if time.perf_counter() >= deadline:
+            break
+        c.send_attitude_target(thrust=_hover_thrust(z, vz))
+    wall = time.perf_counter() - wall0
+    sim_s = (t_ms - t_start_ms) * 1e-3
+    return {
+        "realtime_factor": sim_s / wall,
+        "sim_s": sim_s,
+        "wall_s": wall,
+        "control_steps": float(steps),
+        "us_per_control_step": wall / max(steps, 1) * 1e6,
+        "final_altitude_m": -z,
+    }
+
+
+def main(seconds: float = 3.0) -> int:
+    """Print the benchmark (CLI helper for ``slungpilot bench sitl``)."""
+    print("slungpilot bench sitl: lockstep vehicle subprocess, 1 kHz physics, 250 Hz hover client over UDP")
+    res = run_bench_sitl(seconds)
+    print(f"  real-time factor (sim s / wall s): {res['realtime_factor']:8.1f}x")
+    print(f"  control steps: {res['control_steps']:.0f} in {res['wall_s']:.2f} s wall "
+          f"({res['us_per_control_step']:.0f} µs each), {res['sim_s']:.2f} s simulated")
+    print(f"  hover altitude at the end: {res['final_altitude_m']:.2f} m")
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.exit(main(float(sys.argv[1]) if len(sys.argv) > 1 else 3.0))
