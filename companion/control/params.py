@@ -31,7 +31,7 @@ class SmcGains:
     c (1/s), k (1/s), k_sat (N, >= wind bound λ), boundary Δ (m/s) — per axis x, y, z.
     """
 
-    c: Vec3 = (1.6, 1.6, 2.0)
+    c: Vec3 = (1.2, 1.2, 2.0)
     k: Vec3 = (2.5, 2.5, 3.0)
     k_sat: Vec3 = (0.6, 0.6, 0.8)
     boundary: Vec3 = (0.3, 0.3, 0.3)

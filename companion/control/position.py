@@ -20,7 +20,8 @@ the sign flips, a_y = −k_rate·l·β̇. In words: the vehicle accelerates alon
 to it, and towards the side the payload hangs out to (angle term). With the position loop closed around
 the same acceleration the rate term alone leaves the pendulum mode barely damped (the loop pulls the
 vehicle back), so we place the closed-loop poles with an angle term too: for the default SMC gains the
-linearised loop (x, ẋ, α, α̇) has every pole at Re <= −1.6 /s with k_angle ≈ 8 /s², k_rate ≈ 1.9 /s, a1 = 0.1.
+linearised loop (x, ẋ, α, α̇) has every pole at Re <= −1.4 /s with k_angle = 8 /s², k_rate = 1.9 /s, a1 = 0.1
+(c = 1.2, k = 2.5; tuned further in closed loop against the bundled physics).
 Eq. 48's term u1 = a1·α̈ enters with the opposite sign, acc_x −= l·a1·α̈: since l·α̈ ≈ −g·α − a_x it is
 an angle feedback a1·g·α plus an acceleration echo a1·a_x (loop gain a1 < 1, hence the a1 < 0.5 limit);
 entered with +, it destabilises the swing. u3 (vertical) does not couple to the swing at first order; its

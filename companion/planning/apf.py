@@ -9,11 +9,14 @@ Both evaluate the field at the measured airframe position ξ* (the paper's "real
 From force to reference (not in the paper; our choice): the resultant force is read as a desired velocity,
 ``v_des = sat(F_all, v_max)`` (gradient flow on the potential, units: ka in 1/s, kr in m³/s), and the
 reference generator integrates it with acceleration and jerk limits. Far from the goal F_att saturates to
-v_max, near it the approach is exponential with rate ka.
+v_max, near it the approach is exponential with rate ka; the speed is also capped by the braking profile
+sqrt(2·a_brake·ρ_goal) so that the reference never needs more deceleration than it may use (without it
+the acceleration-limited reference overshoots the goal). The cap changes no direction, only speed.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -68,5 +71,6 @@ class ApfPlanner:
                 else:
                     rho0 = rho_star_improved_m(o, inp.r_max_m)
                 f_rep = f_rep + repulsive_force(inp.pos_m, np.array([o.x_m, o.y_m]), p.kr, rho0)
-        v = saturate(f_att + f_rep, p.v_max_mps)
+        rho_goal = float(np.linalg.norm(inp.goal_m - inp.pos_m))
+        v = saturate(f_att + f_rep, min(p.v_max_mps, math.sqrt(2.0 * p.a_brake_mps2 * rho_goal)))
         return PlanOutput(v_des_mps=v, force_att=f_att, force_rep=f_rep)

@@ -23,7 +23,7 @@ class PlannerParams:
     ka: float = 1.5
     kr: float = 3.0
     v_max_mps: float = 2.0
-    a_max_mps2: float = 1.6
+    a_max_mps2: float = 1.8
     j_max_mps3: float = 6.0
     k_vel: float = 3.0
     vz_max_mps: float = 1.5
