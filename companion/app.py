@@ -192,11 +192,7 @@ class FlightApp:
         k = 0
         while not self._done.is_set():
             if self.opts.lockstep:
-                waiter = asyncio.ensure_future(self._marker.wait())
-                done_w = asyncio.ensure_future(self._done.wait())
-                await asyncio.wait({waiter, done_w}, return_when=asyncio.FIRST_COMPLETED)
-                waiter.cancel()
-                done_w.cancel()
+                await self._marker.wait()  # the sequencer also sets it when the run is done
                 if self._done.is_set():
                     break
                 self._marker.clear()
@@ -297,6 +293,7 @@ class FlightApp:
             await self._fly_sequence()
         finally:
             self._done.set()
+            self._marker.set()  # release a lockstep tick loop waiting for the next step
 
     async def _fly_sequence(self) -> None:
         o = self.opts

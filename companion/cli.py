@@ -25,6 +25,24 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         for k, v in res.items():
             print(f"  {k:32s} {v:14,.0f}")
         return 0
+    if args.target == "fly":
+        from companion import bench_fly
+
+        print("slungpilot bench fly: forest mission (Table 2, eq. 49 wind) against the bundled vehicle, lockstep,")
+        print("  whole run including vehicle start-up; tick = telemetry-in to SET_ATTITUDE_TARGET-out in the companion")
+        for i, r in enumerate(bench_fly.run(repeats=args.repeats)):
+            print(f"  run {i + 1}: sim {r['sim_time_s']:.1f} s in {r['wall_time_s']:.2f} s wall -> "
+                  f"{r['realtime_factor']:.1f}x real time; {r['ticks']} ticks, tick p50 {r['tick_ms_p50']:.3f} ms, "
+                  f"p99 {r['tick_ms_p99']:.3f} ms, max {r['tick_ms_max']:.2f} ms; goal reached: {r['reached_goal']}")
+        return 0
+    if args.target == "sitl":
+        from sim_bridge.bench import run_bench_sitl
+
+        print("slungpilot bench sitl: lockstep vehicle (1 kHz physics) driven by a 250 Hz hover client over UDP")
+        res = run_bench_sitl(args.seconds)
+        for k, v in res.items():
+            print(f"  {k:32s} {v}")
+        return 0
     raise SlungpilotError(f"bench target {args.target!r} is not available in this build")
 
 
@@ -87,8 +105,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="print performance numbers (model, sitl, fly, zenoh)",
         description="Benchmarks that print numbers; nothing is asserted. Run on an idle machine.",
     )
-    bench.add_argument("target", choices=["model"], help="model: RK4 steps/s of the dynamics kernel")
+    bench.add_argument(
+        "target", choices=["model", "sitl", "fly"],
+        help="model: RK4 steps/s of the dynamics kernel; sitl: lockstep real-time factor of the bundled vehicle; "
+             "fly: the forest mission end to end (real-time factor, tick p50/p99)",
+    )
     bench.add_argument("--seconds", type=float, default=3.0, help="measuring time per benchmark (s)")
+    bench.add_argument("--repeats", type=int, default=2, help="fly: how many flights")
     bench.set_defaults(func=_cmd_bench)
     return parser
 
