@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from typing import Any
@@ -149,7 +150,9 @@ def spawn_vehicle(*extra_args: str, ready_timeout_s: float = 30.0) -> tuple[subp
     onboard, gcs, sink = free_udp_port(), free_udp_port(), free_udp_port()
     cmd = [sys.executable, "-m", "sim_bridge", "--onboard-port", str(onboard), "--gcs-port", str(gcs),
            "--gcs-remote", f"127.0.0.1:{sink}", "--onboard-remote", f"127.0.0.1:{sink}", *extra_args]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    errlog = tempfile.TemporaryFile(mode="w+")  # a file, not a pipe: a chatty vehicle must never block
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errlog, text=True)
+    proc.errlog = errlog  # type: ignore[attr-defined]
     end = time.monotonic() + ready_timeout_s
     line = ""
     while time.monotonic() < end and proc.poll() is None:
@@ -159,7 +162,8 @@ def spawn_vehicle(*extra_args: str, ready_timeout_s: float = 30.0) -> tuple[subp
             break
     if not line.startswith("SITL READY"):
         proc.kill()
-        err = proc.stderr.read() if proc.stderr else ""
+        proc.wait(5)
+        err = vehicle_stderr(proc)
         raise RuntimeError(f"vehicle did not start: {line!r} {err[-2000:]}")
     return proc, onboard, gcs
 
@@ -173,7 +177,15 @@ def stop_vehicle(proc: subprocess.Popen, timeout_s: float = 10.0) -> int:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout_s)
-    for f in (proc.stdout, proc.stderr):
-        if f is not None:
-            f.close()
+    if proc.stdout is not None:
+        proc.stdout.close()
     return proc.returncode
+
+
+def vehicle_stderr(proc: subprocess.Popen) -> str:
+    """What a vehicle from :func:`spawn_vehicle` wrote to stderr so far."""
+    f = getattr(proc, "errlog", None)
+    if f is None:
+        return ""
+    f.seek(0)
+    return f.read()
