@@ -150,7 +150,8 @@ def spawn_vehicle(*extra_args: str, ready_timeout_s: float = 30.0) -> tuple[subp
     onboard, gcs, sink = free_udp_port(), free_udp_port(), free_udp_port()
     cmd = [sys.executable, "-m", "sim_bridge", "--onboard-port", str(onboard), "--gcs-port", str(gcs),
            "--gcs-remote", f"127.0.0.1:{sink}", "--onboard-remote", f"127.0.0.1:{sink}", *extra_args]
-    errlog = tempfile.TemporaryFile(mode="w+")  # a file, not a pipe: a chatty vehicle must never block
+    # a file, not a pipe: a chatty vehicle must never block; closed with the process object
+    errlog = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errlog, text=True)
     proc.errlog = errlog  # type: ignore[attr-defined]
     end = time.monotonic() + ready_timeout_s
