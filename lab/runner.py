@@ -1,0 +1,127 @@
+"""Fly one mission in a worker: over MAVLink against the bundled vehicle (lockstep) or in-process.
+
+``mavlink`` mode is exactly ``slungpilot fly --sitl --mission FILE`` (``companion.fly.fly_async`` with the
+``fly`` parser's defaults, the vehicle started as a separate process on free loopback ports, lockstep);
+``inprocess`` mode runs ``sim_bridge.inprocess.fly_inprocess``: the same FlightCore (planner, controller,
+envelope) and the same vehicle physics, without MAVLink. Both return issue 4's report keys.
+
+The functions here are top-level so that ``concurrent.futures`` spawn workers can pickle them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from companion.mission import Mission, mission_to_toml
+
+log = logging.getLogger(__name__)
+
+MODES = ("mavlink", "inprocess")
+REPORT_KEYS = (
+    "reached_goal", "time_to_goal_s", "path_length_m", "payload_path_length_m", "max_swing_rad",
+    "swing_settle_s", "swing_settle_after_arrival_s", "min_clearance_m", "collisions", "sim_time_s",
+    "wall_time_s", "outcome",
+)
+
+
+def fly_args(run_dir: Path, plots: bool, gains: Path | None = None) -> argparse.Namespace:
+    """The parsed arguments of ``slungpilot fly --sitl --run-dir RUN_DIR [--no-plots]`` (lockstep)."""
+    from companion.fly import add_fly_arguments
+
+    p = argparse.ArgumentParser()
+    add_fly_arguments(p)
+    argv = ["--sitl", "--run-dir", str(run_dir)]
+    if not plots:
+        argv.append("--no-plots")
+    if gains is not None:
+        argv += ["--gains", str(gains)]
+    return p.parse_args(argv)
+
+
+def classify(rep: dict[str, Any]) -> str:
+    """``success`` (goal reached, zero collisions), ``collision`` (any obstacle touched, goal or not),
+    ``stuck`` (goal never reached and nothing touched before the timeout: a local minimum, an orbit or a
+    stall), or ``error`` (the flight did not produce metrics)."""
+    if rep.get("error"):
+        return "error"
+    if (rep.get("collisions") or 0) > 0:
+        return "collision"
+    if rep.get("reached_goal"):
+        return "success"
+    return "stuck"
+
+
+@dataclass(frozen=True)
+class Job:
+    """One flight for a worker: the mission, where its run folder goes, which mode, whether to plot."""
+
+    key: str
+    mission: Mission
+    run_dir: Path
+    mode: str = "mavlink"
+    plots: bool = False
+    keep_run_dir: bool = True
+    gains: Path | None = None
+
+
+def _fly_mavlink(job: Job) -> dict[str, Any]:
+    from companion.fly import fly_async
+
+    args = fly_args(job.run_dir, job.plots, job.gains)
+    result = asyncio.run(fly_async(args, job.mission))
+    rep = dict(result.report)
+    rep["outcome"] = result.outcome
+    return rep
+
+
+def _fly_inprocess(job: Job) -> dict[str, Any]:
+    from companion.fly import DEFAULT_GAINS, load_gains
+    from companion.report import write_run
+    from sim_bridge.inprocess import fly_inprocess
+
+    gains = load_gains(job.gains or DEFAULT_GAINS)
+    flog = fly_inprocess(job.mission, gains=gains)
+    extra = {"outcome": "completed", "wall_time_s": flog.wall_time_s, "mode": "inprocess",
+             "wind": {"model": job.mission.wind.model, "scale": job.mission.wind.scale},
+             "vehicle": job.mission.vehicle.as_dict(), "run_dir": str(job.run_dir)}
+    return write_run(flog, job.mission, extra, job.run_dir, plots=job.plots)
+
+
+def run_job(job: Job) -> dict[str, Any]:
+    """Fly ``job`` and return a compact result: the report keys, ``class`` (see :func:`classify`), the
+    mission file written into the run folder (``mission.toml``, replayable with ``fly --sitl --mission``)."""
+    job.run_dir.mkdir(parents=True, exist_ok=True)
+    mission_file = job.run_dir / "mission.toml"
+    mission_file.write_text(mission_to_toml(job.mission))
+    wall0 = time.perf_counter()
+    try:
+        rep = _fly_mavlink(job) if job.mode == "mavlink" else _fly_inprocess(job)
+    except Exception as exc:  # a worker must report, not die
+        log.exception("job %s failed", job.key)
+        rep = {"error": f"{type(exc).__name__}: {exc}"}
+    out = {k: rep.get(k) for k in REPORT_KEYS}
+    out["error"] = rep.get("error")
+    out["key"] = job.key
+    out["mode"] = job.mode
+    out["class"] = classify(rep)
+    out["job_wall_s"] = time.perf_counter() - wall0
+    out["run_dir"] = str(job.run_dir)
+    out["mission_file"] = str(mission_file)
+    if not job.keep_run_dir and out["class"] == "success":
+        _prune(job.run_dir)
+        out["run_dir"] = None
+        out["mission_file"] = None
+    return out
+
+
+def _prune(run_dir: Path) -> None:
+    """Remove a successful run's folder (keeps evaluation output small; failures keep theirs)."""
+    import shutil
+
+    shutil.rmtree(run_dir, ignore_errors=True)
