@@ -76,6 +76,7 @@ class FlyOptions:
     profile: VehicleProfile | None = None
     gains: Any = None
     payload_sysid: int | None = 2
+    swing_input: str = "auto"
     heartbeat_timeout_s: float = 20.0
     prestream_s: float = 1.0
     land_on_abort: bool = True
@@ -115,7 +116,11 @@ class FlightApp:
     def __init__(self, mission: Mission, opts: FlyOptions) -> None:
         self.mission = mission
         self.opts = opts
-        self.state = VehicleState(cable_length_m=mission.vehicle.l, payload_sysid=opts.payload_sysid)
+        self.state = VehicleState(
+            cable_length_m=mission.vehicle.l, payload_sysid=opts.payload_sysid, swing_input=opts.swing_input
+        )
+        self.swing_sources: dict[str, int] = {}
+        self._last_swing_source = ""
         self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path)
         self.core = FlightCore(mission, gains=opts.gains, profile=opts.profile)
         self.log = FlightLog(
@@ -235,11 +240,22 @@ class FlightApp:
 
     def _record(self, est: Estimate, cmd: Command | None) -> None:
         """One log row; the payload point from the cable angles when known, else the payload's own stream."""
-        if est.swing is not None:
-            payload = est.pos_ned_m + payload_offset_ned_m(est.swing[0], est.swing[1], self.mission.vehicle.l)
+        src = est.swing_source
+        self.swing_sources[src] = self.swing_sources.get(src, 0) + 1
+        if src != self._last_swing_source:
+            if src == "none":
+                log.warning("no swing input: flying without feed-forward, envelope = full cable length")
+            else:
+                log.info("swing input: %s", src)
+            self._last_swing_source = src
+        # The log keeps the best swing measurement even when the controller was told to ignore it, so the
+        # report's swing and clearance numbers describe the flight, not the controller's view of it.
+        swing = self.state.measured_swing()
+        if swing is not None:
+            payload = est.pos_ned_m + payload_offset_ned_m(swing[0], swing[1], self.mission.vehicle.l)
         else:
             payload = self.state.payload_pos_ned_m
-        self.log.append(est.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, est.swing, payload, cmd)
+        self.log.append(est.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, swing, payload, cmd)
 
     def _send_setpoint(self, t_s: float, q: np.ndarray, thrust_norm: float) -> None:
         if not self.link.connected:

@@ -8,6 +8,13 @@ finished or timeout; the app lands). No I/O, no clocks: time comes from the esti
 Swing input: an :class:`~companion.estimate.Estimate` with ``swing`` None means no swing measurement —
 the controller then flies without payload compensation and feed-forward and the planners use the
 full-cable envelope max(l, r_uav + L_uav) (``Command.envelope_mode == "full_cable"``).
+
+A swing that comes from the payload's own position stream (``swing_source == "payload_position"``, 10 Hz
+on the bundled vehicle, like ArduPilot's slung-payload stream) is used for the envelope and the planner
+only, not by the controller: the feed-forward differentiates α̇, and a 10 Hz staircase differentiated at
+250 Hz makes it inject spikes that excite the swing (measured: the forest flown that way swung to
+0.75 rad and never reached the goal). Only the cable-angle sensor, sampled at the control rate, feeds the
+payload compensation and the feed-forward.
 """
 
 from __future__ import annotations
@@ -177,8 +184,10 @@ class FlightCore:
         if dt > 0.0:
             ref.step(v_des, dt)
 
+        ctl_swing = swing if est.swing_source == "cable_sensor" else None
         ctl = self.controller.update(
-            pos, vel, ref.pos_ned_m, ref.vel_ned_mps, ref.acc_ned_mps2, swing, swing_acc, max(dt, 1e-4)
+            pos, vel, ref.pos_ned_m, ref.vel_ned_mps, ref.acc_ned_mps2, ctl_swing,
+            swing_acc if ctl_swing is not None else np.zeros(2), max(dt, 1e-4),
         )
         lim = self.cfg.limits
         force = limit_force(ctl.force_ned_n, lim.tilt_max_rad, self._thrust_min, self._thrust_max)

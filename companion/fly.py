@@ -25,6 +25,7 @@ from companion.errors import ConfigError
 from companion.mission import Mission, load_mission
 from companion.profile import PROFILE_NAMES, profile_by_name
 from companion.report import write_run
+from companion.vehicle_state import SWING_INPUTS
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +54,9 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                    help="normalized hover thrust of your vehicle (PX4 MPC_THR_HOVER); overrides the profile's")
     p.add_argument("--rate-hz", type=float, default=250.0, help="outer-loop rate (Hz)")
     p.add_argument("--payload-sysid", type=int, default=2, help="MAVLink system id of the payload's own stream")
+    p.add_argument("--swing-input", choices=SWING_INPUTS, default="auto",
+                   help="swing measurement to use: auto = cable-angle sensor (DEBUG_FLOAT_ARRAY 'SWING'), else the "
+                        "payload's position stream, else none (no feed-forward, full-cable envelope)")
     p.add_argument("--run-dir", type=Path, default=None, help="where to write the run folder")
     p.add_argument("--report", type=Path, default=None, help="also write the JSON report to this file")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
@@ -107,7 +111,8 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
     gains = load_gains(args.gains)
     opts = FlyOptions(
         connect=args.connect, rate_hz=args.rate_hz, lockstep=args.lockstep or (args.sitl and not args.realtime),
-        profile=profile, gains=gains, payload_sysid=args.payload_sysid, heartbeat_timeout_s=args.heartbeat_timeout,
+        profile=profile, gains=gains, payload_sysid=args.payload_sysid, swing_input=args.swing_input,
+        heartbeat_timeout_s=args.heartbeat_timeout,
         land_on_abort=not args.no_land_on_abort, tlog_path=run_dir / "flight.tlog",
     )
     if opts.rate_hz <= 0 or opts.rate_hz > 2000:
@@ -147,6 +152,8 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
         "loop": app.stats.summary(),
         "link": {"received": app.link.received, "sent": app.link.sent, "rejected": dict(app.link.rejected)},
         "vehicle_statustext": app.state.statustext[-20:],
+        "swing_input": opts.swing_input,
+        "swing_sources": app.swing_sources,
         "profile": profile.name,
         "lockstep": opts.lockstep,
         "connect": opts.connect,

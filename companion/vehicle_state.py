@@ -11,6 +11,9 @@ Swing input, in order of preference:
    slung-payload simulation sends it), inverted through eqs. 3–4 — used while fresher than 0.3 s;
 3. none: the estimate carries ``swing=None``; the flight core then flies without feed-forward and with
    the full-cable-length envelope, and says so in its commands.
+
+``swing_input`` restricts the choice: ``"auto"`` (the order above), ``"cable_sensor"``, ``"payload_position"``
+or ``"none"`` (ignore both, e.g. to fly as a vehicle without any swing measurement would).
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from companion.estimate import Estimate, swing_from_payload
+
+SWING_INPUTS = ("auto", "cable_sensor", "payload_position", "none")
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +54,7 @@ class VehicleState:
 
     cable_length_m: float
     payload_sysid: int | None = None
+    swing_input: str = "auto"
     swing_max_age_s: float = 0.05
     payload_max_age_s: float = 0.3
     vehicle_sysid: int | None = None
@@ -140,6 +146,20 @@ class VehicleState:
         """True once position, velocity and attitude have all been received."""
         return self.pos_ned_m is not None and self.euler_rad is not None
 
+    def measured_swing(self) -> np.ndarray | None:
+        """The best swing measurement available, whatever ``swing_input`` says (for logs and metrics)."""
+        if self.swing_sensor is not None and self.t_s - self.swing_sensor_t_s <= self.swing_max_age_s:
+            return self.swing_sensor
+        if self.pos_ned_m is None or self.payload_pos_ned_m is None or self.payload_vel_ned_mps is None:
+            return None
+        if self.vel_ned_mps is None or self.t_s - self.payload_t_s > self.payload_max_age_s:
+            return None
+        try:
+            return swing_from_payload(self.pos_ned_m, self.payload_pos_ned_m, self.vel_ned_mps,
+                                      self.payload_vel_ned_mps, self.cable_length_m)
+        except ValueError:
+            return None
+
     def estimate(self) -> Estimate | None:
         """The current :class:`Estimate`, or None before the first position and attitude."""
         if not self.ready():
@@ -148,10 +168,17 @@ class VehicleState:
         assert self.euler_rad is not None and self.rates_frd_rad_s is not None
         swing = None
         source = "none"
-        if self.swing_sensor is not None and self.t_s - self.swing_sensor_t_s <= self.swing_max_age_s:
+        use_cable = self.swing_input in ("auto", "cable_sensor")
+        use_payload = self.swing_input in ("auto", "payload_position")
+        if (
+            use_cable
+            and self.swing_sensor is not None
+            and self.t_s - self.swing_sensor_t_s <= self.swing_max_age_s
+        ):
             swing, source = self.swing_sensor, "cable_sensor"
         elif (
-            self.payload_pos_ned_m is not None
+            use_payload
+            and self.payload_pos_ned_m is not None
             and self.payload_vel_ned_mps is not None
             and self.t_s - self.payload_t_s <= self.payload_max_age_s
         ):

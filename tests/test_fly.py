@@ -99,7 +99,7 @@ def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
             assert time.monotonic() < deadline, "never reached OFFBOARD"
         time.sleep(3.0)  # mid-flight, in the air
         proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=90)
+        _out, err = proc.communicate(timeout=90)
     finally:
         if proc.poll() is None:
             os.kill(proc.pid, signal.SIGKILL)
@@ -115,3 +115,18 @@ def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
     while mlog.recv_match(type="SET_ATTITUDE_TARGET") is not None:
         n += 1
     assert n > 100
+
+
+@pytest.mark.parametrize(("swing_input", "envelope"), [("none", "full_cable"), ("payload_position", "swing")])
+def test_flies_without_the_cable_sensor(tmp_path, swing_input, envelope):
+    """No cable-angle sensor: fall back to the payload's position stream, or to nothing (full-cable envelope)."""
+    proc = _slungpilot("fly", "--sitl", "--mission", str(FOREST), "--run-dir", str(tmp_path), "--no-plots",
+                       "--swing-input", swing_input)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["reached_goal"] and rep["collisions"] == 0
+    assert set(rep["swing_sources"]) == {swing_input}
+    assert set(rep["envelope_modes"]) == {envelope}
+    assert rep["max_swing_rad"] is not None  # the log still records the measured swing
+    if swing_input == "none":
+        assert "no swing input" in proc.stderr
