@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.errors import ModelError
 from companion.model import VehicleParams
 from companion.wind import WindConfig
 from sim_bridge import commands, px4_modes, telemetry
@@ -318,7 +319,15 @@ class SitlVehicle:
         sim = self.sim
         if self.mode != px4_modes.OFFBOARD and sim.armed:
             self._internal_control()
-        sim.step(self.cfg.control_period_us // self.cfg.physics_dt_us)
+        try:
+            sim.step(self.cfg.control_period_us // self.cfg.physics_dt_us)
+        except (ModelError, FloatingPointError) as exc:  # e.g. flipped to pitch 90°: crash, restart at home
+            log.error("physics failed at t = %.3f s: %s", self.t_us * 1e-6, exc)
+            self.sim = self._new_sim(sim.params, self.t_us * 1e-6)
+            self.mode = px4_modes.AUTO_LOITER
+            self._hold_here()
+            self._airborne = False
+            self.statustext(M.MAV_SEVERITY_CRITICAL, "Crashed (simulation diverged): reset at home, disarmed")
         self.t_us += self.cfg.control_period_us
         self.steps += 1
         self._after_step()
