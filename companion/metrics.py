@@ -15,6 +15,7 @@ obstacle's top), collisions (obstacles with clearance < 0), planner, controller,
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -92,6 +93,16 @@ class FlightLog:
 
     def __len__(self) -> int:
         return len(self.t)
+
+    def select(self, keep: np.ndarray) -> FlightLog:
+        """A new log with only the rows where ``keep`` (bool, (N,)) is true."""
+        idx = np.flatnonzero(keep)
+        out = FlightLog(self.planner, self.controller, self.mission, self.obstacles, wall_time_s=self.wall_time_s)
+        for f in dataclasses.fields(self):
+            col = getattr(self, f.name)
+            if isinstance(col, list):
+                setattr(out, f.name, [col[i] for i in idx])
+        return out
 
     def arr(self, name: str) -> np.ndarray:
         """Column ``name`` as a numpy array ((N,) or (N, k))."""

@@ -57,7 +57,10 @@ def build_report(flog: FlightLog, mission: Mission, extra: dict[str, Any]) -> di
             "sim_time_s": 0.0,
         }
     else:
-        rep = compute_metrics(flog, mission)
+        # Metrics describe the mission the companion flew (climb, cruise, hold), not the autopilot's own landing
+        # afterwards; the plots and the .npz keep every row.
+        flown = np.array([bool(p) for p in flog.phase], dtype=bool)
+        rep = compute_metrics(flog.select(flown) if flown.any() else flog, mission)
     swing_modes = [m for m in flog.envelope_mode if m]
     rep["envelope_modes"] = {m: swing_modes.count(m) for m in sorted(set(swing_modes))}
     rep.update(extra)

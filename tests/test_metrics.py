@@ -79,3 +79,17 @@ def test_collisions_and_never_reached():
 def test_empty_log_refused():
     with pytest.raises(ValueError):
         compute_metrics(FlightLog(), _mission())
+
+
+def test_select_keeps_rows_and_columns_aligned():
+    from companion.metrics import FlightLog
+
+    log = FlightLog(planner="safe", controller="smc_ff", mission="m")
+    for k in range(5):
+        log.append(float(k), [k, 0, -2], [1, 0, 0], [0, 0, 0], [0.01 * k, 0, 0, 0], [k, 0, -1], None)
+    sub = log.select(np.array([True, False, True, False, True]))
+    assert len(sub) == 3 and sub.planner == "safe"
+    np.testing.assert_array_equal(sub.arr("t"), [0.0, 2.0, 4.0])
+    np.testing.assert_array_equal(sub.arr("pos")[:, 0], [0.0, 2.0, 4.0])
+    np.testing.assert_allclose(sub.arr("swing")[:, 0], [0.0, 0.02, 0.04])
+    assert len(sub.phase) == 3 and len(sub.r_max_m) == 3
