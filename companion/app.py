@@ -352,7 +352,8 @@ class FlightApp:
         )
         if self._abort.is_set():
             return await self._abort_sequence()
-        self.outcome = "completed" if finished and self.core.phase == "done" else "timeout"
+        completed = finished and self.core.phase == "done" and not self.core.timed_out
+        self.outcome = "completed" if completed else "timeout"
         if self.mission.land:
             await self._land()
 
