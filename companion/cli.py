@@ -100,6 +100,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_sitl_arguments(sitl)
     sitl.set_defaults(func=_cmd_sitl)
 
+    from lab.cli import add_evaluate_parser, add_experiments_parser
+
+    add_experiments_parser(sub)
+    add_evaluate_parser(sub)
+
     bench = sub.add_parser(
         "bench",
         help="print performance numbers (model, sitl, fly, zenoh)",
