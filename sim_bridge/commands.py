@@ -42,20 +42,23 @@ def parse_attitude_target(msg: Any) -> tuple[str | None, np.ndarray | None, np.n
     q = None
     rates = None
     thrust = None
+    isfinite = math.isfinite
     if not mask & ATTITUDE_IGNORE:
-        q = np.array([float(c) for c in msg.q])
-        if not np.all(np.isfinite(q)):
+        q0, q1, q2, q3 = (float(c) for c in msg.q)
+        if not (isfinite(q0) and isfinite(q1) and isfinite(q2) and isfinite(q3)):
             return "nonfinite", None, None, None
-        if abs(math.sqrt(float(q @ q)) - 1.0) > 1e-3:
+        if abs(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3) - 1.0) > 1e-3:
             return "bad_quaternion", None, None, None
-    raw_rates = (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate)
-    if any(not mask & b for b in RATE_IGNORE_BITS):
-        rates = np.array([0.0 if mask & b else float(r) for b, r in zip(RATE_IGNORE_BITS, raw_rates, strict=True)])
-        if not np.all(np.isfinite(rates)):
+        q = np.array((q0, q1, q2, q3))
+    if (mask & 7) != 7:
+        r = [0.0 if mask & b else float(x) for b, x in
+             zip(RATE_IGNORE_BITS, (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate), strict=True)]
+        if not (isfinite(r[0]) and isfinite(r[1]) and isfinite(r[2])):
             return "nonfinite", None, None, None
+        rates = np.array(r)
     if not mask & THRUST_IGNORE:
         thrust = float(msg.thrust)
-        if not math.isfinite(thrust):
+        if not isfinite(thrust):
             return "nonfinite", None, None, None
         if not 0.0 <= thrust <= 1.0:
             return "thrust_range", None, None, None

@@ -3,8 +3,9 @@
 Each datagram is cut into frames here (UDP keeps frame boundaries, so nothing is carried over between
 datagrams): bytes before a frame marker are *garbage*, a MAVLink 1 frame (0xFE) is *mavlink1*, a frame longer
 than what is left is *truncated*, unknown incompatibility flags or a signed frame is *bad_flags*, then
-pymavlink's ``MAVLink.decode`` checks CRC and length (*bad_crc*) and knows the id (*unknown_id*). Only
-decoded MAVLink 2 messages reach the handler. The link answers whoever talked to it last.
+:func:`companion.mavlink_fast.decode_frame` (pymavlink's ``MAVLink.decode``, precompiled) checks CRC and
+length (*bad_crc*) and knows the id (*unknown_id*). Only decoded MAVLink 2 messages reach the handler.
+The link answers whoever talked to it last.
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from collections.abc import Callable
 from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.mavlink_fast import FrameError, decode_frame
 
 log = logging.getLogger(__name__)
 
@@ -176,18 +179,18 @@ class MavUdpLink(asyncio.DatagramProtocol):
             if i + total > n:
                 self.counters.reject("truncated", f"frame needs {total} bytes, {n - i} left on {self.name}")
                 break
-            frame = bytearray(data[i : i + total])
+            frame = data[i : i + total]
             i += total
             if flags != 0:
                 self.counters.reject("bad_flags", f"incompat_flags 0x{flags:02x} (signing not supported)")
                 continue
             try:
-                msg = self.mav.decode(frame)
-            except Exception as exc:  # MAVError, struct.error, ...: never fatal
-                self.counters.reject("bad_crc", f"{exc} on {self.name}")
+                msg = decode_frame(frame)
+            except FrameError as exc:
+                self.counters.reject(exc.kind, f"{exc} on {self.name}")
                 continue
-            if isinstance(msg, mavlink2.MAVLink_unknown) or msg.get_type() == "BAD_DATA":
-                self.counters.reject("unknown_id", f"message id {msg.get_msgId()} on {self.name}")
+            except Exception as exc:  # struct.error, a constructor refusing a value, ...: never fatal
+                self.counters.reject("bad_crc", f"{exc} on {self.name}")
                 continue
             out.append(msg)
         if garbage:

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion import mavlink_fast as mf
 from sim_bridge.position_hold import quat_from_euler
 
 MSG_HEARTBEAT = mavlink2.MAVLINK_MSG_ID_HEARTBEAT
@@ -139,40 +140,39 @@ def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any) -> bool:
     """Send one message of the vehicle system, ``v`` being the running vehicle; False if unknown here."""
     sim = v.sim
     t_ms = v.t_us // 1000
-    if msgid == MSG_HEARTBEAT:
-        mav.heartbeat_send(
-            mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_PX4, v.base_mode, v.mode.custom_mode,
+    if msgid == MSG_DEBUG_FLOAT_ARRAY:  # the hot ones first: packed by companion.mavlink_fast
+        s = sim.swing
+        mf.send_debug_float_array5(mav, v.t_us, SWING_NAME, SWING_ARRAY_ID, s[0], s[1], s[2], s[3], sim.params.l)
+    elif msgid == MSG_ATTITUDE:
+        e = sim.euler_rad
+        w = sim.body_rates_frd_rad_s
+        mf.send_attitude(mav, t_ms, e[0], e[1], e[2], w[0], w[1], w[2])
+    elif msgid == MSG_LOCAL_POSITION_NED:
+        p, vel = sim.pos_ned_m, sim.vel_ned_mps
+        mf.send_local_position_ned(mav, t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
+    elif msgid == MSG_SYSTEM_TIME:
+        mf.send_system_time(mav, 0, t_ms & 0xFFFFFFFF)
+    elif msgid == MSG_ATTITUDE_QUATERNION:
+        q = sim.quat_wxyz
+        w = sim.body_rates_frd_rad_s
+        mf.send_attitude_quaternion(mav, t_ms, q[0], q[1], q[2], q[3], w[0], w[1], w[2])
+    elif msgid == MSG_GLOBAL_POSITION_INT:
+        _send_global(mav, t_ms, sim.pos_ned_m, sim.vel_ned_mps, float(sim.euler_rad[2]), v.home)
+    elif msgid == MSG_ATTITUDE_TARGET:
+        q = quat_from_euler(*sim.target_euler_rad)
+        r = sim.target_rates_frd_rad_s if sim.target_rates_frd_rad_s is not None else _ZERO3
+        mf.send_attitude_target(mav, t_ms, 0, q, r[0], r[1], r[2], v.normalized_thrust(sim.target_thrust_n))
+    elif msgid == MSG_HEARTBEAT:
+        mf.send_heartbeat(
+            mav, mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_PX4, v.base_mode, v.mode.custom_mode,
             mavlink2.MAV_STATE_ACTIVE if v.armed else mavlink2.MAV_STATE_STANDBY,
         )
     elif msgid == MSG_SYS_STATUS:
         sensors = 0x3FFFFF & ~(0x20000 | 0x10000 | 0x100 | 0x80)  # no RC, no laser, no optical flow, no vision
         mav.sys_status_send(sensors, sensors, sensors, 0, 16000, -1, 100, 0, min(v.counters.total, 65535),
                             0, 0, 0, 0)
-    elif msgid == MSG_SYSTEM_TIME:
-        mav.system_time_send(0, t_ms & 0xFFFFFFFF)
-    elif msgid == MSG_ATTITUDE:
-        e = sim.euler_rad
-        w = sim.body_rates_frd_rad_s
-        mav.attitude_send(t_ms, e[0], e[1], e[2], w[0], w[1], w[2])
-    elif msgid == MSG_ATTITUDE_QUATERNION:
-        q = sim.quat_wxyz
-        w = sim.body_rates_frd_rad_s
-        mav.attitude_quaternion_send(t_ms, q[0], q[1], q[2], q[3], w[0], w[1], w[2])
-    elif msgid == MSG_LOCAL_POSITION_NED:
-        p, vel = sim.pos_ned_m, sim.vel_ned_mps
-        mav.local_position_ned_send(t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
-    elif msgid == MSG_GLOBAL_POSITION_INT:
-        _send_global(mav, t_ms, sim.pos_ned_m, sim.vel_ned_mps, float(sim.euler_rad[2]), v.home)
-    elif msgid == MSG_ATTITUDE_TARGET:
-        q = quat_from_euler(*sim.target_euler_rad)
-        r = sim.target_rates_frd_rad_s if sim.target_rates_frd_rad_s is not None else np.zeros(3)
-        mav.attitude_target_send(t_ms, 0, q, r[0], r[1], r[2], v.normalized_thrust(sim.target_thrust_n))
     elif msgid == MSG_EXTENDED_SYS_STATE:
-        mav.extended_sys_state_send(mavlink2.MAV_VTOL_STATE_UNDEFINED, v.landed_state)
-    elif msgid == MSG_DEBUG_FLOAT_ARRAY:
-        s = sim.swing
-        data = [float(s[0]), float(s[1]), float(s[2]), float(s[3]), float(sim.params.l)] + [0.0] * 53
-        mav.send(SwingMessage(v.t_us, SWING_NAME, SWING_ARRAY_ID, data))
+        mf.send_extended_sys_state(mav, mavlink2.MAV_VTOL_STATE_UNDEFINED, v.landed_state)
     elif msgid == MSG_AUTOPILOT_VERSION:
         mav.autopilot_version_send(CAPABILITIES, SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
                                    v.sysid)
@@ -188,17 +188,18 @@ def send_payload_messages(mav: mavlink2.MAVLink, v: Any, heartbeat: bool) -> Non
     sim = v.sim
     t_ms = v.t_us // 1000
     if heartbeat:
-        mav.heartbeat_send(mavlink2.MAV_TYPE_GENERIC, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, mavlink2.MAV_STATE_ACTIVE)
+        mf.send_heartbeat(mav, mavlink2.MAV_TYPE_GENERIC, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0,
+                          mavlink2.MAV_STATE_ACTIVE)
     p, vel = sim.payload_pos_ned_m, sim.payload_vel_ned_mps
     _send_global(mav, t_ms, p, vel, 0.0, v.home)
-    mav.local_position_ned_send(t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
+    mf.send_local_position_ned(mav, t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
 
 
 def _send_global(mav, t_ms: int, p, vel, yaw_rad: float, home: tuple[float, float, float]) -> None:
     lat, lon, alt = ned_to_geodetic(p, *home)
     hdg = round(math.degrees(yaw_rad) * 100.0) % 36000
-    mav.global_position_int_send(
-        t_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0),
+    mf.send_global_position_int(
+        mav, t_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0),
         round(-float(p[2]) * 1000.0),
         _i16(vel[0] * 100.0), _i16(vel[1] * 100.0), _i16(vel[2] * 100.0), hdg,
     )
@@ -208,4 +209,5 @@ def _i16(x: float) -> int:
     return int(max(-32768, min(32767, round(float(x)))))
 
 
+_ZERO3 = (0.0, 0.0, 0.0)
 _STREAMABLE = {MSG_SYSTEM_TIME, MSG_AUTOPILOT_VERSION}
