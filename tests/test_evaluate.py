@@ -1,0 +1,104 @@
+"""lab.evaluate: classification and summary on hand-made results; tiny real runs in both modes."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from companion.mission import load_mission
+from lab.evaluate import evaluate, summarise
+from lab.forests import ForestSpec
+from lab.runner import classify
+
+
+def _r(cls_inputs: dict, seed: int, **kw) -> dict:
+    base = {"reached_goal": True, "collisions": 0, "time_to_goal_s": 10.0, "max_swing_rad": 0.2,
+            "min_clearance_m": 0.3, "seed": seed, "density": 3.0, "mission_file": f"m{seed}.toml", "error": None}
+    base.update(cls_inputs)
+    base.update(kw)
+    base["class"] = classify(base)
+    return base
+
+
+def test_classify_success_collision_stuck_error():
+    assert classify({"reached_goal": True, "collisions": 0}) == "success"
+    assert classify({"reached_goal": True, "collisions": 1}) == "collision"
+    assert classify({"reached_goal": False, "collisions": 2}) == "collision"
+    assert classify({"reached_goal": False, "collisions": 0}) == "stuck"
+    assert classify({"error": "LinkError: x"}) == "error"
+
+
+def test_summarise_rates_quantiles_and_failure_seeds():
+    res = [_r({}, s, time_to_goal_s=float(s)) for s in range(1, 9)]
+    res.append(_r({"collisions": 1, "min_clearance_m": -0.2}, 20))
+    res.append(_r({"reached_goal": False, "time_to_goal_s": None}, 21))
+    s = summarise(res)
+    assert s["n"] == 10
+    assert (s["success_rate"], s["collision_rate"], s["stuck_rate"]) == (0.8, 0.1, 0.1)
+    assert s["time_to_goal_s"]["median"] == pytest.approx(4.5)  # successes only: 1..8
+    assert s["time_to_goal_s"]["p90"] == pytest.approx(7.3)
+    assert s["min_clearance_m"]["min"] == pytest.approx(-0.2)
+    assert [(f["seed"], f["class"]) for f in s["failures"]] == [(20, "collision"), (21, "stuck")]
+
+
+def _check_out(out: Path, summary: dict, n_missions: int) -> None:
+    assert summary["missions"] == n_missions
+    for name in ("summary.md", "summary.json", "results.jsonl", "success_vs_density.png"):
+        assert (out / name).exists(), name
+    lines = (out / "results.jsonl").read_text().splitlines()
+    assert len(lines) == n_missions
+    md = (out / "summary.md").read_text()
+    assert summary["mode"] in md and "missions/min" in md
+    for r in map(json.loads, lines):
+        assert r["class"] in ("success", "collision", "stuck")  # never "error"
+        if r["class"] != "success":  # every failure keeps a replayable mission file
+            assert load_mission(r["mission_file"]).planner == r["planner"]
+            assert f"seed {r['seed']}" in md
+
+
+@pytest.mark.slow
+def test_evaluate_inprocess_tiny(tmp_path):
+    out = tmp_path / "ev"
+    s = evaluate(["safe", "improved"], [1.0, 3.0], 2, seed0=10, spec=ForestSpec(length_m=12.0), mode="inprocess",
+                 workers=1, out=out, progress=False)
+    _check_out(out, s, 8)
+    assert set(s["per_density"]["safe"]) == {"1", "3"}
+    assert s["per_planner"]["safe"]["n"] == 4
+    # the same seeds for every planner
+    seeds = {(r["planner"], r["seed"]) for r in map(json.loads, (out / "results.jsonl").read_text().splitlines())}
+    assert seeds == {(p, k) for p in ("safe", "improved") for k in (10, 11)}
+
+
+@pytest.mark.slow
+def test_evaluate_mavlink_two_missions_in_workers(tmp_path):
+    out = tmp_path / "evm"
+    proc = subprocess.run(
+        [sys.executable, "-m", "lab", "evaluate", "--n", "2", "--planners", "safe", "--mode", "mavlink",
+         "--workers", "2", "--out", str(out), "--length", "12"],
+        capture_output=True, text=True, timeout=240,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    s = json.loads((out / "summary.json").read_text())
+    _check_out(out, s, 2)
+    assert s["mode"] == "mavlink" and s["spec"]["length_m"] == 12.0
+    assert "2/2" in proc.stderr  # the progress bar ran to the end
+    assert "lockstep MAVLink" in proc.stdout
+
+
+def test_evaluate_cli_refuses_bad_arguments(tmp_path, capsys):
+    from lab.cli import main
+
+    for argv, key in ((["--planners", "astar"], "--planners"), (["--density", "99"], "density_per_100m2"),
+                      (["--n", "0"], "--n")):
+        assert main(["evaluate", *argv, "--out", str(tmp_path / "x")]) == 2, argv
+        assert key in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()  # refused before anything was flown
+
+
+def test_forest_spec_defaults_match_the_issue():
+    s = ForestSpec()
+    assert (s.length_m, s.r_min_m, s.r_max_m, s.density_per_100m2, s.wind_scale) == (20.0, 0.15, 0.35, 3.0, 1.0)
