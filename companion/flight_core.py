@@ -30,7 +30,7 @@ from companion.control import (
     ControllerConfig,
     SwingAccelEstimator,
     attitude_from_force,
-    limit_force,
+    limit_force_xyz,
     make_position_controller,
 )
 from companion.envelope import full_cable_r_max_m, r_max_m
@@ -98,13 +98,16 @@ class FlightCore:
         lim = self.cfg.limits
         self._thrust_min = lim.thrust_min_frac * hover
         self._thrust_max = lim.thrust_max_frac * hover
+        self._full_cable_r_max = full_cable_r_max_m(self.params)
+        self._airframe_r = self.params.r_uav + self.params.L_uav
+        self._goal_xy = np.array(mission.goal_ned_m[:2], dtype=np.float64)
 
     # ------------------------------------------------------------------------------------------------
     def _vertical_speed(self, z_target: float) -> float:
         """Desired vertical reference speed (m/s) towards ``z_target`` with a braking profile."""
         assert self.ref is not None
         p = self.cfg.planner
-        dz = z_target - float(self.ref.pos_ned_m[2])
+        dz = z_target - self.ref.p[2]
         v = min(p.vz_max_mps, math.sqrt(2.0 * 0.5 * p.az_max_mps2 * abs(dz)), p.ka * abs(dz))
         return math.copysign(v, dz)
 
@@ -118,7 +121,7 @@ class FlightCore:
         if self.phase == "climb":
             assert self.ref is not None
             if abs(float(est.pos_ned_m[2]) - m.start_ned_m[2]) < ARRIVE_VERT_M and abs(
-                float(self.ref.pos_ned_m[2]) - m.start_ned_m[2]
+                self.ref.p[2] - m.start_ned_m[2]
             ) < 0.02:
                 self.phase = "cruise"
         elif self.phase == "cruise":
@@ -133,16 +136,21 @@ class FlightCore:
 
     # ------------------------------------------------------------------------------------------------
     def update(self, est: Estimate, obstacles: Sequence[Obstacle] | None = None) -> Command:
-        """The setpoint for this tick. ``obstacles`` None means the mission's own list."""
+        """The setpoint for this tick. ``obstacles`` None means the mission's own list.
+
+        Cost matters here (it runs at the control rate, and the lockstep loop waits for it): tiny vectors
+        are handled as floats (math.hypot, no numpy temporaries); arrays are built only for the Command.
+        """
         m = self.mission
         obs = m.obstacles if obstacles is None else obstacles
-        pos = np.asarray(est.pos_ned_m, dtype=np.float64)
-        vel = np.asarray(est.vel_ned_mps, dtype=np.float64)
+        pos = est.pos_ned_m
+        vel = est.vel_ned_mps
+        z = float(pos[2])
         if self.ref is None:
-            self.ref = ReferenceGenerator(self.cfg.planner, pos)
+            self.ref = ReferenceGenerator(self.cfg.planner, np.asarray(pos, dtype=np.float64))
             self.t0_s = est.t_s
             self.yaw_rad = float(est.euler_rad[2])
-            if abs(pos[2] - m.start_ned_m[2]) < ARRIVE_VERT_M:
+            if abs(z - m.start_ned_m[2]) < ARRIVE_VERT_M:
                 self.phase = "cruise"
         dt = 0.004 if self.t_prev_s is None else est.t_s - self.t_prev_s
         self.t_prev_s = est.t_s
@@ -150,53 +158,57 @@ class FlightCore:
 
         swing = None if est.swing is None else np.asarray(est.swing, dtype=np.float64)
         if swing is not None:
-            r_max = r_max_m(swing[0], swing[1], self.params)
+            r_max = r_max_m(float(swing[0]), float(swing[1]), self.params)
             mode = "swing"
-            swing_acc = self.swing_acc.update(est.t_s, swing[2:4])
+            swing_acc = self.swing_acc.update_scalar(est.t_s, float(swing[2]), float(swing[3]))
         else:
-            r_max = full_cable_r_max_m(self.params)
+            r_max = self._full_cable_r_max
             mode = "full_cable"
             self.swing_acc.reset()
-            swing_acc = np.zeros(2)
+            swing_acc = (0.0, 0.0)
 
-        f_att = np.zeros(2)
-        f_rep = np.zeros(2)
+        f_att = _ZERO2
+        f_rep = _ZERO2
         plan_mode = "track"
-        v_des = np.zeros(3)
         ref = self.ref
         if self.phase == "climb":
-            v_des[2] = self._vertical_speed(float(m.start_ned_m[2]))
+            vdx = vdy = 0.0
+            vdz = self._vertical_speed(float(m.start_ned_m[2]))
         elif self.phase == "cruise":
             inp = PlanInput(
-                t_s=est.t_s, pos_m=pos[:2], vel_mps=vel[:2], ref_pos_m=ref.pos_ned_m[:2].copy(),
-                ref_vel_mps=ref.vel_ned_mps[:2].copy(), goal_m=m.goal_ned_m[:2], r_max_m=r_max, swing=swing,
-                cable_l_m=self.params.l, airframe_r_m=self.params.r_uav + self.params.L_uav,
-                g_mps2=self.params.g, z_ned_m=float(pos[2]),
+                t_s=est.t_s, pos_m=np.asarray(pos[:2], dtype=np.float64), vel_mps=np.asarray(vel[:2], dtype=np.float64),
+                ref_pos_m=np.array(ref.p[:2]), ref_vel_mps=np.array(ref.v[:2]), goal_m=self._goal_xy, r_max_m=r_max,
+                swing=swing, cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
             )
             out = self.planner.plan(inp, obs)
-            v_des[:2] = out.v_des_mps
-            v_des[2] = self._vertical_speed(float(m.goal_ned_m[2]))
+            vdx, vdy = float(out.v_des_mps[0]), float(out.v_des_mps[1])
+            vdz = self._vertical_speed(float(m.goal_ned_m[2]))
             f_att, f_rep, plan_mode = out.force_att, out.force_rep, out.mode
         else:  # hold / done: hover at the goal
-            e = m.goal_ned_m - ref.pos_ned_m
-            v_des[:2] = self.cfg.planner.ka * e[:2]
-            v_des[2] = self._vertical_speed(float(m.goal_ned_m[2]))
+            ka = self.cfg.planner.ka
+            vdx = ka * (float(m.goal_ned_m[0]) - ref.p[0])
+            vdy = ka * (float(m.goal_ned_m[1]) - ref.p[1])
+            vdz = self._vertical_speed(float(m.goal_ned_m[2]))
         if dt > 0.0:
-            ref.step(v_des, dt)
+            ref.step((vdx, vdy, vdz), dt)
 
         ctl_swing = swing if est.swing_source == "cable_sensor" else None
         ctl = self.controller.update(
-            pos, vel, ref.pos_ned_m, ref.vel_ned_mps, ref.acc_ned_mps2, ctl_swing,
-            swing_acc if ctl_swing is not None else np.zeros(2), max(dt, 1e-4),
+            pos, vel, ref.p, ref.v, ref.a, ctl_swing, swing_acc if ctl_swing is not None else (0.0, 0.0),
+            max(dt, 1e-4),
         )
         lim = self.cfg.limits
-        force = limit_force(ctl.force_ned_n, lim.tilt_max_rad, self._thrust_min, self._thrust_max)
+        fx, fy, fz = (float(v) for v in ctl.force_ned_n)
+        force = limit_force_xyz(fx, fy, fz, lim.tilt_max_rad, self._thrust_min, self._thrust_max)
         q, thrust, euler = attitude_from_force(force, self.yaw_rad)
         return Command(
             t_s=est.t_s, q_ned_frd_wxyz=q, thrust_n=thrust,
             thrust_norm=self.profile.thrust_to_norm(thrust, self.params.hover_thrust_n), euler_cmd_rad=euler,
-            ref_pos_ned_m=ref.pos_ned_m.copy(), ref_vel_ned_mps=ref.vel_ned_mps.copy(),
-            ref_acc_ned_mps2=ref.acc_ned_mps2.copy(), force_att_n=np.asarray(f_att, dtype=np.float64),
-            force_rep_n=np.asarray(f_rep, dtype=np.float64), r_max_m=r_max, envelope_mode=mode, phase=self.phase,
+            ref_pos_ned_m=np.array(ref.p), ref_vel_ned_mps=np.array(ref.v), ref_acc_ned_mps2=np.array(ref.a),
+            force_att_n=f_att, force_rep_n=f_rep, r_max_m=r_max, envelope_mode=mode, phase=self.phase,
             ff_accel=ctl.ff_acc_mps2, plan_mode=plan_mode,
         )
+
+
+_ZERO2 = np.zeros(2)
+_ZERO2.flags.writeable = False

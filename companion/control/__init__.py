@@ -1,6 +1,6 @@
 """Controllers by name (``smc_ff``, ``smc``, ``pid``), attitude/thrust from force, and their gains."""
 
-from companion.control.attitude import attitude_from_force, limit_force
+from companion.control.attitude import attitude_from_force, limit_force, limit_force_xyz
 from companion.control.params import ControllerConfig, load_controller_config
 from companion.control.position import (
     PositionOutput,
@@ -20,6 +20,7 @@ __all__ = [
     "attitude_from_force",
     "feedforward_acc",
     "limit_force",
+    "limit_force_xyz",
     "load_controller_config",
     "make_position_controller",
     "payload_reaction_n",

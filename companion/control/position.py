@@ -55,6 +55,20 @@ class PositionOutput:
     sliding: np.ndarray
 
 
+def _payload_reaction(
+    al: float, be: float, dal: float, dbe: float, dda: float, ddb: float, m_kg: float, l_m: float
+) -> tuple[float, float, float]:
+    """f = −m·(J·s̈ + J̇·ṡ) as three floats (N, NED); see :func:`payload_reaction_n`."""
+    ca, sa, cb, sb = math.cos(al), math.sin(al), math.cos(be), math.sin(be)
+    k = -m_kg * l_m
+    return (
+        k * ((ca * cb * dda - sa * sb * ddb)
+             + (-sa * cb * dal * dal - 2.0 * ca * sb * dal * dbe - sa * cb * dbe * dbe)),
+        k * (-cb * ddb + sb * dbe * dbe),
+        k * ((-sa * cb * dda - ca * sb * ddb) + (-ca * cb * (dal * dal + dbe * dbe) + 2.0 * sa * sb * dal * dbe)),
+    )
+
+
 def payload_reaction_n(swing: np.ndarray, swing_acc: np.ndarray, m_kg: float, l_m: float) -> np.ndarray:
     """f = −m·(J·s̈ + J̇·ṡ) (N, NED): the force the swinging payload exerts on the airframe beyond its weight.
 
@@ -62,16 +76,18 @@ def payload_reaction_n(swing: np.ndarray, swing_acc: np.ndarray, m_kg: float, l_
     """
     al, be, dal, dbe = (float(v) for v in swing)
     dda, ddb = (float(v) for v in swing_acc)
-    ca, sa, cb, sb = math.cos(al), math.sin(al), math.cos(be), math.sin(be)
-    j_s = l_m * np.array([ca * cb * dda - sa * sb * ddb, -cb * ddb, -sa * cb * dda - ca * sb * ddb])
-    jd_s = l_m * np.array(
-        [
-            -sa * cb * dal * dal - 2.0 * ca * sb * dal * dbe - sa * cb * dbe * dbe,
-            sb * dbe * dbe,
-            -ca * cb * (dal * dal + dbe * dbe) + 2.0 * sa * sb * dal * dbe,
-        ]
-    )
-    return -m_kg * (j_s + jd_s)
+    return np.array(_payload_reaction(al, be, dal, dbe, dda, ddb, m_kg, l_m))
+
+
+def _feedforward(
+    al: float, be: float, dal: float, dbe: float, dda: float, ddb: float, ff: FeedForwardGains, l_m: float,
+    sign: float,
+) -> tuple[float, float, float]:
+    ux = ff.k_angle * al + ff.k_rate * dal - ff.a1 * dda
+    uy = -(ff.k_angle * be + ff.k_rate * dbe - ff.a2 * ddb)
+    uz = -ff.a3 * (dda + ddb)
+    k = sign * l_m
+    return k * ux, k * uy, k * uz
 
 
 def feedforward_acc(
@@ -80,10 +96,7 @@ def feedforward_acc(
     """Anti-swing acceleration (m/s², NED), see module docstring; ``sign`` −1 flips it (for the test)."""
     al, be, dal, dbe = (float(v) for v in swing)
     dda, ddb = (float(v) for v in swing_acc)
-    ux = ff.k_angle * al + ff.k_rate * dal - ff.a1 * dda
-    uy = -(ff.k_angle * be + ff.k_rate * dbe - ff.a2 * ddb)
-    uz = -ff.a3 * (dda + ddb)
-    return sign * l_m * np.array([ux, uy, uz])
+    return np.array(_feedforward(al, be, dal, dbe, dda, ddb, ff, l_m, sign))
 
 
 class SwingAccelEstimator:
@@ -91,31 +104,37 @@ class SwingAccelEstimator:
 
     def __init__(self, tau_s: float) -> None:
         self.tau_s = tau_s
-        self._last: np.ndarray | None = None
+        self._last: tuple[float, float] | None = None
         self._t = 0.0
-        self.value = np.zeros(2)
+        self._v = (0.0, 0.0)
 
-    def update(self, t_s: float, rates: np.ndarray) -> np.ndarray:
-        """Feed [α̇, β̇] at time ``t_s``; returns the filtered [α̈, β̈]."""
-        r = np.asarray(rates, dtype=np.float64)
+    @property
+    def value(self) -> np.ndarray:
+        """The current filtered [α̈, β̈] (rad/s²), a copy."""
+        return np.array(self._v)
+
+    def update_scalar(self, t_s: float, rate_a: float, rate_b: float) -> tuple[float, float]:
+        """Feed α̇, β̇ (rad/s) at time ``t_s``; returns the filtered (α̈, β̈)."""
         if self._last is not None:
             dt = t_s - self._t
             if dt > 0.0:
-                raw = (r - self._last) / dt
                 k = dt / (self.tau_s + dt)
-                self.value = self.value + k * (raw - self.value)
-        self._last = r.copy()
+                va, vb = self._v
+                va = va + k * ((rate_a - self._last[0]) / dt - va)
+                vb = vb + k * ((rate_b - self._last[1]) / dt - vb)
+                self._v = (va, vb)
+        self._last = (rate_a, rate_b)
         self._t = t_s
-        return self.value
+        return self._v
+
+    def update(self, t_s: float, rates: np.ndarray) -> np.ndarray:
+        """Feed [α̇, β̇] at time ``t_s``; returns the filtered [α̈, β̈]."""
+        return np.array(self.update_scalar(t_s, float(rates[0]), float(rates[1])))
 
     def reset(self) -> None:
         """Forget history (e.g. when the swing source drops out)."""
         self._last = None
-        self.value = np.zeros(2)
-
-
-def _sat(x: np.ndarray, boundary: np.ndarray) -> np.ndarray:
-    return np.clip(x / boundary, -1.0, 1.0)
+        self._v = (0.0, 0.0)
 
 
 def _limit_horizontal(a: np.ndarray, a_max: float) -> np.ndarray:
@@ -128,7 +147,10 @@ def _limit_horizontal(a: np.ndarray, a_max: float) -> np.ndarray:
 
 
 class SmcPositionController:
-    """Sliding-mode position controller (eqs. 30–37); ``feedforward`` given = ``smc_ff``, None = ``smc``."""
+    """Sliding-mode position controller (eqs. 30–37); ``feedforward`` given = ``smc_ff``, None = ``smc``.
+
+    Scalar arithmetic per axis (this runs every control tick).
+    """
 
     def __init__(
         self, gains: SmcGains, params: VehicleParams, feedforward: FeedForwardGains | None, acc_max_mps2: float
@@ -138,31 +160,45 @@ class SmcPositionController:
         self.ff = feedforward
         self.ff_sign = 1.0  # −1 only to demonstrate the wrong sign in tests
         self.acc_max = acc_max_mps2
-        self._c = np.array(gains.c)
-        self._k = np.array(gains.k)
-        self._ks = np.array(gains.k_sat)
-        self._bl = np.array(gains.boundary)
+        self._c = tuple(float(v) for v in gains.c)
+        self._k = tuple(float(v) for v in gains.k)
+        self._ks = tuple(float(v) for v in gains.k_sat)
+        self._bl = tuple(float(v) for v in gains.boundary)
 
     def update(
-        self, pos, vel, ref_pos, ref_vel, ref_acc, swing: np.ndarray | None, swing_acc: np.ndarray, dt_s: float
+        self, pos, vel, ref_pos, ref_vel, ref_acc, swing: np.ndarray | None, swing_acc, dt_s: float
     ) -> PositionOutput:
         """One control step; arrays NED (3,), SI units. Without swing: no payload reaction, no FF."""
         p = self.params
         mt = p.M + p.m
-        e = np.asarray(ref_pos) - np.asarray(pos)
-        de = np.asarray(ref_vel) - np.asarray(vel)
-        s = self._c * e + de
         if swing is not None:
-            f_pay = payload_reaction_n(swing, swing_acc, p.m, p.l)
-            ff = feedforward_acc(swing, swing_acc, self.ff, p.l, self.ff_sign) if self.ff is not None else np.zeros(3)
+            al, be, dal, dbe = (float(v) for v in swing)
+            dda, ddb = float(swing_acc[0]), float(swing_acc[1])
+            f_pay = _payload_reaction(al, be, dal, dbe, dda, ddb, p.m, p.l)
+            ff = (
+                _feedforward(al, be, dal, dbe, dda, ddb, self.ff, p.l, self.ff_sign)
+                if self.ff is not None else (0.0, 0.0, 0.0)
+            )
         else:
-            f_pay = np.zeros(3)
-            ff = np.zeros(3)
-        acc = np.asarray(ref_acc) + self._c * de + self._k * s + ff
-        acc = _limit_horizontal(acc, self.acc_max)
-        force = mt * acc + self._ks * _sat(s, self._bl) - f_pay
+            f_pay = (0.0, 0.0, 0.0)
+            ff = (0.0, 0.0, 0.0)
+        s = [0.0, 0.0, 0.0]
+        acc = [0.0, 0.0, 0.0]
+        for i in range(3):
+            e = float(ref_pos[i]) - float(pos[i])
+            de = float(ref_vel[i]) - float(vel[i])
+            s[i] = self._c[i] * e + de
+            acc[i] = float(ref_acc[i]) + self._c[i] * de + self._k[i] * s[i] + ff[i]
+        h = math.hypot(acc[0], acc[1])
+        if h > self.acc_max:
+            acc[0] *= self.acc_max / h
+            acc[1] *= self.acc_max / h
+        acc[2] = min(max(acc[2], -self.acc_max), self.acc_max)
+        force = [
+            mt * acc[i] + self._ks[i] * min(1.0, max(-1.0, s[i] / self._bl[i])) - f_pay[i] for i in range(3)
+        ]
         force[2] -= mt * p.g
-        return PositionOutput(force, acc, ff, f_pay, s)
+        return PositionOutput(np.array(force), np.array(acc), np.array(ff), np.array(f_pay), np.array(s))
 
 
 class PidPositionController:

@@ -6,13 +6,17 @@ as a first-order lag of time constant 1/(4·k_vel) (critically damped chain, no 
 clipped to ``j_max``; then a, v and p are integrated (semi-implicit Euler). The
 reference is therefore continuous in position, velocity and acceleration, and its jerk is bounded — the
 payload sees no step in the vehicle's acceleration, which is what excites the swing.
+
+The state is kept as plain floats (the generator runs every control tick; numpy on 3-vectors costs more
+than the arithmetic); ``pos_ned_m``, ``vel_ned_mps`` and ``acc_ned_mps2`` return fresh (3,) arrays.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from companion.planning.base import saturate
 from companion.planning.params import PlannerParams
 
 
@@ -21,28 +25,58 @@ class ReferenceGenerator:
 
     def __init__(self, params: PlannerParams, pos_ned_m: np.ndarray) -> None:
         self.params = params
-        self.pos_ned_m = np.array(pos_ned_m, dtype=np.float64)
-        self.vel_ned_mps = np.zeros(3)
-        self.acc_ned_mps2 = np.zeros(3)
+        self.reset(pos_ned_m)
 
     def reset(self, pos_ned_m: np.ndarray, vel_ned_mps: np.ndarray | None = None) -> None:
         """Restart at ``pos_ned_m`` (m) with velocity ``vel_ned_mps`` (default 0) and zero acceleration."""
-        self.pos_ned_m = np.array(pos_ned_m, dtype=np.float64)
-        self.vel_ned_mps = np.zeros(3) if vel_ned_mps is None else np.array(vel_ned_mps, dtype=np.float64)
-        self.acc_ned_mps2 = np.zeros(3)
+        self.p = [float(v) for v in pos_ned_m]
+        self.v = [0.0, 0.0, 0.0] if vel_ned_mps is None else [float(v) for v in vel_ned_mps]
+        self.a = [0.0, 0.0, 0.0]
 
-    def step(self, v_des_ned_mps: np.ndarray, dt_s: float) -> None:
+    @property
+    def pos_ned_m(self) -> np.ndarray:
+        """Reference position (m, NED), a copy."""
+        return np.array(self.p)
+
+    @property
+    def vel_ned_mps(self) -> np.ndarray:
+        """Reference velocity (m/s, NED), a copy."""
+        return np.array(self.v)
+
+    @property
+    def acc_ned_mps2(self) -> np.ndarray:
+        """Reference acceleration (m/s², NED), a copy."""
+        return np.array(self.a)
+
+    def step(self, v_des_ned_mps, dt_s: float) -> None:
         """Advance by ``dt_s`` seconds towards ``v_des_ned_mps`` (3,), respecting all limits."""
         p = self.params
-        v_des = np.array(v_des_ned_mps, dtype=np.float64)
-        v_des[:2] = saturate(v_des[:2], p.v_max_mps)
-        v_des[2] = float(np.clip(v_des[2], -p.vz_max_mps, p.vz_max_mps))
-        a_cmd = p.k_vel * (v_des - self.vel_ned_mps)
-        a_cmd[:2] = saturate(a_cmd[:2], p.a_max_mps2)
-        a_cmd[2] = float(np.clip(a_cmd[2], -p.az_max_mps2, p.az_max_mps2))
+        vx, vy, vz = (float(c) for c in v_des_ned_mps)
+        n = math.hypot(vx, vy)
+        if n > p.v_max_mps:
+            s = p.v_max_mps / n
+            vx, vy = vx * s, vy * s
+        vz = min(max(vz, -p.vz_max_mps), p.vz_max_mps)
+        v, a, pos = self.v, self.a, self.p
+        ax = p.k_vel * (vx - v[0])
+        ay = p.k_vel * (vy - v[1])
+        az = p.k_vel * (vz - v[2])
+        n = math.hypot(ax, ay)
+        if n > p.a_max_mps2:
+            s = p.a_max_mps2 / n
+            ax, ay = ax * s, ay * s
+        az = min(max(az, -p.az_max_mps2), p.az_max_mps2)
         tau_s = max(dt_s, 0.25 / p.k_vel)
-        jerk = (a_cmd - self.acc_ned_mps2) / tau_s
-        jerk = saturate(jerk, p.j_max_mps3)
-        self.acc_ned_mps2 = self.acc_ned_mps2 + jerk * dt_s
-        self.vel_ned_mps = self.vel_ned_mps + self.acc_ned_mps2 * dt_s
-        self.pos_ned_m = self.pos_ned_m + self.vel_ned_mps * dt_s
+        jx = (ax - a[0]) / tau_s
+        jy = (ay - a[1]) / tau_s
+        jz = (az - a[2]) / tau_s
+        n = math.sqrt(jx * jx + jy * jy + jz * jz)
+        if n > p.j_max_mps3:
+            s = p.j_max_mps3 / n
+            jx, jy, jz = jx * s, jy * s, jz * s
+        a[0] += jx * dt_s
+        a[1] += jy * dt_s
+        a[2] += jz * dt_s
+        for i in range(3):
+            v[i] += a[i] * dt_s
+            pos[i] += v[i] * dt_s

@@ -36,7 +36,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from companion.obstacles import Obstacle
-from companion.planning.base import PlanInput, PlanOutput, saturate
+from companion.planning.base import PlanInput, PlanOutput
 from companion.planning.params import PlannerParams
 
 
@@ -55,7 +55,10 @@ def predicted_envelope_m(inp: PlanInput) -> float:
 
 
 class SafePlanner:
-    """Swing-aware barrier planner with trap escape (see module docstring)."""
+    """Swing-aware barrier planner with trap escape (see module docstring).
+
+    Per-tick work is plain float arithmetic (math.hypot on 2-vectors); numpy only at the interface.
+    """
 
     name = "safe"
 
@@ -67,94 +70,117 @@ class SafePlanner:
         self.slow_since_s: float | None = None
         self.escapes = 0
 
-    def gaps(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> list[tuple[float, np.ndarray, Obstacle]]:
-        """(gap m, unit normal from obstacle to the reference point, obstacle) for relevant obstacles."""
+    def _gaps(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> list[tuple[float, float, float, Obstacle]]:
+        """(gap m, unit normal x, y from obstacle to the reference point, obstacle) for relevant obstacles."""
         r_env = predicted_envelope_m(inp)
-        margin = self.params.track_margin_m + float(np.linalg.norm(inp.pos_m - inp.ref_pos_m))
-        x = inp.ref_pos_m
+        px, py = float(inp.pos_m[0]), float(inp.pos_m[1])
+        x, y = float(inp.ref_pos_m[0]), float(inp.ref_pos_m[1])
+        margin = self.params.track_margin_m + math.hypot(px - x, py - y)
+        reach_z = inp.z_ned_m + inp.cable_l_m
+        base = r_env + margin
         out = []
         for o in obstacles:
-            if inp.z_ned_m + inp.cable_l_m < -o.height_m:
+            if reach_z < -o.height_m:
                 continue  # payload cannot reach below the top
-            d = x - np.array([o.x_m, o.y_m])
-            dist = float(np.hypot(d[0], d[1]))
-            n = d / dist if dist > 1e-9 else np.array([1.0, 0.0])
-            out.append((dist - o.radius_m - o.safe_distance_m - r_env - margin, n, o))
+            dx = x - o.x_m
+            dy = y - o.y_m
+            dist = math.hypot(dx, dy)
+            if dist > 1e-9:
+                nx, ny = dx / dist, dy / dist
+            else:
+                nx, ny = 1.0, 0.0
+            out.append((dist - o.radius_m - o.safe_distance_m - base, nx, ny, o))
         return out
+
+    def gaps(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> list[tuple[float, np.ndarray, Obstacle]]:
+        """(gap m, unit normal from obstacle to the reference point (2,), obstacle) for relevant obstacles."""
+        return [(g, np.array([nx, ny]), o) for g, nx, ny, o in self._gaps(inp, obstacles)]
 
     def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
         """Desired horizontal velocity at the reference point (m/s, NED (2,))."""
         p = self.params
-        e = inp.goal_m - inp.ref_pos_m
-        dg = float(np.linalg.norm(e))
-        e_dir = e / dg if dg > 1e-9 else np.zeros(2)
+        rx, ry = float(inp.ref_pos_m[0]), float(inp.ref_pos_m[1])
+        ex, ey = float(inp.goal_m[0]) - rx, float(inp.goal_m[1]) - ry
+        dg = math.hypot(ex, ey)
+        if dg > 1e-9:
+            edx, edy = ex / dg, ey / dg
+        else:
+            edx = edy = 0.0
         speed = min(p.v_max_mps, math.sqrt(2.0 * p.a_brake_mps2 * dg), p.ka * dg)
-        v_nom = speed * e_dir
-        gaps = self.gaps(inp, obstacles)
-        v_ref = float(np.linalg.norm(inp.ref_vel_mps))
+        nom_x, nom_y = speed * edx, speed * edy
+        gaps = self._gaps(inp, obstacles)
+        v_ref = math.hypot(float(inp.ref_vel_mps[0]), float(inp.ref_vel_mps[1]))
         d_inf = p.influence_m + v_ref * v_ref / (2.0 * p.a_brake_mps2)
-        near = [(g, n, o) for g, n, o in gaps if g < d_inf]
+        near = [gn for gn in gaps if gn[0] < d_inf]
 
         # 4. steering: blend towards the tangent of the most pressing obstacle we are heading into
         if not near and (not self.locked or dg < self.lock_goal_dist_m):
             self.side = 0
             self.locked = False
-        heading_in = [(g, n) for g, n, o in near if self._in_path(inp, e_dir, g, n, o)]
-        v_dir = e_dir
+        heading_in = [gn for gn in near if self._in_path(rx, ry, edx, edy, gn[0], gn[3])]
+        vdx, vdy = edx, edy
         w = 0.0
-        t = np.zeros(2)
         if heading_in and dg > 1e-9:
-            g0, n0 = min(heading_in, key=lambda gn: gn[0])
+            g0, n0x, n0y, _o0 = min(heading_in, key=lambda gn: gn[0])
             if self.side == 0:
-                self.side = self._choose_side(n0, e_dir, inp, gaps)
-            t = self.side * np.array([-n0[1], n0[0]])
+                self.side = self._choose_side(n0x, n0y, edx, edy, rx, ry, gaps)
+            tx, ty = -self.side * n0y, self.side * n0x
             w = min(1.0, max(0.0, 1.0 - g0 / d_inf))
-            blend = (1.0 - w) * e_dir + w * t
-            nb = float(np.linalg.norm(blend))
-            v_dir = blend / nb if nb > 1e-9 else t
-        v = speed * v_dir if not heading_in else max(speed, 0.5 * p.v_max_mps * w) * v_dir
+            bx = (1.0 - w) * edx + w * tx
+            by = (1.0 - w) * edy + w * ty
+            nb = math.hypot(bx, by)
+            if nb > 1e-9:
+                vdx, vdy = bx / nb, by / nb
+            else:
+                vdx, vdy = tx, ty
+        sp = speed if not heading_in else max(speed, 0.5 * p.v_max_mps * w)
+        vx, vy = sp * vdx, sp * vdy
 
         # 3. barrier projection
         for _ in range(3):
-            for g, n, _o in gaps:
+            for g, nx, ny, _o in gaps:
                 allow = p.gamma * g if g < 0.0 else min(p.gamma * g, math.sqrt(2.0 * p.a_brake_mps2 * g))
-                vn = float(v @ n)
+                vn = vx * nx + vy * ny
                 if vn < -allow:
-                    v = v + (-allow - vn) * n
-        v = saturate(v, p.v_max_mps)
+                    k = -allow - vn
+                    vx += k * nx
+                    vy += k * ny
+        vn = math.hypot(vx, vy)
+        if vn > p.v_max_mps:
+            vx, vy = vx * (p.v_max_mps / vn), vy * (p.v_max_mps / vn)
+            vn = math.hypot(vx, vy)
 
         # 5. local-minimum detector
-        self._watch_stuck(inp.t_s, float(np.linalg.norm(v)), dg, bool(near))
-        f_rep = v - v_nom
-        return PlanOutput(v_des_mps=v, force_att=v_nom, force_rep=f_rep, mode="escape" if self.locked else "track")
+        self._watch_stuck(inp.t_s, vn, dg, bool(near))
+        return PlanOutput(
+            v_des_mps=np.array((vx, vy)), force_att=np.array((nom_x, nom_y)),
+            force_rep=np.array((vx - nom_x, vy - nom_y)), mode="escape" if self.locked else "track",
+        )
 
-    def _in_path(self, inp: PlanInput, e_dir: np.ndarray, gap: float, n: np.ndarray, o: Obstacle) -> bool:
+    def _in_path(self, rx: float, ry: float, edx: float, edy: float, gap: float, o: Obstacle) -> bool:
         """Is obstacle ``o`` in the way: ahead along the goal direction and within the swept corridor?"""
         if self.locked:
             return True
-        rel = np.array([o.x_m, o.y_m]) - inp.ref_pos_m
-        along = float(rel @ e_dir)
+        relx, rely = o.x_m - rx, o.y_m - ry
+        along = relx * edx + rely * edy
         if along <= 0.0:
             return False
-        lateral = abs(float(rel[0] * e_dir[1] - rel[1] * e_dir[0]))
-        dist = float(np.hypot(rel[0], rel[1]))
-        clearance = dist - gap  # = r_o + Δd + R_env + margins
+        lateral = abs(relx * edy - rely * edx)
+        clearance = math.hypot(relx, rely) - gap  # = r_o + Δd + R_env + margins
         return lateral < clearance + self.params.track_margin_m
 
-    def _choose_side(self, n0: np.ndarray, e_dir: np.ndarray, inp: PlanInput, gaps) -> int:
-        cross = float(n0[0] * e_dir[1] - n0[1] * e_dir[0])
+    def _choose_side(self, n0x: float, n0y: float, edx: float, edy: float, rx: float, ry: float, gaps) -> int:
+        cross = n0x * edy - n0y * edx
         if abs(cross) > 0.2:
             return 1 if cross > 0.0 else -1
         # head-on: pass on the side with more room next to the obstacle
-        g0, _, o0 = min(gaps, key=lambda gno: abs(float(gno[1] @ n0) - 1.0))
-        c0 = np.array([o0.x_m, o0.y_m])
-        reach = float(np.hypot(*(inp.ref_pos_m - c0))) - g0 + 0.3
+        g0, _, _, o0 = min(gaps, key=lambda gn: abs(gn[1] * n0x + gn[2] * n0y - 1.0))
+        reach = math.hypot(rx - o0.x_m, ry - o0.y_m) - g0 + 0.3
         best, best_room = 1, -math.inf
         for s in (1, -1):
-            side_dir = s * np.array([-n0[1], n0[0]])
-            probe = c0 + reach * side_dir
+            px, py = o0.x_m - reach * s * n0y, o0.y_m + reach * s * n0x
             room = min(
-                (float(np.hypot(*(probe - np.array([o.x_m, o.y_m])))) - o.radius_m for _, _, o in gaps if o is not o0),
+                (math.hypot(px - o.x_m, py - o.y_m) - o.radius_m for _, _, _, o in gaps if o is not o0),
                 default=math.inf,
             )
             if room > best_room + 1e-9:
