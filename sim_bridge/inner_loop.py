@@ -13,7 +13,10 @@ where |S| ≈ |d_τ| / (I·k + k_sat/Δ); the defaults keep the roll error under
 
 Mixer. Rotor thrusts f_i = c_T·ω_i² map to [T, τφ, τθ, τψ] through eq. 13 (X frame, arm d, yaw moment
 c_M/c_T per newton). The inverse is exact; when a rotor would leave [0, f_max], the collective moves first
-(torques have priority, as PX4's mixer does), then yaw torque is given up, then roll/pitch are scaled.
+(torques have priority, as PX4's mixer with air mode does in flight; on the ground the collective is never
+raised above the request, so torque cannot lift an idling vehicle — PX4 disables air mode there too); what
+does not fit is given up yaw first (the
+largest fraction of the yaw torque that fits is kept), then roll/pitch are scaled down.
 """
 
 from __future__ import annotations
@@ -180,47 +183,80 @@ def max_rotor_thrust_n(rotor: RotorConfig, params: VehicleParams) -> float:
 
 
 @njit(cache=True)
-def _fit(ft, thrust_n, f_max, out):  # pragma: no cover - compiled
-    """Add the collective closest to T/4 that keeps every rotor in [0, f_max]; False if none does."""
+def _fit(ft, thrust_n, f_max, air_mode, out):  # pragma: no cover - compiled
+    """Add the collective closest to T/4 that keeps every rotor in [0, f_max]; False if none does.
+
+    Without ``air_mode`` the collective may not rise above T/4 (torque never lifts an idling vehicle)."""
     lo = -1e300
     hi = 1e300
     for i in range(4):
         lo = max(lo, -ft[i])
         hi = min(hi, f_max - ft[i])
-    if lo > hi:
+    c_req = thrust_n / 4.0
+    if lo > hi or (not air_mode and lo > c_req + 1e-12):
         return False
-    c = min(max(thrust_n / 4.0, lo), hi)
+    c = min(max(c_req, lo), hi)
     for i in range(4):
         out[i] = min(max(ft[i] + c, 0.0), f_max)
     return True
 
 
 @njit(cache=True)
-def _mix(thrust_n, tau, a_inv, f_max, out):  # pragma: no cover - compiled
+def _mix(thrust_n, tau, a_inv, f_max, air_mode, out):  # pragma: no cover - compiled
     """Kernel of :func:`mix`: rotor thrusts into ``out`` (4,)."""
     f_rp = np.empty(4)
     ft = np.empty(4)
     for i in range(4):
         f_rp[i] = a_inv[i, 1] * tau[0] + a_inv[i, 2] * tau[1]
-    for scale_y in (1.0, 0.5, 0.0):
-        for i in range(4):
-            ft[i] = f_rp[i] + scale_y * a_inv[i, 3] * tau[2]
-        if _fit(ft, thrust_n, f_max, out):
-            return
-    spread = np.max(f_rp) - np.min(f_rp)
-    s = f_max / spread if spread > 0.0 else 0.0
     for i in range(4):
-        ft[i] = s * f_rp[i]
-    if not _fit(ft, thrust_n, f_max, out):
+        ft[i] = f_rp[i] + a_inv[i, 3] * tau[2]
+    if _fit(ft, thrust_n, f_max, air_mode, out):
+        return
+    # Does roll/pitch fit alone? Then keep the largest fraction of the yaw torque that still fits.
+    rp_scale = 1.0
+    for i in range(4):
+        ft[i] = f_rp[i]
+    if _fit(ft, thrust_n, f_max, air_mode, out):
+        lo_s = 0.0
+        hi_s = 1.0
+        for _ in range(20):
+            mid = 0.5 * (lo_s + hi_s)
+            for i in range(4):
+                ft[i] = f_rp[i] + mid * a_inv[i, 3] * tau[2]
+            if _fit(ft, thrust_n, f_max, air_mode, out):
+                lo_s = mid
+            else:
+                hi_s = mid
+        for i in range(4):
+            ft[i] = f_rp[i] + lo_s * a_inv[i, 3] * tau[2]
+    else:
+        # Roll/pitch alone do not fit: no yaw, largest feasible fraction of roll/pitch.
+        lo_s = 0.0
+        hi_s = 1.0
+        for _ in range(20):
+            mid = 0.5 * (lo_s + hi_s)
+            for i in range(4):
+                ft[i] = mid * f_rp[i]
+            if _fit(ft, thrust_n, f_max, air_mode, out):
+                lo_s = mid
+            else:
+                hi_s = mid
+        rp_scale = lo_s
+        for i in range(4):
+            ft[i] = rp_scale * f_rp[i]
+    if not _fit(ft, thrust_n, f_max, air_mode, out):
         for i in range(4):
             out[i] = min(max(thrust_n / 4.0, 0.0), f_max)
 
 
-def mix(thrust_n: float, torque: np.ndarray, rotor: RotorConfig, f_max: float) -> np.ndarray:
+def mix(
+    thrust_n: float, torque: np.ndarray, rotor: RotorConfig, f_max: float, air_mode: bool = True
+) -> np.ndarray:
     """Rotor thrusts f (4,) in [0, f_max] realising [T, τ] as closely as the limits allow.
 
-    Priority: roll/pitch torque, then yaw torque, then collective thrust.
+    Priority: roll/pitch torque, then yaw torque, then collective thrust. ``air_mode`` (in flight) lets the
+    collective rise to make room for torque; on the ground it may not.
     """
     out = np.empty(4)
-    _mix(float(thrust_n), np.asarray(torque, dtype=np.float64), mixer_inverse(rotor), float(f_max), out)
+    _mix(float(thrust_n), np.asarray(torque, dtype=np.float64), mixer_inverse(rotor), float(f_max), air_mode, out)
     return out

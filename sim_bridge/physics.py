@@ -73,7 +73,7 @@ def _physics_steps(
                 _rate_torque(w, tgt_rates, inertia, gp[12], tau)
             else:
                 _smc_torque(x[3:6], x[11:14], tgt_euler, tgt_euler_rate, inertia, gp, tau)
-            _mix(thrust, tau, a_inv, f_max, f_out)
+            _mix(thrust, tau, a_inv, f_max, not landed, f_out)
         else:
             for i in range(4):
                 f_out[i] = 0.0

@@ -344,8 +344,11 @@ class SitlVehicle:
             descent = 0.7
         q, thrust = position_hold_target(sim.pos_ned_m, sim.vel_ned_mps, target, self.hold_yaw_rad,
                                          sim.params.total_mass, sim.params.g, self.hold_gains, descent)
-        if sim.landed and (self.mode == px4_modes.AUTO_LAND or target[2] > -0.3):
-            thrust = 0.5 * self.hover_thrust_n  # idle on the ground: no hopping
+        near_ground = sim.pos_ned_m[2] > -0.02 and sim.vel_ned_mps[2] > -0.1
+        if (sim.landed or near_ground) and (self.mode == px4_modes.AUTO_LAND or target[2] > -0.3):
+            # Ground contact (PX4's land detector): idle thrust, so the payload's tug cannot keep the airframe
+            # bobbing a micrometre above the ground and the disarm timer can run.
+            thrust = 0.5 * self.hover_thrust_n
         sim.set_attitude_target(q, thrust)
 
     def _after_step(self) -> None:

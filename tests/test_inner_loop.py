@@ -114,3 +114,24 @@ def test_eq49_values():
     assert w.max() == pytest.approx(0.5919, abs=1e-3)
     np.testing.assert_array_equal(wind_disturbance(1.0, WindConfig("none")), np.zeros(6))
     np.testing.assert_allclose(wind_disturbance(1.0, WindConfig("paper", 2.0)), np.full(6, 2 * eq49_signal(1.0)))
+
+
+def test_on_ground_torque_demand_never_raises_the_collective():
+    """Air mode off (on the ground): at low thrust the mixer gives up torque instead of adding thrust."""
+    rotor = RotorConfig()
+    f_max = max_rotor_thrust_n(rotor, P)
+    for thrust in (0.0, 0.3 * P.hover_thrust_n, P.hover_thrust_n):
+        f = mix(thrust, np.array([0.5, -0.5, 2.0]), rotor, f_max, air_mode=False)
+        assert f.sum() <= thrust + 1e-9
+    # in flight (air mode) the collective may rise to make room for the torque
+    f = mix(0.3 * P.hover_thrust_n, np.array([0.5, -0.5, 0.5]), rotor, f_max, air_mode=True)
+    np.testing.assert_allclose((mixer_matrix(rotor) @ f)[1:], [0.5, -0.5, 0.5], atol=1e-9)
+
+
+def test_idle_on_ground_with_yaw_error_stays_landed():
+    sim = VehicleSim(P, WindConfig("paper"))
+    sim.armed = True
+    sim.set_attitude_target(quat_from_euler(0, 0, 2.5), 0.5 * P.hover_thrust_n)  # far from the current yaw
+    sim.step(3000)
+    assert sim.landed and sim.pos_ned_m[2] == 0.0
+    assert sim.thrust_n <= 0.5 * P.hover_thrust_n + 1e-9
