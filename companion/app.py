@@ -38,6 +38,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.errors import LinkError
 from companion.estimate import Estimate
 from companion.flight_core import Command, FlightCore
+from companion.mavlink_fast import send_set_attitude_target
 from companion.mavlink_io import MavlinkLink
 from companion.metrics import FlightLog
 from companion.mission import Mission
@@ -122,6 +123,7 @@ class FlightApp:
         self.swing_sources: dict[str, int] = {}
         self._last_swing_source = ""
         self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path)
+        self.link.on_datagram_done = self._on_datagram_done
         self.core = FlightCore(mission, gains=opts.gains, profile=opts.profile)
         self.log = FlightLog(
             planner=mission.planner, controller=mission.controller, mission=mission.name, obstacles=mission.obstacles
@@ -132,6 +134,9 @@ class FlightApp:
         self.abort_reason: str | None = None
         self.last_cmd: Command | None = None
         self._marker = asyncio.Event()
+        self._marker_pending = False  # a new lockstep marker arrived in the datagram being handled
+        self._woke_sequencer = False  # ... and so did a COMMAND_ACK someone awaits
+        self._tick_error: Exception | None = None
         self._last_marker_ms = -1
         self._marker_seen_wall = 0.0
         self._acks: dict[int, asyncio.Future] = {}
@@ -148,6 +153,7 @@ class FlightApp:
             fut = self._acks.get(int(msg.command))
             if fut is not None and not fut.done():
                 fut.set_result(int(msg.result))
+                self._woke_sequencer = True
         elif mtype == "SYSTEM_TIME" and msg.get_srcSystem() == self.state.vehicle_sysid:
             now = time.monotonic()
             # A repeated marker (same time) is the vehicle re-asking after a lost answer: answer again only
@@ -155,7 +161,23 @@ class FlightApp:
             if msg.time_boot_ms != self._last_marker_ms or now - self._marker_seen_wall > 0.5:
                 self._last_marker_ms = msg.time_boot_ms
                 self._marker_seen_wall = now
-                self._marker.set()
+                self._marker_pending = True
+
+    def _on_datagram_done(self) -> None:
+        """Lockstep: answer a new marker right after its datagram, without a trip through the event loop —
+        unless the same datagram woke the sequencer (a COMMAND_ACK), which then runs first, as before."""
+        woke, self._woke_sequencer = self._woke_sequencer, False
+        if not self._marker_pending:
+            return
+        self._marker_pending = False
+        if woke or not self.opts.lockstep or self._done.is_set():
+            self._marker.set()
+            return
+        try:
+            self._tick()
+        except Exception as exc:  # raised in the tick loop, so a failing tick still ends the run as before
+            self._tick_error = exc
+            self._marker.set()
 
     # ------------------------------------------------------------------ public
     def request_abort(self, reason: str = "operator abort (Ctrl-C)") -> None:
@@ -198,6 +220,8 @@ class FlightApp:
         while not self._done.is_set():
             if self.opts.lockstep:
                 await self._marker.wait()  # the sequencer also sets it when the run is done
+                if self._tick_error is not None:
+                    raise self._tick_error
                 if self._done.is_set():
                     break
                 self._marker.clear()
@@ -260,9 +284,9 @@ class FlightApp:
     def _send_setpoint(self, t_s: float, q: np.ndarray, thrust_norm: float) -> None:
         if not self.link.connected:
             return
-        self.link.mav.set_attitude_target_send(
-            int(t_s * 1e3) & 0xFFFFFFFF, self.state.vehicle_sysid or 1, self.state.vehicle_compid, ATT_TYPE_MASK,
-            [float(v) for v in q], 0.0, 0.0, 0.0, float(thrust_norm),
+        send_set_attitude_target(
+            self.link.mav, int(t_s * 1e3) & 0xFFFFFFFF, self.state.vehicle_sysid or 1, self.state.vehicle_compid,
+            ATT_TYPE_MASK, q, 0.0, 0.0, 0.0, float(thrust_norm),
         )
 
     # ------------------------------------------------------------------ sequencer

@@ -164,7 +164,8 @@ def send_debug_float_array5(mav: Any, time_usec: int, name: bytes, array_id: int
 class _Plan:
     """How to turn one message type's unpacked payload tuple into its constructor arguments."""
 
-    __slots__ = ("cls", "crc_extra", "has_bytes", "name", "orders", "simple", "size", "slices", "unpacker")
+    __slots__ = ("cls", "crc_extra", "fieldnames", "has_bytes", "name", "orders", "simple", "size", "slices",
+                 "unpacker", "wire_names", "wire_slices")
 
     def __init__(self, cls: Any) -> None:
         self.cls = cls
@@ -178,6 +179,10 @@ class _Plan:
         # for messages with arrays: (start index in the unpacked tuple, length) per constructor argument
         self.slices = [(sum(lengths[:o]), lengths[o]) for o in cls.orders]
         self.has_bytes = "s" in cls.unpacker.format
+        self.fieldnames = list(cls.ordered_fieldnames)  # wire order = the unpacked tuple's order
+        self.wire_names = list(cls.ordered_fieldnames)
+        starts = [sum(lengths[:k]) for k in range(len(lengths))]
+        self.wire_slices = list(zip(starts, lengths, strict=True))
 
 
 _PLANS: dict[int, _Plan] = {}
@@ -212,12 +217,7 @@ def check_crc(frame: bytes, msgid: int) -> bool:
     return crc_mcrf4xx(frame[1:-2] + p.crc_extra) == (frame[-2] | (frame[-1] << 8))
 
 
-def decode_frame(frame: bytes) -> Any:
-    """Decode one complete, unsigned MAVLink 2 frame (``frame`` is exactly the frame's bytes).
-
-    Returns pymavlink's message object, as ``MAVLink.decode`` would; raises :class:`FrameError` with kind
-    "unknown_id" (id not in the common dialect) or "bad_crc" (CRC or length mismatch).
-    """
+def _checked_plan(frame: bytes) -> _Plan:
     n = len(frame)
     plen = frame[1]
     if n != HEADER_LEN + plen + 2:
@@ -226,16 +226,33 @@ def decode_frame(frame: bytes) -> Any:
     p = _PLANS.get(msgid) or _plan(msgid)
     if p is None:
         raise FrameError("unknown_id", f"message id {msgid}")
-    crc = frame[-2] | (frame[-1] << 8)
-    if crc_mcrf4xx(frame[1:-2] + p.crc_extra) != crc:
+    if crc_mcrf4xx(frame[1:-2] + p.crc_extra) != frame[-2] | (frame[-1] << 8):
         raise FrameError("bad_crc", f"invalid MAVLink CRC in msgID {msgid}")
+    return p
+
+
+def _unpack(p: _Plan, frame: bytes) -> tuple:
     size = p.size
+    plen = frame[1]
     payload = frame[HEADER_LEN:-2]
     if plen < size:
         payload = payload + bytes(size - plen)
     elif plen > size:
         payload = payload[:size]
-    t = p.unpacker.unpack(payload)
+    return p.unpacker.unpack(payload)
+
+
+def decode_frame(frame: bytes) -> Any:
+    """Decode one complete, unsigned MAVLink 2 frame (``frame`` is exactly the frame's bytes).
+
+    Returns pymavlink's message object, as ``MAVLink.decode`` would; raises :class:`FrameError` with kind
+    "unknown_id" (id not in the common dialect) or "bad_crc" (CRC or length mismatch).
+    """
+    return _build_full(_checked_plan(frame), frame)
+
+
+def _build_full(p: _Plan, frame: bytes) -> Any:
+    t = _unpack(p, frame)
     if p.simple:
         args = [t[o] for o in p.orders]
     else:
@@ -248,6 +265,75 @@ def decode_frame(frame: bytes) -> Any:
     m = p.cls(*args)
     m._msgbuf = bytearray(frame)
     m._payload = m._msgbuf[6:-2]
-    m._crc = crc
-    m._header = mavlink2.MAVLink_header(msgid, frame[2], frame[3], plen, frame[4], frame[5], frame[6])
+    m._crc = frame[-2] | (frame[-1] << 8)
+    m._header = mavlink2.MAVLink_header(p.cls.id, frame[2], frame[3], frame[1], frame[4], frame[5], frame[6])
+    return m
+
+
+class LiteMessage:
+    """A decoded message: its fields as attributes (arrays as lists, text as str) and
+    pymavlink's ``get_type/get_msgId/get_srcSystem/get_srcComponent/get_seq/get_msgbuf``. Anything else
+    (``to_dict``, ``get_header``, ...) is answered by pymavlink's full message, decoded on first use."""
+
+    __slots__ = ("__dict__", "_frame", "_full", "_msgid", "_type")
+
+    def get_type(self) -> str:
+        return self._type
+
+    def get_msgId(self) -> int:
+        return self._msgid
+
+    def get_srcSystem(self) -> int:
+        return self._frame[5]
+
+    def get_srcComponent(self) -> int:
+        return self._frame[6]
+
+    def get_seq(self) -> int:
+        return self._frame[4]
+
+    def get_msgbuf(self) -> bytearray:
+        return bytearray(self._frame)
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        try:
+            full = object.__getattribute__(self, "_full")
+        except AttributeError:
+            full = _build_full(_PLANS[self._msgid], self._frame)
+            object.__setattr__(self, "_full", full)
+        return getattr(full, name)
+
+    def __repr__(self) -> str:
+        return f"{self._type} {self.__dict__}"
+
+
+# messages whose char fields pymavlink's constructor turns into str as ``raw.split(b"\0")[0].decode("ascii",
+# errors="replace")`` (checked against pymavlink in tests/test_mavlink_fast.py); others with text stay full
+_LITE_TEXT_IDS = frozenset({ID_DEBUG_FLOAT_ARRAY})
+
+
+def decode_lite(frame: bytes) -> Any:
+    """Like :func:`decode_frame`, but messages of numbers and number arrays (and DEBUG_FLOAT_ARRAY) come
+    back as a cheaper :class:`LiteMessage` with the same field names and values; others as pymavlink's."""
+    p = _checked_plan(frame)
+    if p.has_bytes and p.cls.id not in _LITE_TEXT_IDS:
+        return _build_full(p, frame)
+    m = LiteMessage()
+    m._frame = frame
+    m._msgid = p.cls.id
+    m._type = p.name
+    t = _unpack(p, frame)
+    if p.simple:
+        m.__dict__.update(zip(p.fieldnames, t, strict=True))
+        return m
+    d = m.__dict__
+    for name, (tip, ln) in zip(p.wire_names, p.wire_slices, strict=True):
+        f = t[tip]
+        if isinstance(f, bytes):
+            f = f.split(b"\x00", 1)[0].decode("ascii", errors="replace")
+        elif ln != 1:
+            f = list(t[tip : tip + ln])
+        d[name] = f
     return m

@@ -27,10 +27,13 @@ from urllib.parse import urlparse
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.errors import ConfigError, LinkError
+from companion.mavlink_fast import STX_V2 as _STX_V2
+from companion.mavlink_fast import decode_lite
 
 log = logging.getLogger(__name__)
 
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
+_MIN_FRAME = 12  # MAVLink 2 header + CRC
 
 
 @dataclass(frozen=True)
@@ -57,6 +60,9 @@ class LinkUrl:
         return cls(mode, u.hostname, port)
 
 
+_TLOG_STAMP = struct.Struct(">Q")
+
+
 class TlogWriter:
     """Append-only .tlog: each record is a big-endian uint64 UNIX time in µs followed by the frame bytes."""
 
@@ -68,8 +74,7 @@ class TlogWriter:
     def write(self, frame: bytes) -> None:
         if self._fh.closed:
             return
-        self._fh.write(struct.pack(">Q", int(time.time() * 1e6)))
-        self._fh.write(frame)
+        self._fh.write(_TLOG_STAMP.pack(int(time.time() * 1e6)) + frame)
 
     def close(self) -> None:
         if not self._fh.closed:
@@ -115,6 +120,7 @@ class MavlinkLink:
         self._transport: asyncio.DatagramTransport | None = None
         self._remote: tuple[str, int] | None = None if self.url.mode == "udpin" else (self.url.host, self.url.port)
         self._tlog = TlogWriter(tlog) if tlog else None
+        self.on_datagram_done: Callable[[], None] | None = None  # called after each datagram's messages
 
     async def open(self) -> None:
         """Bind the socket (udpin) or create the sending socket (udpout)."""
@@ -157,10 +163,11 @@ class MavlinkLink:
         """File-like hook for pymavlink: send one frame to the remote (dropped before we know it)."""
         if self._transport is None or self._remote is None:
             return
-        self._transport.sendto(bytes(frame), self._remote)
+        frame = bytes(frame)
+        self._transport.sendto(frame, self._remote)
         self.sent += 1
         if self._tlog is not None:
-            self._tlog.write(bytes(frame))
+            self._tlog.write(frame)
 
     def _count(self, kind: str, detail: str = "") -> None:
         self.rejected[kind] += 1
@@ -170,6 +177,48 @@ class MavlinkLink:
             log.warning("MAVLink input rejected (%s, %d so far) %s", kind, self.rejected[kind], detail)
 
     def _on_datagram(self, data: bytes, addr: tuple[str, int]) -> None:
+        msgs = self._split_fast(data)
+        if msgs is None:  # anything unusual: pymavlink's own parser, exactly as it always did
+            self._on_datagram_pymavlink(data, addr)
+            return
+        for frame, msg in msgs:
+            self.received += 1
+            if self._tlog is not None:  # one record per frame, even when a datagram carries several
+                self._tlog.write(frame)
+            try:
+                self.handler(msg)
+            except Exception:  # a bug in a handler must not kill the socket; log it loudly
+                log.exception("handler failed on %s", msg.get_type())
+        if self.url.mode == "udpin":
+            self._remote = addr
+        if self.on_datagram_done is not None:
+            self.on_datagram_done()
+
+    def _split_fast(self, data: bytes) -> list[tuple[bytes, Any]] | None:
+        """Decode a datagram made only of complete, unsigned MAVLink 2 frames of known, CRC-valid messages
+        (what a vehicle sends); None for anything else (garbage, MAVLink 1, signed, cut short, unknown id,
+        bad CRC, or bytes left in pymavlink's parser from an earlier datagram)."""
+        n = len(data)
+        if n == 0 or self.mav.buf_len() > 0:
+            return None
+        out = []
+        i = 0
+        while i < n:
+            if data[i] != _STX_V2 or i + _MIN_FRAME > n or data[i + 2] != 0:
+                return None
+            end = i + _MIN_FRAME + data[i + 1]
+            if end > n:
+                return None
+            frame = data[i:end]
+            try:
+                msg = decode_lite(frame)
+            except Exception:  # FrameError, or a value pymavlink's constructor refuses
+                return None
+            out.append((frame, msg))
+            i = end
+        return out
+
+    def _on_datagram_pymavlink(self, data: bytes, addr: tuple[str, int]) -> None:
         try:
             msgs = self.mav.parse_buffer(data)
         except Exception as exc:  # pymavlink raises plain MAVError / struct.error on some garbage
@@ -193,3 +242,5 @@ class MavlinkLink:
                 log.exception("handler failed on %s", msg.get_type())
         if good and self.url.mode == "udpin":
             self._remote = addr
+        if self.on_datagram_done is not None:
+            self.on_datagram_done()

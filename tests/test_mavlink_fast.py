@@ -141,3 +141,29 @@ def test_nonfinite_floats_survive_the_round_trip() -> None:
     m = M.MAVLink(None).decode(bytearray(ref.file.frames[0]))
     assert math.isnan(m.roll) and m.pitch == math.inf and m.yaw == -math.inf
     assert mf.decode_frame(ref.file.frames[0]).yawspeed == _f32(2.0)
+
+
+def test_decode_lite_matches_pymavlink_for_every_message() -> None:
+    rng = random.Random(7)
+    ref, _ = _pair(seq0=3)
+    for ref_call, _f in _cases(rng):
+        ref_call(ref)
+    ref.command_ack_send(400, 4, 0, 0, 1, 191)
+    ref.statustext_send(M.MAV_SEVERITY_INFO, b"Armed", 0, 0)
+    dec = M.MAVLink(None)
+    lite_types = set()
+    for frame in ref.file.frames:
+        want = dec.decode(bytearray(frame))
+        got = mf.decode_lite(frame)
+        if isinstance(got, mf.LiteMessage):
+            lite_types.add(got.get_type())
+            assert got.__dict__ == {k: getattr(want, k) for k in want.ordered_fieldnames}
+        assert got.get_type() == want.get_type() and got.get_msgId() == want.get_msgId()
+        assert (got.get_srcSystem(), got.get_srcComponent(), got.get_seq()) == (7, 42, want.get_seq())
+        assert got.to_dict() == want.to_dict()  # through the full message, decoded on demand
+        assert bytes(got.get_msgbuf()) == frame and got.get_header().msgId == want.get_msgId()
+    assert {"ATTITUDE", "LOCAL_POSITION_NED", "SYSTEM_TIME", "HEARTBEAT", "COMMAND_ACK"} <= lite_types
+    assert "DEBUG_FLOAT_ARRAY" in lite_types and "SET_ATTITUDE_TARGET" in lite_types
+    assert "STATUSTEXT" not in lite_types
+    with pytest.raises(AttributeError):
+        _ = mf.decode_lite(ref.file.frames[0]).no_such_field
