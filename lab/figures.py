@@ -96,11 +96,17 @@ def _draw_plan(ax: Any, a: Arrays, obstacles: Sequence[Obstacle], start, goal, t
 def plot_plan_comparison(runs: Mapping[str, Arrays], obstacles: Sequence[Obstacle], start, goal, path: Path,
                          titles: Mapping[str, str] | None = None) -> Path:
     """Plan views side by side, one per run (Figs. 11–12), same axes; envelope circles along the track."""
-    fig, axs = plt.subplots(1, len(runs), figsize=(3.6 * len(runs), 6.2), sharey=True, squeeze=False)
+    ys = np.concatenate([a["pos_ned_m"][:, 1] for a in runs.values()] + [np.array([start[1], goal[1]])])
+    xs = np.concatenate([a["pos_ned_m"][:, 0] for a in runs.values()] + [np.array([start[0], goal[0]])])
+    ys, xs = ys[np.isfinite(ys)], xs[np.isfinite(xs)]
+    ylim = (min(-2.5, float(ys.min()) - 0.5), max(2.5, float(ys.max()) + 0.5))  # east, drawn horizontally
+    xlim = (float(xs.min()) - 1.0, float(xs.max()) + 1.0)
+    width = 0.8 + 0.55 * (ylim[1] - ylim[0])  # equal aspect: panel width follows the east extent
+    fig, axs = plt.subplots(1, len(runs), figsize=(width * len(runs), 6.2), sharey=True, squeeze=False)
     for ax, (label, a) in zip(axs[0], runs.items(), strict=True):
         _draw_plan(ax, a, obstacles, start, goal, (titles or {}).get(label, label))
-        ax.set_xlim(-2.5, 2.5)
-        ax.set_ylim(min(start[0], goal[0]) - 1.0, max(start[0], goal[0]) + 1.0)
+        ax.set_xlim(*ylim)
+        ax.set_ylim(*xlim)
     axs[0, 0].set_ylabel("north x (m)")
     axs[0, 0].legend(loc="lower left", fontsize=8)
     return _save(fig, path)
