@@ -28,7 +28,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -44,15 +44,12 @@ from companion.metrics import FlightLog
 from companion.mission import Mission
 from companion.model import payload_offset_ned_m
 from companion.obstacles import Obstacle
-from companion.profile import VehicleProfile
+from companion.profile import VehicleProfile, profile_by_name, profile_for_autopilot
 from companion.rotations import quat_from_euler
 from companion.vehicle_state import VehicleState
 
 log = logging.getLogger(__name__)
 
-PX4_MAIN_AUTO, PX4_MAIN_POSCTL, PX4_MAIN_OFFBOARD = 4, 3, 6
-PX4_SUB_AUTO_LOITER, PX4_SUB_AUTO_LAND = 3, 6
-MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 # SET_ATTITUDE_TARGET type_mask: attitude + thrust used, body rates ignored
 ATT_TYPE_MASK = (
     mavlink2.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
@@ -74,7 +71,8 @@ class FlyOptions:
     connect: str = "udpin://0.0.0.0:14540"
     rate_hz: float = 250.0
     lockstep: bool = False
-    profile: VehicleProfile | None = None
+    profile: VehicleProfile | None = None  # None: chosen from the autopilot's HEARTBEAT
+    hover_thrust_norm: float | None = None  # overrides the chosen profile's hover thrust
     gains: Any = None
     payload_sysid: int | None = 2
     swing_input: str = "auto"
@@ -124,7 +122,8 @@ class FlightApp:
         self._last_swing_source = ""
         self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path)
         self.link.on_datagram_done = self._on_datagram_done
-        self.core = FlightCore(mission, gains=opts.gains, profile=opts.profile)
+        self.profile = opts.profile or profile_by_name("px4", opts.hover_thrust_norm)
+        self.core = FlightCore(mission, gains=opts.gains, profile=self.profile)
         self.log = FlightLog(
             planner=mission.planner, controller=mission.controller, mission=mission.name, obstacles=mission.obstacles
         )
@@ -140,6 +139,7 @@ class FlightApp:
         self._last_marker_ms = -1
         self._marker_seen_wall = 0.0
         self._acks: dict[int, asyncio.Future] = {}
+        self._params: dict[str, asyncio.Future] = {}
         self._abort = asyncio.Event()
         self._done = asyncio.Event()
         self._core_active = False
@@ -154,6 +154,11 @@ class FlightApp:
             if fut is not None and not fut.done():
                 fut.set_result(int(msg.result))
                 self._woke_sequencer = True
+        elif mtype == "PARAM_VALUE" and msg.get_srcSystem() == self.state.vehicle_sysid:
+            pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else str(msg.param_id)
+            fut = self._params.pop(pid, None)
+            if fut is not None and not fut.done():
+                fut.set_result(float(msg.param_value))
         elif mtype == "SYSTEM_TIME" and msg.get_srcSystem() == self.state.vehicle_sysid:
             now = time.monotonic()
             # A repeated marker (same time) is the vehicle re-asking after a lost answer: answer again only
@@ -308,10 +313,25 @@ class FlightApp:
                 self._acks.pop(command, None)
         raise LinkError(f"vehicle never acknowledged MAVLink command {command}")
 
-    async def _set_mode(self, main: int, sub: int = 0) -> int:
-        return await self._command(
-            mavlink2.MAV_CMD_DO_SET_MODE, [MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, main, sub]
-        )
+    async def _read_param(self, name: str, timeout_s: float = 1.0) -> float | None:
+        """PARAM_REQUEST_READ by name; the value, or None when the autopilot does not answer in time."""
+        fut: asyncio.Future = asyncio.get_running_loop().create_future()
+        self._params[name] = fut
+        for _ in range(2):
+            self.link.mav.param_request_read_send(
+                self.state.vehicle_sysid or 1, self.state.vehicle_compid, name.encode(), -1
+            )
+            try:
+                async with asyncio.timeout(timeout_s):
+                    return float(await asyncio.shield(fut))
+            except TimeoutError:
+                continue
+        self._params.pop(name, None)
+        return None
+
+    async def _set_mode(self, what: str) -> int:
+        """Switch to the profile's ``offboard``, ``hold`` or ``land`` mode; returns MAV_RESULT."""
+        return await self._command(mavlink2.MAV_CMD_DO_SET_MODE, self.profile.mode_params(what))
 
     async def _wait_until(self, cond: Callable[[], bool], timeout_s: float, what: str) -> bool:
         try:
@@ -344,7 +364,21 @@ class FlightApp:
                 self.outcome = "aborted"
                 return
             raise LinkError(f"no autopilot heartbeat/telemetry on {o.connect} within {o.heartbeat_timeout_s:.0f} s")
-        log.info("connected to system %s in mode %s", self.state.vehicle_sysid, self.state.mode_name)
+        if self.opts.profile is None:
+            self.profile = profile_for_autopilot(self.state.autopilot, self.opts.hover_thrust_norm)
+        if self.opts.hover_thrust_norm is None:
+            # The autopilot knows its hover thrust (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER): ask for it.
+            name = "MOT_THST_HOVER" if self.profile.autopilot == "ardupilot" else "MPC_THR_HOVER"
+            value = await self._read_param(name)
+            if value is not None and 0.05 <= value <= 0.95:
+                self.profile = replace(self.profile, hover_thrust_norm=float(value))
+            else:
+                log.warning("could not read %s from the autopilot; assuming hover thrust %.2f (--hover-thrust)",
+                            name, self.profile.hover_thrust_norm)
+        self.core.profile = self.profile
+        log.info("connected to system %s (%s autopilot) in mode %s; thrust and modes as profile %r (hover %.2f)",
+                 self.state.vehicle_sysid, self.profile.autopilot, self.state.mode_name, self.profile.name,
+                 self.profile.hover_thrust_norm)
         interval_us = 1e6 / o.rate_hz
         for msg_id, us in ((mavlink2.MAVLINK_MSG_ID_ATTITUDE, interval_us),
                            (mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED, interval_us),
@@ -364,7 +398,7 @@ class FlightApp:
             raise LinkError(f"arming refused (MAV_RESULT {res}); vehicle said: {self.state.statustext[-3:]}")
         self.phase = "offboard"
         self._core_active = True
-        res = await self._set_mode(PX4_MAIN_OFFBOARD)
+        res = await self._set_mode("offboard")
         if res != mavlink2.MAV_RESULT_ACCEPTED:
             self._core_active = False
             raise LinkError(f"OFFBOARD refused (MAV_RESULT {res}); vehicle said: {self.state.statustext[-3:]}")
@@ -387,7 +421,7 @@ class FlightApp:
         res = await self._command(mavlink2.MAV_CMD_NAV_LAND, [0, 0, 0, math.nan, math.nan, math.nan, math.nan])
         if res != mavlink2.MAV_RESULT_ACCEPTED:
             log.warning("NAV_LAND refused (result %d); trying AUTO.LAND mode", res)
-            await self._set_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND)
+            await self._set_mode("land")
         t0 = self._sim_time()
         await self._wait_until(
             lambda: (self.state.on_ground and not self.state.armed) or self._sim_time() - t0 > self.opts.land_timeout_s,
@@ -400,7 +434,7 @@ class FlightApp:
         self.phase = "abort"
         self._core_active = False
         with contextlib.suppress(LinkError):
-            await self._set_mode(PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER)
+            await self._set_mode("hold")
             if self.opts.land_on_abort and self.state.armed:
                 self._abort.clear()  # let the landing wait run
                 await self._land()

@@ -49,7 +49,8 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--controller", choices=["smc_ff", "smc", "pid"], help="override the mission's")
     p.add_argument("--gains", type=Path, default=DEFAULT_GAINS, help="controller/planner gains TOML")
     p.add_argument("--profile", choices=PROFILE_NAMES, default=None,
-                   help="vehicle profile for the newton→0..1 thrust mapping (default: bundled with --sitl, else px4)")
+                   help="vehicle profile: thrust mapping (newtons → 0..1) and flight-mode family (default: "
+                        "bundled with --sitl, else chosen from the autopilot's HEARTBEAT: px4 or ardupilot)")
     p.add_argument("--hover-thrust", type=float, default=None,
                    help="normalized hover thrust of your vehicle (PX4 MPC_THR_HOVER); overrides the profile's")
     p.add_argument("--rate-hz", type=float, default=250.0, help="outer-loop rate (Hz)")
@@ -103,15 +104,18 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
     """Fly ``mission`` as the parsed ``args`` say; always writes the run folder, even after Ctrl-C."""
     run_dir = args.run_dir or default_run_dir(mission)
     run_dir.mkdir(parents=True, exist_ok=True)
-    profile_name = args.profile or ("bundled" if args.sitl else "px4")
+    profile_name = args.profile or ("bundled" if args.sitl else None)
     try:
-        profile = profile_by_name(profile_name, args.hover_thrust)
+        profile = profile_by_name(profile_name, args.hover_thrust) if profile_name else None
+        if args.hover_thrust is not None:
+            profile_by_name("px4", args.hover_thrust)  # validates the value even when the profile comes later
     except ValueError as exc:
         raise ConfigError(f"--hover-thrust/--profile: {exc}") from None
     gains = load_gains(args.gains)
     opts = FlyOptions(
         connect=args.connect, rate_hz=args.rate_hz, lockstep=args.lockstep or (args.sitl and not args.realtime),
-        profile=profile, gains=gains, payload_sysid=args.payload_sysid, swing_input=args.swing_input,
+        profile=profile, hover_thrust_norm=args.hover_thrust, gains=gains, payload_sysid=args.payload_sysid,
+        swing_input=args.swing_input,
         heartbeat_timeout_s=args.heartbeat_timeout,
         land_on_abort=not args.no_land_on_abort, tlog_path=run_dir / "flight.tlog",
     )
@@ -154,7 +158,8 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
         "vehicle_statustext": app.state.statustext[-20:],
         "swing_input": opts.swing_input,
         "swing_sources": app.swing_sources,
-        "profile": profile.name,
+        "profile": app.profile.name,
+        "hover_thrust_norm": app.profile.hover_thrust_norm,
         "lockstep": opts.lockstep,
         "connect": opts.connect,
         "run_dir": str(run_dir),

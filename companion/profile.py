@@ -4,6 +4,19 @@ SET_ATTITUDE_TARGET carries a normalized thrust; what 0.5 means depends on the a
 A profile states the normalized thrust that holds the vehicle in hover and maps linearly around it:
 ``norm = hover_thrust_norm · thrust_n / hover_thrust_n`` (clipped to [0, 1]). PX4's MPC_THR_HOVER and
 ArduPilot's MOT_THST_HOVER are exactly that hover value (both autopilots linearize thrust internally).
+
+The profile also names the autopilot family's flight modes, the other thing PX4 and ArduPilot disagree on
+(MAV_CMD_DO_SET_MODE parameters: base mode flag, custom mode, custom sub mode):
+
+=============  =================================  ==============================  =====================
+family         companion in control               hold (abort)                    land
+=============  =================================  ==============================  =====================
+PX4 (bundled)  OFFBOARD (main 6)                  AUTO.LOITER (main 4, sub 3)     AUTO.LAND (4, 6)
+ArduPilot      GUIDED_NOGPS (20; takes attitude)  BRAKE (17)                      LAND (9)
+=============  =================================  ==============================  =====================
+
+The ArduPilot row follows ArduCopter's documented mode numbers; it is not exercised against a real
+ArduPilot here (no ArduPilot SITL on this machine), only the encoding is tested.
 """
 
 from __future__ import annotations
@@ -40,10 +53,37 @@ class VehicleProfile:
             return 0.0
         return min(1.0, max(0.0, v))
 
+    @property
+    def autopilot(self) -> str:
+        """Mode family: ``"px4"`` (PX4 and the bundled vehicle) or ``"ardupilot"``."""
+        return "ardupilot" if self.name == "ardupilot" else "px4"
+
+    def mode_params(self, what: str) -> list[float]:
+        """DO_SET_MODE params [base_mode, custom_mode, custom_sub_mode] for ``what`` in offboard/hold/land."""
+        try:
+            main, sub = _MODES[self.autopilot][what]
+        except KeyError:
+            raise ValueError(f"mode: unknown mode {what!r} (known: offboard, hold, land)") from None
+        return [float(MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(main), float(sub)]
+
+    def is_offboard(self, custom_mode: int) -> bool:
+        """Whether a HEARTBEAT custom_mode means the companion is in control."""
+        if self.autopilot == "ardupilot":
+            return custom_mode in (4, 20)  # GUIDED, GUIDED_NOGPS
+        return (custom_mode >> 16) & 0xFF == 6
+
     def norm_to_thrust(self, thrust_norm: float, hover_thrust_n: float) -> float:
         """Inverse of :meth:`thrust_to_norm` (newtons), for logging what a normalized value meant."""
         return float(thrust_norm) * hover_thrust_n / self.hover_thrust_norm
 
+
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+MAV_AUTOPILOT_PX4 = 12
+_MODES = {
+    "px4": {"offboard": (6, 0), "hold": (4, 3), "land": (4, 6)},
+    "ardupilot": {"offboard": (20, 0), "hold": (17, 0), "land": (9, 0)},
+}
 
 _PROFILES = {
     # bundled SITL vehicle: thrust-to-weight 2.5, so hover at 1/2.5 of full thrust
@@ -65,3 +105,9 @@ def profile_by_name(name: str, hover_thrust_norm: float | None = None) -> Vehicl
         p = VehicleProfile(p.name, float(hover_thrust_norm))
         p.validate()
     return p
+
+
+def profile_for_autopilot(mav_autopilot: int, hover_thrust_norm: float | None = None) -> VehicleProfile:
+    """The profile matching HEARTBEAT.autopilot (ArduPilot → "ardupilot", anything else → "px4")."""
+    name = "ardupilot" if mav_autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA else "px4"
+    return profile_by_name(name, hover_thrust_norm)

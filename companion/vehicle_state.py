@@ -59,6 +59,7 @@ class VehicleState:
     payload_max_age_s: float = 0.3
     vehicle_sysid: int | None = None
     vehicle_compid: int = 1
+    autopilot: int = 0  # MAV_AUTOPILOT of the vehicle's HEARTBEAT
     armed: bool = False
     custom_mode: int = 0
     system_status: int = 0
@@ -80,7 +81,9 @@ class VehicleState:
 
     @property
     def mode_name(self) -> str:
-        """The vehicle's flight mode as PX4 names it."""
+        """The vehicle's flight mode (PX4 names; ArduPilot's as its custom mode number)."""
+        if self.autopilot == 3:
+            return f"ArduPilot mode {self.custom_mode}"
         return px4_mode_name(self.custom_mode)
 
     @property
@@ -99,6 +102,7 @@ class VehicleState:
             if self.vehicle_sysid is None:
                 self.vehicle_sysid = src
                 self.vehicle_compid = msg.get_srcComponent()
+                self.autopilot = int(msg.autopilot)
                 log.info("vehicle found: system %d component %d", src, self.vehicle_compid)
             if src == self.vehicle_sysid:
                 self.heartbeats += 1

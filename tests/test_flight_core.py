@@ -83,3 +83,19 @@ def test_every_combination_gives_a_finite_unit_quaternion(planner, controller):
         cmd = core.update(_est(0.004 * k, [0.5 + 0.01 * k, 0.1, -2.0], swing=(0.05, -0.02, 0.1, 0.1)))
     assert np.isfinite(cmd.thrust_n) and np.linalg.norm(cmd.q_ned_frd_wxyz) == pytest.approx(1.0)
     assert 0.0 <= cmd.thrust_norm <= 1.0
+
+
+def test_profiles_carry_the_mode_family():
+    from companion.profile import profile_for_autopilot
+
+    px4 = profile_by_name("px4")
+    assert px4.mode_params("offboard") == [1.0, 6.0, 0.0]
+    assert px4.mode_params("hold") == [1.0, 4.0, 3.0] and px4.mode_params("land") == [1.0, 4.0, 6.0]
+    assert px4.is_offboard(6 << 16) and not px4.is_offboard((4 << 16) | (3 << 24))
+    assert profile_by_name("bundled").mode_params("offboard") == px4.mode_params("offboard")
+    ap = profile_for_autopilot(3)
+    assert ap.name == "ardupilot" and ap.mode_params("offboard") == [1.0, 20.0, 0.0]
+    assert ap.is_offboard(20) and not ap.is_offboard(9)
+    assert profile_for_autopilot(12, 0.45).name == "px4" and profile_for_autopilot(12, 0.45).hover_thrust_norm == 0.45
+    with pytest.raises(ValueError, match="mode"):
+        px4.mode_params("acro")

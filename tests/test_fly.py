@@ -130,3 +130,27 @@ def test_flies_without_the_cable_sensor(tmp_path, swing_input, envelope):
     assert rep["max_swing_rad"] is not None  # the log still records the measured swing
     if swing_input == "none":
         assert "no swing input" in proc.stderr
+
+
+def test_flies_an_autopilot_it_did_not_start_reading_its_hover_thrust(tmp_path):
+    """The path a real PX4 takes: vehicle started separately, companion listens (udpin), picks the PX4 profile
+    from the HEARTBEAT and reads MPC_THR_HOVER instead of assuming it."""
+    from companion.sitl_launcher import free_udp_port
+
+    comp_port, veh_port, gcs_port = free_udp_port(), free_udp_port(), free_udp_port()
+    veh = subprocess.Popen(
+        [sys.executable, "-m", "sim_bridge", "--lockstep", "--thr-hover", "0.55", "--onboard-port", str(veh_port),
+         "--onboard-remote", f"127.0.0.1:{comp_port}", "--gcs-port", str(gcs_port)],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, cwd=ROOT,
+    )
+    try:
+        assert veh.stdout is not None and veh.stdout.readline().startswith("SITL READY")
+        proc = _slungpilot("fly", "--connect", f"udpin://127.0.0.1:{comp_port}", "--lockstep", "--mission",
+                           str(FOREST), "--run-dir", str(tmp_path), "--no-plots")
+    finally:
+        veh.send_signal(signal.SIGINT)
+        veh.wait(timeout=20)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["profile"] == "px4" and rep["hover_thrust_norm"] == pytest.approx(0.55, abs=1e-6)
+    assert rep["reached_goal"] and rep["collisions"] == 0
