@@ -2,7 +2,8 @@
 
 Starts the vehicle (``python -m sim_bridge --lockstep``, 1 kHz physics, 4 ms control period) as a
 subprocess and drives it from this process over real UDP with a minimal 250 Hz hover client: it decodes
-only the SYSTEM_TIME marker and LOCAL_POSITION_NED (other frames are skipped by message id) and answers
+only the SYSTEM_TIME marker and the vehicle's LOCAL_POSITION_NED (other frames are skipped by message id;
+``companion.mavlink_fast``, CRC checked) and answers
 each marker with a level-attitude SET_ATTITUDE_TARGET whose thrust holds 2 m. Prints and returns simulated
 seconds per wall second. Nothing is asserted.
 """
@@ -13,11 +14,15 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.mavlink_fast import decode_lite, send_set_attitude_target
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 
 M = mavlink2
 _ID_SYSTEM_TIME = M.MAVLINK_MSG_ID_SYSTEM_TIME
 _ID_LOCAL_POSITION_NED = M.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+
+
+_LEVEL = (1.0, 0.0, 0.0, 0.0)
 
 
 def _hover_thrust(z: float, vz: float, z_sp: float = -2.0) -> float:
@@ -44,7 +49,6 @@ def run_bench_sitl(seconds: float = 3.0) -> dict[str, float]:
 def _fast_loop(c: MavClient, seconds: float) -> dict[str, float]:
     sock = c.sock
     sock.settimeout(5.0)
-    decoder = M.MAVLink(None)
     z, vz = 0.0, 0.0
     t_ms = c.sim_time_ms
     t_start_ms = t_ms
@@ -63,11 +67,11 @@ def _fast_loop(c: MavClient, seconds: float) -> dict[str, float]:
         while i + 12 <= n and data[i] == M.PROTOCOL_MARKER_V2:  # walk the frames of the datagram
             end = i + 12 + data[i + 1]
             msgid = data[i + 7] | (data[i + 8] << 8) | (data[i + 9] << 16)
-            if msgid == _ID_LOCAL_POSITION_NED:
-                m = decoder.decode(bytearray(data[i:end]))
+            if msgid == _ID_LOCAL_POSITION_NED and data[i + 5] == c.target_sysid:
+                m = decode_lite(data[i:end])
                 z, vz = m.z, m.vz
             elif msgid == _ID_SYSTEM_TIME:
-                m = decoder.decode(bytearray(data[i:end]))
+                m = decode_lite(data[i:end])
                 if m.time_boot_ms > t_ms:
                     t_ms = m.time_boot_ms
                     new_step = True
@@ -78,7 +82,7 @@ def _fast_loop(c: MavClient, seconds: float) -> dict[str, float]:
         steps += 1
         if time.perf_counter() >= deadline:
             break
-        c.send_attitude_target(thrust=_hover_thrust(z, vz))
+        send_set_attitude_target(c.mav, t_ms, c.target_sysid, 1, 7, _LEVEL, 0.0, 0.0, 0.0, _hover_thrust(z, vz))
     wall = time.perf_counter() - wall0
     sim_s = (t_ms - t_start_ms) * 1e-3
     return {
