@@ -5,11 +5,13 @@ subprocess and drives it from this process over real UDP with a minimal 250 Hz h
 only the SYSTEM_TIME marker and the vehicle's LOCAL_POSITION_NED (other frames are skipped by message id;
 ``companion.mavlink_fast``, CRC checked) and answers
 each marker with a level-attitude SET_ATTITUDE_TARGET whose thrust holds 2 m. Prints and returns simulated
-seconds per wall second. Nothing is asserted.
+seconds per wall second and the CPU time per control step of either side (less sensitive than the
+real-time factor to other processes competing for the cores). Nothing is asserted.
 """
 
 from __future__ import annotations
 
+import os
 import time
 
 from pymavlink.dialects.v20 import common as mavlink2
@@ -40,7 +42,10 @@ def run_bench_sitl(seconds: float = 3.0) -> dict[str, float]:
                 c.step(thrust=0.0)
             if c.set_mode(6) != M.MAV_RESULT_ACCEPTED or c.arm() != M.MAV_RESULT_ACCEPTED:
                 raise RuntimeError("bench: vehicle refused OFFBOARD or arming")
+            cpu0 = _proc_cpu_s(proc.pid)
             res = _fast_loop(c, seconds)
+            steps = max(res["control_steps"], 1.0)
+            res["vehicle_cpu_us_per_step"] = (_proc_cpu_s(proc.pid) - cpu0) / steps * 1e6
     finally:
         stop_vehicle(proc)
     return res
@@ -53,6 +58,7 @@ def _fast_loop(c: MavClient, seconds: float) -> dict[str, float]:
     t_ms = c.sim_time_ms
     t_start_ms = t_ms
     steps = 0
+    cpu0 = time.process_time()
     wall0 = time.perf_counter()
     deadline = wall0 + seconds
     c.send_attitude_target(thrust=_hover_thrust(z, vz))
@@ -84,6 +90,7 @@ def _fast_loop(c: MavClient, seconds: float) -> dict[str, float]:
             break
         send_set_attitude_target(c.mav, t_ms, c.target_sysid, 1, 7, _LEVEL, 0.0, 0.0, 0.0, _hover_thrust(z, vz))
     wall = time.perf_counter() - wall0
+    cpu = time.process_time() - cpu0
     sim_s = (t_ms - t_start_ms) * 1e-3
     return {
         "realtime_factor": sim_s / wall,
@@ -92,7 +99,18 @@ def _fast_loop(c: MavClient, seconds: float) -> dict[str, float]:
         "control_steps": float(steps),
         "us_per_control_step": wall / max(steps, 1) * 1e6,
         "final_altitude_m": -z,
+        "client_cpu_us_per_step": cpu / max(steps, 1) * 1e6,
     }
+
+
+def _proc_cpu_s(pid: int) -> float:
+    """User + system CPU time (s) of process ``pid`` so far (Linux /proc; NaN elsewhere)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return float("nan")
 
 
 def main(seconds: float = 3.0) -> int:
