@@ -237,16 +237,21 @@ def summary_markdown(s: dict[str, Any], png: Path | None = None) -> str:
             lines.append(f"| {p} | " + " | ".join(_f(t["success_rate"], pct=True) for t in per.values()) + " |")
     if png is not None:
         lines += ["", f"![success rate against density]({png.name})"]
-    lines += ["", "## Failures (replay: `slungpilot fly --sitl --mission <file>`)", ""]
+    lines += ["", "## Failures", "",
+              "Each keeps its run folder with the mission file; replay one with "
+              "`slungpilot fly --sitl --mission <out>/runs/<planner>/d<density>/s<seed>/mission.toml`.", ""]
     any_fail = False
     for p, t in s["per_planner"].items():
-        if not t["failures"]:
-            continue
-        any_fail = True
-        lines.append(f"- **{p}** ({len(t['failures'])}): " + ", ".join(
-            f"seed {f['seed']} d{f['density']:g} {f['class']} (`{f['mission_file']}`)" for f in t["failures"][:50]))
-        if len(t["failures"]) > 50:
-            lines.append(f"  … and {len(t['failures']) - 50} more in summary.json")
+        for cls in ("collision", "stuck", "error"):
+            fails = [f for f in t["failures"] if f["class"] == cls]
+            if not fails:
+                continue
+            any_fail = True
+            by_d: dict[float, list[int]] = {}
+            for f in fails:
+                by_d.setdefault(f["density"], []).append(f["seed"])
+            seeds = "; ".join(f"d{d:g}: seeds {', '.join(str(k) for k in ks)}" for d, ks in sorted(by_d.items()))
+            lines.append(f"- **{p}** {cls} ({len(fails)}): {seeds}")
     if not any_fail:
         lines.append("None.")
     return "\n".join(lines) + "\n"
