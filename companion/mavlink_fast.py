@@ -53,16 +53,16 @@ ID_ATTITUDE_TARGET, CRC_ATTITUDE_TARGET = 83, 22
 ID_EXTENDED_SYS_STATE, CRC_EXTENDED_SYS_STATE = 245, 130
 ID_DEBUG_FLOAT_ARRAY, CRC_DEBUG_FLOAT_ARRAY = 350, 232
 
-_P_HEARTBEAT = struct.Struct("<IBBBBB")
-_P_SYSTEM_TIME = struct.Struct("<QI")
-_P_ATTITUDE = struct.Struct("<Iffffff")
-_P_ATTITUDE_QUATERNION = struct.Struct("<Ifffffff")  # repr_offset_q (extension) = 0: trimmed anyway
-_P_LOCAL_POSITION_NED = struct.Struct("<Iffffff")
-_P_GLOBAL_POSITION_INT = struct.Struct("<IiiiihhhH")
-_P_SET_ATTITUDE_TARGET = struct.Struct("<IffffffffBBB")
-_P_ATTITUDE_TARGET = struct.Struct("<IffffffffB")
-_P_EXTENDED_SYS_STATE = struct.Struct("<BB")
-_P_SWING = struct.Struct("<QH10s5f")  # DEBUG_FLOAT_ARRAY with data[5:] = 0 (trimmed on the wire)
+P_HEARTBEAT = struct.Struct("<IBBBBB")
+P_SYSTEM_TIME = struct.Struct("<QI")
+P_ATTITUDE = struct.Struct("<Iffffff")
+P_ATTITUDE_QUATERNION = struct.Struct("<Ifffffff")  # repr_offset_q (extension) = 0: trimmed anyway
+P_LOCAL_POSITION_NED = struct.Struct("<Iffffff")
+P_GLOBAL_POSITION_INT = struct.Struct("<IiiiihhhH")
+P_SET_ATTITUDE_TARGET = struct.Struct("<IffffffffBBB")
+P_ATTITUDE_TARGET = struct.Struct("<IffffffffB")
+P_EXTENDED_SYS_STATE = struct.Struct("<BB")
+P_SWING = struct.Struct("<QH10s5f")  # DEBUG_FLOAT_ARRAY with data[5:] = 0 (trimmed on the wire)
 
 
 class FrameError(ValueError):
@@ -96,46 +96,46 @@ def send_heartbeat(mav: Any, mav_type: int, autopilot: int, base_mode: int, cust
                    system_status: int) -> None:
     """HEARTBEAT (mavlink_version 3)."""
     send_payload(mav, ID_HEARTBEAT, CRC_HEARTBEAT,
-                 _P_HEARTBEAT.pack(custom_mode, mav_type, autopilot, base_mode, system_status, 3))
+                 P_HEARTBEAT.pack(custom_mode, mav_type, autopilot, base_mode, system_status, 3))
 
 
 def send_system_time(mav: Any, time_unix_usec: int, time_boot_ms: int) -> None:
     """SYSTEM_TIME."""
-    send_payload(mav, ID_SYSTEM_TIME, CRC_SYSTEM_TIME, _P_SYSTEM_TIME.pack(time_unix_usec, time_boot_ms))
+    send_payload(mav, ID_SYSTEM_TIME, CRC_SYSTEM_TIME, P_SYSTEM_TIME.pack(time_unix_usec, time_boot_ms))
 
 
 def send_attitude(mav: Any, t_ms: int, roll: float, pitch: float, yaw: float, p: float, q: float,
                   r: float) -> None:
     """ATTITUDE: Euler angles (rad) and body rates FRD (rad/s)."""
-    send_payload(mav, ID_ATTITUDE, CRC_ATTITUDE, _P_ATTITUDE.pack(t_ms, roll, pitch, yaw, p, q, r))
+    send_payload(mav, ID_ATTITUDE, CRC_ATTITUDE, P_ATTITUDE.pack(t_ms, roll, pitch, yaw, p, q, r))
 
 
 def send_attitude_quaternion(mav: Any, t_ms: int, q1: float, q2: float, q3: float, q4: float, p: float,
                              q: float, r: float) -> None:
     """ATTITUDE_QUATERNION (repr_offset_q = 0)."""
     send_payload(mav, ID_ATTITUDE_QUATERNION, CRC_ATTITUDE_QUATERNION,
-                 _P_ATTITUDE_QUATERNION.pack(t_ms, q1, q2, q3, q4, p, q, r))
+                 P_ATTITUDE_QUATERNION.pack(t_ms, q1, q2, q3, q4, p, q, r))
 
 
 def send_local_position_ned(mav: Any, t_ms: int, x: float, y: float, z: float, vx: float, vy: float,
                             vz: float) -> None:
     """LOCAL_POSITION_NED (m, m/s)."""
     send_payload(mav, ID_LOCAL_POSITION_NED, CRC_LOCAL_POSITION_NED,
-                 _P_LOCAL_POSITION_NED.pack(t_ms, x, y, z, vx, vy, vz))
+                 P_LOCAL_POSITION_NED.pack(t_ms, x, y, z, vx, vy, vz))
 
 
 def send_global_position_int(mav: Any, t_ms: int, lat: int, lon: int, alt: int, relative_alt: int, vx: int,
                              vy: int, vz: int, hdg: int) -> None:
     """GLOBAL_POSITION_INT (degE7, mm, cm/s, cdeg)."""
     send_payload(mav, ID_GLOBAL_POSITION_INT, CRC_GLOBAL_POSITION_INT,
-                 _P_GLOBAL_POSITION_INT.pack(t_ms, lat, lon, alt, relative_alt, vx, vy, vz, hdg))
+                 P_GLOBAL_POSITION_INT.pack(t_ms, lat, lon, alt, relative_alt, vx, vy, vz, hdg))
 
 
 def send_attitude_target(mav: Any, t_ms: int, type_mask: int, q: Any, roll_rate: float, pitch_rate: float,
                          yaw_rate: float, thrust: float) -> None:
     """ATTITUDE_TARGET (q = [w x y z])."""
     send_payload(mav, ID_ATTITUDE_TARGET, CRC_ATTITUDE_TARGET,
-                 _P_ATTITUDE_TARGET.pack(t_ms, q[0], q[1], q[2], q[3], roll_rate, pitch_rate, yaw_rate, thrust,
+                 P_ATTITUDE_TARGET.pack(t_ms, q[0], q[1], q[2], q[3], roll_rate, pitch_rate, yaw_rate, thrust,
                                          type_mask))
 
 
@@ -143,21 +143,21 @@ def send_set_attitude_target(mav: Any, t_ms: int, target_system: int, target_com
                              q: Any, roll_rate: float, pitch_rate: float, yaw_rate: float, thrust: float) -> None:
     """SET_ATTITUDE_TARGET (q = [w x y z] NED→FRD, normalized thrust)."""
     send_payload(mav, ID_SET_ATTITUDE_TARGET, CRC_SET_ATTITUDE_TARGET,
-                 _P_SET_ATTITUDE_TARGET.pack(t_ms, q[0], q[1], q[2], q[3], roll_rate, pitch_rate, yaw_rate, thrust,
+                 P_SET_ATTITUDE_TARGET.pack(t_ms, q[0], q[1], q[2], q[3], roll_rate, pitch_rate, yaw_rate, thrust,
                                              target_system, target_component, type_mask))
 
 
 def send_extended_sys_state(mav: Any, vtol_state: int, landed_state: int) -> None:
     """EXTENDED_SYS_STATE."""
     send_payload(mav, ID_EXTENDED_SYS_STATE, CRC_EXTENDED_SYS_STATE,
-                 _P_EXTENDED_SYS_STATE.pack(vtol_state, landed_state))
+                 P_EXTENDED_SYS_STATE.pack(vtol_state, landed_state))
 
 
 def send_debug_float_array5(mav: Any, time_usec: int, name: bytes, array_id: int, d0: float, d1: float,
                             d2: float, d3: float, d4: float) -> None:
     """DEBUG_FLOAT_ARRAY with data[0..4] given and data[5:] = 0 (the simulated cable-angle sensor)."""
     send_payload(mav, ID_DEBUG_FLOAT_ARRAY, CRC_DEBUG_FLOAT_ARRAY,
-                 _P_SWING.pack(time_usec, array_id, name, d0, d1, d2, d3, d4))
+                 P_SWING.pack(time_usec, array_id, name, d0, d1, d2, d3, d4))
 
 
 # ------------------------------------------------------------------------------------------------ decoding

@@ -136,32 +136,56 @@ class SwingMessage(mavlink2.MAVLink_debug_float_array_message):
         return self._pack(mav, self.crc_extra, payload, force_mavlink1=False)
 
 
-def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any) -> bool:
-    """Send one message of the vehicle system, ``v`` being the running vehicle; False if unknown here."""
+def hot_payload(msgid: int, v: Any) -> tuple[int, bytes] | None:
+    """(CRC extra, payload) of a streamed vehicle message at the vehicle's current time; None for others."""
     sim = v.sim
     t_ms = v.t_us // 1000
-    if msgid == MSG_DEBUG_FLOAT_ARRAY:  # the hot ones first: packed by companion.mavlink_fast
+    if msgid == MSG_DEBUG_FLOAT_ARRAY:
         s = sim.swing
-        mf.send_debug_float_array5(mav, v.t_us, SWING_NAME, SWING_ARRAY_ID, s[0], s[1], s[2], s[3], sim.params.l)
-    elif msgid == MSG_ATTITUDE:
+        return mf.CRC_DEBUG_FLOAT_ARRAY, mf.P_SWING.pack(v.t_us, SWING_ARRAY_ID, SWING_NAME, s[0], s[1], s[2], s[3],
+                                                         sim.params.l)
+    if msgid == MSG_ATTITUDE:
         e = sim.euler_rad
         w = sim.body_rates_frd_rad_s
-        mf.send_attitude(mav, t_ms, e[0], e[1], e[2], w[0], w[1], w[2])
-    elif msgid == MSG_LOCAL_POSITION_NED:
+        return mf.CRC_ATTITUDE, mf.P_ATTITUDE.pack(t_ms, e[0], e[1], e[2], w[0], w[1], w[2])
+    if msgid == MSG_LOCAL_POSITION_NED:
         p, vel = sim.pos_ned_m, sim.vel_ned_mps
-        mf.send_local_position_ned(mav, t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
-    elif msgid == MSG_SYSTEM_TIME:
-        mf.send_system_time(mav, 0, t_ms & 0xFFFFFFFF)
-    elif msgid == MSG_ATTITUDE_QUATERNION:
+        return mf.CRC_LOCAL_POSITION_NED, mf.P_LOCAL_POSITION_NED.pack(t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
+    if msgid == MSG_ATTITUDE_QUATERNION:
         q = sim.quat_wxyz
         w = sim.body_rates_frd_rad_s
-        mf.send_attitude_quaternion(mav, t_ms, q[0], q[1], q[2], q[3], w[0], w[1], w[2])
-    elif msgid == MSG_GLOBAL_POSITION_INT:
-        _send_global(mav, t_ms, sim.pos_ned_m, sim.vel_ned_mps, float(sim.euler_rad[2]), v.home)
-    elif msgid == MSG_ATTITUDE_TARGET:
+        return mf.CRC_ATTITUDE_QUATERNION, mf.P_ATTITUDE_QUATERNION.pack(t_ms, q[0], q[1], q[2], q[3], w[0], w[1],
+                                                                         w[2])
+    if msgid == MSG_GLOBAL_POSITION_INT:
+        return mf.CRC_GLOBAL_POSITION_INT, _global_payload(t_ms, sim.pos_ned_m, sim.vel_ned_mps,
+                                                           float(sim.euler_rad[2]), v.home)
+    if msgid == MSG_ATTITUDE_TARGET:
         q = quat_from_euler(*sim.target_euler_rad)
         r = sim.target_rates_frd_rad_s if sim.target_rates_frd_rad_s is not None else _ZERO3
-        mf.send_attitude_target(mav, t_ms, 0, q, r[0], r[1], r[2], v.normalized_thrust(sim.target_thrust_n))
+        return mf.CRC_ATTITUDE_TARGET, mf.P_ATTITUDE_TARGET.pack(
+            t_ms, q[0], q[1], q[2], q[3], r[0], r[1], r[2], v.normalized_thrust(sim.target_thrust_n), 0)
+    if msgid == MSG_SYSTEM_TIME:
+        return mf.CRC_SYSTEM_TIME, mf.P_SYSTEM_TIME.pack(0, t_ms & 0xFFFFFFFF)
+    if msgid == MSG_EXTENDED_SYS_STATE:
+        return mf.CRC_EXTENDED_SYS_STATE, mf.P_EXTENDED_SYS_STATE.pack(mavlink2.MAV_VTOL_STATE_UNDEFINED,
+                                                                       v.landed_state)
+    return None
+
+
+def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any,
+                         cache: dict[int, tuple[int, bytes]] | None = None) -> bool:
+    """Send one message of the vehicle system, ``v`` being the running vehicle; False if unknown here.
+
+    ``cache`` (msgid → packed payload) lets the links of one control period share the packing work; the
+    caller keeps it for one instant of simulated time only.
+    """
+    hot = cache.get(msgid) if cache is not None else None
+    if hot is None:
+        hot = hot_payload(msgid, v)
+        if hot is not None and cache is not None:
+            cache[msgid] = hot
+    if hot is not None:
+        mf.send_payload(mav, msgid, hot[0], hot[1])
     elif msgid == MSG_HEARTBEAT:
         mf.send_heartbeat(
             mav, mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_PX4, v.base_mode, v.mode.custom_mode,
@@ -171,8 +195,6 @@ def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any) -> bool:
         sensors = 0x3FFFFF & ~(0x20000 | 0x10000 | 0x100 | 0x80)  # no RC, no laser, no optical flow, no vision
         mav.sys_status_send(sensors, sensors, sensors, 0, 16000, -1, 100, 0, min(v.counters.total, 65535),
                             0, 0, 0, 0)
-    elif msgid == MSG_EXTENDED_SYS_STATE:
-        mf.send_extended_sys_state(mav, mavlink2.MAV_VTOL_STATE_UNDEFINED, v.landed_state)
     elif msgid == MSG_AUTOPILOT_VERSION:
         mav.autopilot_version_send(CAPABILITIES, SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
                                    v.sysid)
@@ -196,10 +218,15 @@ def send_payload_messages(mav: mavlink2.MAVLink, v: Any, heartbeat: bool) -> Non
 
 
 def _send_global(mav, t_ms: int, p, vel, yaw_rad: float, home: tuple[float, float, float]) -> None:
+    mf.send_payload(mav, mf.ID_GLOBAL_POSITION_INT, mf.CRC_GLOBAL_POSITION_INT,
+                    _global_payload(t_ms, p, vel, yaw_rad, home))
+
+
+def _global_payload(t_ms: int, p, vel, yaw_rad: float, home: tuple[float, float, float]) -> bytes:
     lat, lon, alt = ned_to_geodetic(p, *home)
     hdg = round(math.degrees(yaw_rad) * 100.0) % 36000
-    mf.send_global_position_int(
-        mav, t_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0),
+    return mf.P_GLOBAL_POSITION_INT.pack(
+        t_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0),
         round(-float(p[2]) * 1000.0),
         _i16(vel[0] * 100.0), _i16(vel[1] * 100.0), _i16(vel[2] * 100.0), hdg,
     )

@@ -187,9 +187,10 @@ class SitlVehicle:
 
     def _send_due_telemetry(self) -> None:
         hb = False
+        cache: dict[int, tuple[int, bytes]] = {}  # the same message on both links is packed once
         for lk in self._links():
             for msgid in lk.scheduler.due(self.t_us):
-                telemetry.send_vehicle_message(msgid, lk.mav, self)
+                telemetry.send_vehicle_message(msgid, lk.mav, self, cache)
                 hb = hb or msgid == M.MAVLINK_MSG_ID_HEARTBEAT
         if self.t_us >= self._next_payload_us:
             self._next_payload_us += self.cfg.payload_interval_us
