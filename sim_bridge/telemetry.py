@@ -67,6 +67,7 @@ class RateScheduler:
         self.defaults_us = dict(defaults_us)
         self.intervals_us = dict(defaults_us)
         self._next_us: dict[int, int] = dict.fromkeys(defaults_us, 0)
+        self._earliest_us = 0  # no message is due before this time (recomputed by due())
 
     def set_interval(self, msgid: int, interval_us: float, now_us: int) -> bool:
         """MAV_CMD_SET_MESSAGE_INTERVAL semantics; returns False for a message this vehicle cannot stream."""
@@ -79,17 +80,29 @@ class RateScheduler:
         else:
             self.intervals_us[msgid] = max(1, int(interval_us))
         self._next_us[msgid] = now_us
+        self._earliest_us = min(self._earliest_us, now_us)
         return True
 
     def due(self, now_us: int) -> list[int]:
         """Message ids due at ``now_us`` (each at most once per call; no catch-up bursts)."""
+        if now_us < self._earliest_us:  # nothing due yet: the common case between rate ticks
+            return []
         out = []
+        nxt_get = self._next_us.get
+        earliest = None
         for msgid, iv in self.intervals_us.items():
-            if iv <= 0 or self._next_us.get(msgid, 0) > now_us:
+            if iv <= 0:
                 continue
-            out.append(msgid)
-            nxt = self._next_us.get(msgid, 0) + iv
-            self._next_us[msgid] = nxt if nxt > now_us else now_us + iv
+            t_next = nxt_get(msgid, 0)
+            if t_next <= now_us:
+                out.append(msgid)
+                t_next += iv
+                if t_next <= now_us:
+                    t_next = now_us + iv
+                self._next_us[msgid] = t_next
+            if earliest is None or t_next < earliest:
+                earliest = t_next
+        self._earliest_us = now_us + 1 if earliest is None else earliest
         return out
 
 
