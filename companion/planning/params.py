@@ -17,7 +17,11 @@ class PlannerParams:
     deceleration assumed for the speed-dependent influence range, ``influence_m`` base influence range,
     ``gamma`` barrier rate (1/s: approach speed <= gamma·gap), ``track_margin_m`` allowance for tracking
     error on top of the measured one, ``stuck_speed_mps`` / ``stuck_time_s`` local-minimum detector,
-    ``goal_tol_m`` arrival tolerance.
+    ``goal_tol_m`` arrival tolerance, ``lookahead_s`` how far ahead (s, along the reference velocity) the
+    safe planner also measures each gap for its barrier (the reference generator's velocity lag),
+    ``steer_lookahead_s`` the same for its steering, ``a_goal_mps2`` braking deceleration towards the
+    goal, ``goal_lookahead_s`` lag allowance of that braking, ``error_lookahead_s`` horizon of the predicted
+    tracking error in the margin (see :mod:`companion.planning.safe`).
     """
 
     ka: float = 1.5
@@ -35,6 +39,11 @@ class PlannerParams:
     stuck_speed_mps: float = 0.15
     stuck_time_s: float = 1.0
     goal_tol_m: float = 0.05
+    lookahead_s: float = 0.4
+    steer_lookahead_s: float = 0.4
+    a_goal_mps2: float = 1.8
+    goal_lookahead_s: float = 0.5
+    error_lookahead_s: float = 0.3
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: must be > 0")`` for non-positive or non-finite values."""

@@ -11,8 +11,14 @@ length — and changes how it is enforced:
    full cable, max(l, r2).
 2. Gap, not centre distance. For each obstacle (only while the payload can be below its top) the gap is
    g = |x − o| − r_o − Δd_min − R_env − (track_margin + |measured − reference|), evaluated at the reference
-   point x: the reference is what the vehicle is told to fly, and its current tracking error is added to
-   the margin.
+   point x: the reference is what the vehicle is told to fly, and its tracking error is added to the
+   margin — the larger of the error now and the error predicted ``error_lookahead_s`` ahead from the
+   velocity difference (in hard turns the anti-swing feed-forward moves the airframe after its payload,
+   0.3–0.4 m off the reference; the margin must widen before, not after). The reference's velocity lags
+   the planner's (velocity loop 1/k_vel plus the acceleration lag, ~0.4 s): a barrier on the gap at x alone let the reference coast 0.2–0.3 m into the ring in tight
+   turns of random forests. So each gap is also measured at x + T·v_ref (T = ``lookahead_s`` for the
+   barrier, ``steer_lookahead_s`` for steering) and the smaller one counts: the planner acts on where the
+   reference is going, a discrete second-order barrier.
 3. Velocity barrier (a control-barrier condition on a single integrator): the reference may approach an
    obstacle no faster than min(γ·g, sqrt(2·a_brake·g)); the braking term is the speed-dependent influence
    range. Inside the ring (g < 0) it is pushed out at γ·|g|. Enforced by projecting the desired velocity on
@@ -25,7 +31,9 @@ length — and changes how it is enforced:
 5. Local minima (trunk pairs, concave clusters): if the desired speed stays below ``stuck_speed_mps`` for
    ``stuck_time_s`` away from the goal, the turning side flips and stays locked until the vehicle is clear of
    all obstacles or closer to the goal than where it got stuck (boundary following, as in Bug algorithms).
-6. Goal approach: speed min(v_max, sqrt(2·a_brake·d), ka·d) towards the goal — it brakes in time.
+6. Goal approach: speed min(v_max, sqrt(2·a_goal·d'), ka·d) towards the goal, with the braking distance
+   d' = d − T_g·v_along measured from where the lagging reference will be (T_g = ``goal_lookahead_s``):
+   the reference stops at the goal instead of overshooting it and dragging the swinging payload past.
 """
 
 from __future__ import annotations
@@ -54,6 +62,15 @@ def predicted_envelope_m(inp: PlanInput) -> float:
     return max(r1, r2, inp.r_max_m)
 
 
+def _gap_at(x: float, y: float, o: Obstacle, ring_m: float) -> tuple[float, float, float]:
+    """(distance − ring_m, unit normal x, y from the obstacle's centre to the point (x, y))."""
+    dx, dy = x - o.x_m, y - o.y_m
+    dist = math.hypot(dx, dy)
+    if dist > 1e-9:
+        return dist - ring_m, dx / dist, dy / dist
+    return dist - ring_m, 1.0, 0.0
+
+
 class SafePlanner:
     """Swing-aware barrier planner with trap escape (see module docstring).
 
@@ -70,31 +87,44 @@ class SafePlanner:
         self.slow_since_s: float | None = None
         self.escapes = 0
 
-    def _gaps(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> list[tuple[float, float, float, Obstacle]]:
-        """(gap m, unit normal x, y from obstacle to the reference point, obstacle) for relevant obstacles."""
+    def _gaps(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> list[tuple]:
+        """(gap m, unit normal x, y from obstacle to the reference point, obstacle, barrier gap m, its normal x,
+        y) for the obstacles the payload can reach.
+
+        The reference's velocity lags the planner's (first-order loop of 1/k_vel plus the acceleration lag),
+        so each gap is also measured at the point the reference reaches if it keeps its velocity: after
+        ``steer_lookahead_s`` for steering, after ``lookahead_s`` for the barrier; the smaller gap counts.
+        """
         r_env = predicted_envelope_m(inp)
         px, py = float(inp.pos_m[0]), float(inp.pos_m[1])
         x, y = float(inp.ref_pos_m[0]), float(inp.ref_pos_m[1])
-        margin = self.params.track_margin_m + math.hypot(px - x, py - y)
+        # tracking error now and as predicted error_lookahead_s ahead (the error grows in hard turns, when the
+        # anti-swing feed-forward moves the airframe after its payload): the larger one widens the margin
+        t_e = self.params.error_lookahead_s
+        evx = float(inp.vel_mps[0]) - float(inp.ref_vel_mps[0])
+        evy = float(inp.vel_mps[1]) - float(inp.ref_vel_mps[1])
+        err = max(math.hypot(px - x, py - y), math.hypot(px - x + t_e * evx, py - y + t_e * evy))
+        margin = self.params.track_margin_m + err
         reach_z = inp.z_ned_m + inp.cable_l_m
         base = r_env + margin
+        vx, vy = float(inp.ref_vel_mps[0]), float(inp.ref_vel_mps[1])
+        t_b, t_s = self.params.lookahead_s, self.params.steer_lookahead_s
         out = []
         for o in obstacles:
             if reach_z < -o.height_m:
                 continue  # payload cannot reach below the top
-            dx = x - o.x_m
-            dy = y - o.y_m
-            dist = math.hypot(dx, dy)
-            if dist > 1e-9:
-                nx, ny = dx / dist, dy / dist
-            else:
-                nx, ny = 1.0, 0.0
-            out.append((dist - o.radius_m - o.safe_distance_m - base, nx, ny, o))
+            ring = o.radius_m + o.safe_distance_m + base
+            g, nx, ny = _gap_at(x, y, o, ring)
+            gs, sx, sy = _gap_at(x + t_s * vx, y + t_s * vy, o, ring)
+            gb, bx, by = _gap_at(x + t_b * vx, y + t_b * vy, o, ring)
+            if gs < g:
+                g, nx, ny = gs, sx, sy
+            out.append((g, nx, ny, o, gb, bx, by) if gb < g else (g, nx, ny, o, g, nx, ny))
         return out
 
     def gaps(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> list[tuple[float, np.ndarray, Obstacle]]:
         """(gap m, unit normal from obstacle to the reference point (2,), obstacle) for relevant obstacles."""
-        return [(g, np.array([nx, ny]), o) for g, nx, ny, o in self._gaps(inp, obstacles)]
+        return [(gn[0], np.array(gn[1:3]), gn[3]) for gn in self._gaps(inp, obstacles)]
 
     def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
         """Desired horizontal velocity at the reference point (m/s, NED (2,))."""
@@ -106,7 +136,10 @@ class SafePlanner:
             edx, edy = ex / dg, ey / dg
         else:
             edx = edy = 0.0
-        speed = min(p.v_max_mps, math.sqrt(2.0 * p.a_brake_mps2 * dg), p.ka * dg)
+        # braking distance measured from where the lagging reference will be in goal_lookahead_s
+        v_along = float(inp.ref_vel_mps[0]) * edx + float(inp.ref_vel_mps[1]) * edy
+        d_brake = max(0.0, dg - p.goal_lookahead_s * max(0.0, v_along))
+        speed = min(p.v_max_mps, math.sqrt(2.0 * p.a_goal_mps2 * d_brake), p.ka * dg)
         nom_x, nom_y = speed * edx, speed * edy
         gaps = self._gaps(inp, obstacles)
         v_ref = math.hypot(float(inp.ref_vel_mps[0]), float(inp.ref_vel_mps[1]))
@@ -121,7 +154,7 @@ class SafePlanner:
         vdx, vdy = edx, edy
         w = 0.0
         if heading_in and dg > 1e-9:
-            g0, n0x, n0y, _o0 = min(heading_in, key=lambda gn: gn[0])
+            g0, n0x, n0y, *_ = min(heading_in, key=lambda gn: gn[0])
             if self.side == 0:
                 self.side = self._choose_side(n0x, n0y, edx, edy, rx, ry, gaps)
             tx, ty = -self.side * n0y, self.side * n0x
@@ -138,7 +171,7 @@ class SafePlanner:
 
         # 3. barrier projection
         for _ in range(3):
-            for g, nx, ny, _o in gaps:
+            for _g, _nx, _ny, _o, g, nx, ny in gaps:
                 allow = p.gamma * g if g < 0.0 else min(p.gamma * g, math.sqrt(2.0 * p.a_brake_mps2 * g))
                 vn = vx * nx + vy * ny
                 if vn < -allow:
@@ -174,13 +207,13 @@ class SafePlanner:
         if abs(cross) > 0.2:
             return 1 if cross > 0.0 else -1
         # head-on: pass on the side with more room next to the obstacle
-        g0, _, _, o0 = min(gaps, key=lambda gn: abs(gn[1] * n0x + gn[2] * n0y - 1.0))
+        g0, _, _, o0, *_ = min(gaps, key=lambda gn: abs(gn[1] * n0x + gn[2] * n0y - 1.0))
         reach = math.hypot(rx - o0.x_m, ry - o0.y_m) - g0 + 0.3
         best, best_room = 1, -math.inf
         for s in (1, -1):
             px, py = o0.x_m - reach * s * n0y, o0.y_m + reach * s * n0x
             room = min(
-                (math.hypot(px - o.x_m, py - o.y_m) - o.radius_m for _, _, _, o in gaps if o is not o0),
+                (math.hypot(px - o.x_m, py - o.y_m) - o.radius_m for _, _, _, o, *_ in gaps if o is not o0),
                 default=math.inf,
             )
             if room > best_room + 1e-9:
