@@ -9,16 +9,16 @@ length — and changes how it is enforced:
    A = sqrt(angle² + (rate/ω)²), ω = sqrt(g/l), per axis; the envelope radius is
    max(r2, r1(Aα, Aβ), R_max now) (eqs. 20–21 at the predicted amplitude). Without swing sensing it is the
    full cable, max(l, r2).
-2. Gap, not centre distance. For each obstacle (only while the payload can be below its top) the gap is
-   g = |x − o| − r_o − Δd_min − R_env − (track_margin + |measured − reference|), evaluated at the reference
-   point x: the reference is what the vehicle is told to fly, and its tracking error is added to the
-   margin — the larger of the error now and the error predicted ``error_lookahead_s`` ahead from the
-   velocity difference (in hard turns the anti-swing feed-forward moves the airframe after its payload,
-   0.3–0.4 m off the reference; the margin must widen before, not after). The reference's velocity lags
-   the planner's (velocity loop 1/k_vel plus the acceleration lag, ~0.4 s): a barrier on the gap at x alone let the reference coast 0.2–0.3 m into the ring in tight
-   turns of random forests. So each gap is also measured at x + T·v_ref (T = ``lookahead_s`` for the
-   barrier, ``steer_lookahead_s`` for steering) and the smaller one counts: the planner acts on where the
-   reference is going, a discrete second-order barrier.
+2. Gap, not centre distance. For each obstacle (only while the payload can be below its top) the gap is g =
+   |x − o| − r_o − Δd_min − R_env − (track_margin + |measured − reference|), evaluated at the reference point
+   x: the reference is what the vehicle is told to fly, and its tracking error is added to the margin — the
+   larger of the error now and the error predicted ``error_lookahead_s`` ahead from the velocity difference
+   (in hard turns the anti-swing feed-forward moves the airframe after its payload, 0.3–0.4 m off the
+   reference; the margin must widen before, not after). The reference's velocity lags the planner's (velocity
+   loop 1/k_vel plus the acceleration lag, ~0.4 s): a barrier on the gap at x alone let the reference coast
+   0.2–0.3 m into the ring in tight turns of random forests. So each gap is also measured at x + T·v_ref (T =
+   ``lookahead_s`` for the barrier, ``steer_lookahead_s`` for steering) and the smaller one counts: the
+   planner acts on where the reference is going, a discrete second-order barrier.
 3. Velocity barrier (a control-barrier condition on a single integrator): the reference may approach an
    obstacle no faster than min(γ·g, sqrt(2·a_brake·g)); the braking term is the speed-dependent influence
    range. Inside the ring (g < 0) it is pushed out at γ·|g|. Enforced by projecting the desired velocity on
