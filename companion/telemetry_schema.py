@@ -44,6 +44,7 @@ STREAMS: dict[str, str] = {
 }
 
 HEADER_KEYS = ("schema", "version", "seq", "vehicle_id", "t_s", "wall_s")
+HEADER_KEYS_SET = frozenset(HEADER_KEYS)
 
 
 def encoding_schema(name: str, version: int = SCHEMA_VERSION) -> str:
@@ -135,7 +136,7 @@ def encode_state(
     return text.encode()
 
 
-def encode_dict(name: str, seq: int, vehicle_id: str, t_s: float, wall_s: float, body: Mapping[str, Any]) -> bytes:
+def encode_dict(seq: int, vehicle_id: str, t_s: float, wall_s: float, body: Mapping[str, Any], name: str) -> bytes:
     """A sample of schema ``name``: header plus the (sanitized) ``body`` fields; body keys that collide
     with header keys are refused with ``ValueError``."""
     clash = set(HEADER_KEYS) & set(body)
