@@ -16,7 +16,7 @@ OBS = Obstacle(x_m=2.0, y_m=0.0, radius_m=0.3, height_m=4.0, safe_distance_m=0.1
 def _inp(pos, goal=(10.0, 0.0), swing=(0.0, 0.0, 0.0, 0.0), r_max=0.28, ref_vel=(0.0, 0.0), t=0.0, ref=None):
     pos = np.array(pos, dtype=float)
     return PlanInput(
-        t_s=t, pos_m=pos, vel_mps=np.zeros(2), ref_pos_m=pos if ref is None else np.array(ref, float),
+        t_s=t, pos_m=pos, vel_mps=np.array(ref_vel, float), ref_pos_m=pos if ref is None else np.array(ref, float),
         ref_vel_mps=np.array(ref_vel, float), goal_m=np.array(goal, float), r_max_m=r_max,
         swing=None if swing is None else np.array(swing, float), cable_l_m=1.0, airframe_r_m=0.28, z_ned_m=-2.0,
     )

@@ -88,8 +88,8 @@ class SafePlanner:
         self.escapes = 0
 
     def _gaps(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> list[tuple]:
-        """(gap m, unit normal x, y from obstacle to the reference point, obstacle, barrier gap m, its normal x,
-        y) for the obstacles the payload can reach.
+        """(steering gap m, its unit normal x, y (from the obstacle), obstacle, barrier gap m, its normal x, y, gap
+        at the reference itself m, its normal x, y) for the obstacles the payload can reach.
 
         The reference's velocity lags the planner's (first-order loop of 1/k_vel plus the acceleration lag),
         so each gap is also measured at the point the reference reaches if it keeps its velocity: after
@@ -114,17 +114,19 @@ class SafePlanner:
             if reach_z < -o.height_m:
                 continue  # payload cannot reach below the top
             ring = o.radius_m + o.safe_distance_m + base
-            g, nx, ny = _gap_at(x, y, o, ring)
+            g0, n0x, n0y = _gap_at(x, y, o, ring)
+            g, nx, ny = g0, n0x, n0y
             gs, sx, sy = _gap_at(x + t_s * vx, y + t_s * vy, o, ring)
             gb, bx, by = _gap_at(x + t_b * vx, y + t_b * vy, o, ring)
             if gs < g:
                 g, nx, ny = gs, sx, sy
-            out.append((g, nx, ny, o, gb, bx, by) if gb < g else (g, nx, ny, o, g, nx, ny))
+            out.append((g, nx, ny, o, gb, bx, by, g0, n0x, n0y) if gb < g else (g, nx, ny, o, g, nx, ny, g0, n0x, n0y))
         return out
 
     def gaps(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> list[tuple[float, np.ndarray, Obstacle]]:
-        """(gap m, unit normal from obstacle to the reference point (2,), obstacle) for relevant obstacles."""
-        return [(gn[0], np.array(gn[1:3]), gn[3]) for gn in self._gaps(inp, obstacles)]
+        """(gap m at the reference point itself, unit normal from the obstacle (2,), obstacle) per relevant
+        obstacle (no look-ahead; the margin includes the current and predicted tracking error)."""
+        return [(gn[7], np.array(gn[8:10]), gn[3]) for gn in self._gaps(inp, obstacles)]
 
     def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
         """Desired horizontal velocity at the reference point (m/s, NED (2,))."""
@@ -171,7 +173,7 @@ class SafePlanner:
 
         # 3. barrier projection
         for _ in range(3):
-            for _g, _nx, _ny, _o, g, nx, ny in gaps:
+            for _g, _nx, _ny, _o, g, nx, ny, *_ in gaps:
                 allow = p.gamma * g if g < 0.0 else min(p.gamma * g, math.sqrt(2.0 * p.a_brake_mps2 * g))
                 vn = vx * nx + vy * ny
                 if vn < -allow:
