@@ -23,12 +23,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink2
 
 try:  # pymavlink uses fastcrc too when it is installed; same polynomial and start value
-    from fastcrc.crc16 import mcrf4xx as _mcrf4xx
-
-    def crc_mcrf4xx(data: bytes) -> int:
-        """CRC-16/MCRF4XX (MAVLink's X.25 CRC) of ``data``."""
-        return _mcrf4xx(data)
-
+    from fastcrc.crc16 import mcrf4xx as crc_mcrf4xx  # CRC-16/MCRF4XX (MAVLink's X.25 CRC) of bytes
 except ImportError:  # pragma: no cover - depends on the environment
 
     def crc_mcrf4xx(data: bytes) -> int:
@@ -40,6 +35,7 @@ STX_V2 = mavlink2.PROTOCOL_MARKER_V2
 HEADER_LEN = 10
 _HDR = struct.Struct("<BBBBBBBHB")
 _CRC = struct.Struct("<H")
+_BYTE = [bytes((k,)) for k in range(256)]
 
 # message ids and CRC extras of the hand-packed messages
 ID_HEARTBEAT, CRC_HEARTBEAT = 0, 50
@@ -77,17 +73,19 @@ class FrameError(ValueError):
 def frame_v2(seq: int, sysid: int, compid: int, msgid: int, crc_extra: int, payload: bytes) -> bytes:
     """One unsigned MAVLink 2 frame, exactly as pymavlink packs it (trailing zeros trimmed, ≥ 1 byte)."""
     body = payload.rstrip(b"\x00") or payload[:1]
-    head = _HDR.pack(STX_V2, len(body), 0, 0, seq, sysid, compid, msgid & 0xFFFF, msgid >> 16)
-    buf = head + body
-    return buf + _CRC.pack(crc_mcrf4xx(buf[1:] + bytes((crc_extra,))))
+    buf = _HDR.pack(STX_V2, len(body), 0, 0, seq, sysid, compid, msgid & 0xFFFF, msgid >> 16) + body
+    return buf + _CRC.pack(crc_mcrf4xx(buf[1:] + _BYTE[crc_extra]))
 
 
 def send_payload(mav: Any, msgid: int, crc_extra: int, payload: bytes) -> None:
     """Frame ``payload`` with ``mav``'s ids and sequence number and write it to ``mav.file`` (as
     ``MAVLink.send`` does: the sequence number and send counters advance; no signing)."""
-    buf = frame_v2(mav.seq, mav.srcSystem, mav.srcComponent, msgid, crc_extra, payload)
+    body = payload.rstrip(b"\x00") or payload[:1]
+    buf = _HDR.pack(STX_V2, len(body), 0, 0, mav.seq, mav.srcSystem, mav.srcComponent, msgid & 0xFFFF,
+                    msgid >> 16) + body
+    buf += _CRC.pack(crc_mcrf4xx(buf[1:] + _BYTE[crc_extra]))
     mav.file.write(buf)
-    mav.seq = (mav.seq + 1) % 256
+    mav.seq = (mav.seq + 1) & 0xFF
     mav.total_packets_sent += 1
     mav.total_bytes_sent += len(buf)
 
