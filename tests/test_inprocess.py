@@ -27,7 +27,7 @@ def test_group1_smc_ff_settles_faster_than_smc():
     ff = compute_metrics(fly_inprocess(m), m)
     smc = compute_metrics(fly_inprocess(m.with_(controller="smc")), m)
     assert ff["reached_goal"] and smc["reached_goal"]
-    assert ff["swing_settle_after_arrival_s"] is not None and ff["swing_settle_after_arrival_s"] <= 6.0
+    assert ff["swing_settle_after_arrival_s"] is not None and ff["swing_settle_after_arrival_s"] <= 3.5
     assert smc["swing_settle_after_arrival_s"] is None or (
         smc["swing_settle_after_arrival_s"] > ff["swing_settle_after_arrival_s"]
     )
