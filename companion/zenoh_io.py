@@ -143,7 +143,10 @@ def open_session(cfg: zenoh.Config) -> zenoh.Session:
     try:
         return zenoh.open(cfg)
     except Exception as exc:
-        raise LinkError(f"zenoh: cannot open a session: {exc}") from None
+        hint = ""
+        if "Address already in use" in str(exc):
+            hint = " (another companion on this port? give --zenoh-listen another port, or use a router)"
+        raise LinkError(f"zenoh: cannot open a session: {exc}{hint}") from None
 
 
 def check_key_part(what: str, value: str) -> str:

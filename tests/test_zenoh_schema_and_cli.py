@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from companion import telemetry_schema as ts
-from companion.errors import ConfigError
+from companion.errors import ConfigError, LinkError
 from companion.obstacles import Obstacle
 from companion.zenoh_bench import free_tcp_port
 from companion.zenoh_cli import add_listen_parser, add_obstacles_parser, add_router_parser, load_obstacles_payload
@@ -122,6 +122,13 @@ def test_in_process_telemetry_rates_and_obstacle_stream_logic() -> None:
     assert not zt.is_open and not zt.publish_swing(3.0, None, 0.4, "live")
 
 
+def test_a_busy_listen_port_is_a_link_error_naming_the_fix() -> None:
+    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    with ZenohTelemetry(zenoh_config("companion", listen=[ep]), TelemetryOptions()), \
+            pytest.raises(LinkError, match="another companion on this port"):
+        ZenohTelemetry(zenoh_config("companion", listen=[ep]), TelemetryOptions(vehicle_id="2")).open()
+
+
 def test_obstacle_file_loading_for_the_publish_tool(tmp_path: Path) -> None:
     toml = tmp_path / "m.toml"
     toml.write_text('[mission]\nname = "x"\n[[obstacles]]\nx_m = 6.0\ny_m = 0.1\nradius_m = 0.3\n')
@@ -192,6 +199,16 @@ def test_listen_json_and_obstacles_publish_against_a_running_driver(tmp_path: Pa
         procs.append(bad)
         _, err = bad.communicate(timeout=40)
         assert bad.returncode == 2 and "missing.toml: file not found" in err
+        view = _run(["companion.zenoh_cli", "listen", "--zenoh-connect", ep, "--duration", "2.5"])
+        procs.append(view)
+        out, err = view.communicate(timeout=40)
+        assert view.returncode == 0, err
+        final = out.strip().split("slungpilot listen")[-1]
+        assert "alive: slungpilot/5/alive" in final
+        swing_row = next(line for line in final.splitlines() if line.startswith("slungpilot/5/swing"))
+        rate, count, lost = swing_row.split()[1:4]
+        assert float(rate) > 0 and int(count) > 0 and int(lost) == 0
+        assert "R_max" in swing_row and "[live]" in swing_row
     finally:
         for p in procs:
             if p.poll() is None:
