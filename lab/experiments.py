@@ -235,6 +235,7 @@ def _figures(out: Path, res: dict[str, Any], g1_mission: Mission, g2_mission: Mi
                 got[k] = figures.load_arrays(p.parent)
         return got
 
+    out.mkdir(parents=True, exist_ok=True)
     paths = []
     a1, a2 = arrays(res["group1"]), arrays(res["group2"])
     if a1:
