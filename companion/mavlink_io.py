@@ -9,6 +9,10 @@ Connection URLs as MAVSDK and mavutil users know them:
 Every datagram in and out is also written to a ``.tlog`` (8-byte big-endian microsecond UNIX time stamp +
 raw frame, the format ground stations write and ``mavlogdump.py`` reads). Undecodable input is counted and
 logged at most once a second per kind; it never raises into the flight loop.
+
+Hot path: a datagram made only of complete, unsigned, CRC-valid MAVLink 2 frames (what a vehicle sends) is
+decoded by :func:`companion.mavlink_fast.decode_lite`; anything else goes through pymavlink's own parser.
+``on_datagram_done`` (optional) is called after the messages of each datagram were handled.
 """
 
 from __future__ import annotations
