@@ -62,16 +62,6 @@ class RejectCounters:
         return sum(self.counts.values())
 
 
-class _Writer:
-    """The ``file`` object pymavlink's MAVLink writes packed frames to: sends to the link's remote."""
-
-    def __init__(self, link: MavUdpLink) -> None:
-        self._link = link
-
-    def write(self, buf: bytes) -> None:
-        self._link.send_bytes(buf)
-
-
 class MavUdpLink(asyncio.DatagramProtocol):
     """A UDP MAVLink 2 endpoint: ``link.mav`` sends as the vehicle; ``link.sender(sys, comp)`` as others.
 
@@ -100,8 +90,7 @@ class MavUdpLink(asyncio.DatagramProtocol):
 
     def sender(self, sysid: int, compid: int) -> mavlink2.MAVLink:
         """A pymavlink ``MAVLink`` encoder with its own sequence numbers that writes to this link."""
-        mav = mavlink2.MAVLink(_Writer(self), srcSystem=sysid, srcComponent=compid)
-        return mav
+        return mavlink2.MAVLink(self, srcSystem=sysid, srcComponent=compid)  # pymavlink calls self.write
 
     # asyncio callbacks -------------------------------------------------------------------------------
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
@@ -143,10 +132,12 @@ class MavUdpLink(asyncio.DatagramProtocol):
             return
         self._sendto(buf)
 
+    write = send_bytes  # the ``file.write`` that pymavlink's encoders (``self.mav``, senders) call
+
     def _sendto(self, buf: bytes | bytearray) -> None:
         if self.transport is not None:
             try:
-                self.transport.sendto(bytes(buf), self.remote)
+                self.transport.sendto(buf, self.remote)  # the batch is not reused after a flush
             except OSError:
                 self.tx_errors += 1
 
