@@ -150,7 +150,7 @@ def subscribe(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run_bench_zenoh(
-    seconds: float = 5.0, rate_hz: float = 250.0, express: bool = True, background: bool = True,
+    seconds: float = 5.0, rate_hz: float = 250.0, express: bool = False, background: bool = True,
 ) -> dict[str, Any]:
     """The 250 Hz swing stream from this process to a subscriber process over loopback TCP.
 
