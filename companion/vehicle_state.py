@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from dataclasses import dataclass, field
+from math import isfinite
 
 import numpy as np
 
@@ -129,9 +130,9 @@ class VehicleState:
         elif mtype == "DEBUG_FLOAT_ARRAY":
             name = msg.name.rstrip("\x00") if isinstance(msg.name, str) else msg.name
             if name == "SWING" and len(msg.data) >= 4:
-                vals = np.array(msg.data[:4], dtype=np.float64)
-                if np.all(np.isfinite(vals)):
-                    self.swing_sensor = vals
+                d0, d1, d2, d3 = (float(x) for x in msg.data[:4])
+                if isfinite(d0) and isfinite(d1) and isfinite(d2) and isfinite(d3):
+                    self.swing_sensor = np.array((d0, d1, d2, d3))
                     self.swing_sensor_t_s = msg.time_usec * 1e-6
                 else:
                     self.counts["SWING_nonfinite"] += 1
