@@ -170,7 +170,7 @@ def test_listen_json_and_obstacles_publish_against_a_running_driver(tmp_path: Pa
     toml = tmp_path / "trunk.toml"
     toml.write_text("[[obstacles]]\nx_m = 6.0\ny_m = 0.1\nradius_m = 0.3\n")
     drv = _run(["companion.zenoh_bench", "drive", "--zenoh-listen", ep, "--vehicle-id", "5", "--realtime",
-                "--ticks", "1500"])
+                "--ticks", "0"])
     procs = [drv]
     try:
         lis = _run(["companion.zenoh_cli", "listen", "slungpilot/5/obstacles", "--json", "--zenoh-connect", ep,
