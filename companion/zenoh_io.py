@@ -299,6 +299,7 @@ class ZenohTelemetry:
             self._queryable = session.declare_queryable(self.keys["config"], self._on_query)
             self._token = session.liveliness().declare_token(self.keys["alive"])
         except Exception:
+            self._pubs = {}
             stack.close()
             raise
         self._stack, self._session = stack, session
