@@ -18,6 +18,7 @@ import argparse
 import asyncio
 import collections
 import contextlib
+import dataclasses
 import json
 import logging
 import math
@@ -276,6 +277,7 @@ class ZenohTelemetry:
         self._obs_last: tuple[Obstacle, ...] | None = None
         self._obs_dirty = False
         self._last_t_s = math.nan
+        self.last_obstacles: tuple[Obstacle, ...] | None = None
 
     # -- lifecycle -------------------------------------------------------------------------------------
     def open(self) -> ZenohTelemetry:
@@ -451,7 +453,8 @@ class ZenohTelemetry:
         while inbox:
             key, raw = inbox.popleft()
             self.store.ingest(key, raw, now_s)
-        return self.store.current(now_s, mission_obstacles)
+        self.last_obstacles = self.store.current(now_s, mission_obstacles)
+        return self.last_obstacles
 
     def obstacle_source(self, mission_obstacles: Sequence[Obstacle]) -> Callable[[float], tuple[Obstacle, ...]]:
         """``t_s -> obstacles`` for ``FlyOptions.obstacle_source``."""
@@ -490,3 +493,38 @@ class ZenohTelemetry:
                 query.reply_err(f"config provider failed: {exc}".encode())
         finally:
             query.drop()
+
+
+class ZenohTelemetrySink:
+    """The app's ``TelemetrySink`` (``on_tick(est, cmd, app)``) over a :class:`ZenohTelemetry`.
+
+    Per tick: swing (``est.swing``, ``cmd.r_max_m``, ``cmd.envelope_mode``), state (payload position from the
+    swing and ``cable_l_m``), setpoint (every field of ``cmd``), status (``status_fn(app)``, default empty)
+    and the obstacle set last returned by ``zt.obstacles_now`` (use ``zt.obstacle_source(...)`` as the
+    app's obstacle source). Duck-typed: only those attribute names are read.
+    """
+
+    def __init__(self, zt: ZenohTelemetry, cable_l_m: float,
+                 status_fn: Callable[[Any], Mapping[str, Any]] | None = None) -> None:
+        self.zt = zt
+        self.cable_l_m = cable_l_m
+        self.status_fn = status_fn
+
+    def on_tick(self, est: Any, cmd: Any, app: Any) -> None:
+        """Publish this tick's samples (decimation happens inside :class:`ZenohTelemetry`)."""
+        zt, t = self.zt, float(est.t_s)
+        r_max = float(getattr(cmd, "r_max_m", math.nan)) if cmd is not None else math.nan
+        mode = str(getattr(cmd, "envelope_mode", "none")) if cmd is not None else "none"
+        zt.publish_swing(t, est.swing, r_max, mode)
+        payload = None
+        if est.swing is not None:
+            a, b = float(est.swing[0]), float(est.swing[1])
+            # = companion.model.payload_offset_ned_m (eqs. 3-4), inlined to keep numba out of the CLI tools
+            payload = np.asarray(est.pos_ned_m, dtype=float) + self.cable_l_m * np.array(
+                [math.sin(a) * math.cos(b), -math.sin(b), math.cos(a) * math.cos(b)])
+        zt.publish_state(t, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, payload)
+        if cmd is not None and dataclasses.is_dataclass(cmd):
+            zt.publish_setpoint(t, {f.name: getattr(cmd, f.name) for f in dataclasses.fields(cmd) if f.name != "t_s"})
+        zt.publish_status(t, self.status_fn(app) if self.status_fn is not None else {})
+        if zt.last_obstacles is not None:
+            zt.publish_obstacles(t, zt.last_obstacles)

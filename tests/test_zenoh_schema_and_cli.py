@@ -214,3 +214,50 @@ def test_listen_json_and_obstacles_publish_against_a_running_driver(tmp_path: Pa
             if p.poll() is None:
                 p.kill()
             p.communicate(timeout=10)
+
+
+def test_sink_publishes_a_tick_of_the_app_types() -> None:
+    """ZenohTelemetrySink.on_tick with the real Estimate and Command types; payload position as the model's."""
+    import threading
+
+    import zenoh
+
+    from companion.estimate import Estimate
+    from companion.flight_core import Command
+    from companion.model import payload_offset_ned_m
+    from companion.zenoh_io import ZenohTelemetrySink
+
+    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    got: dict[str, dict] = {}
+    lock = threading.Lock()
+
+    def on_sample(s: zenoh.Sample) -> None:
+        with lock:
+            got[str(s.key_expr).rsplit("/", 1)[-1]] = json.loads(s.payload.to_bytes())
+
+    v3 = np.array([0.1, 0.2, 0.3])
+    est = Estimate(t_s=0.0, pos_ned_m=np.array([1.0, 2.0, -3.0]), vel_ned_mps=v3, euler_rad=v3,
+                   rates_frd_rad_s=v3, swing=np.array([0.2, -0.1, 0.0, 0.0]), swing_source="payload")
+    cmd = Command(t_s=0.0, q_ned_frd_wxyz=np.array([1.0, 0, 0, 0]), thrust_n=14.7, thrust_norm=0.5,
+                  euler_cmd_rad=v3, ref_pos_ned_m=v3, ref_vel_ned_mps=v3, ref_acc_ned_mps2=v3, force_att_n=v3[:2],
+                  force_rep_n=v3[:2], r_max_m=0.42, envelope_mode="swing", phase="cruise", ff_accel=v3)
+    with ZenohTelemetry(zenoh_config("companion", listen=[ep]), TelemetryOptions(vehicle_id="6")) as zt, \
+            zenoh.open(zenoh_config("listener", connect=[ep])) as s:
+        s.declare_subscriber("slungpilot/6/*", on_sample)
+        deadline = time.monotonic() + 15
+        while not zt._pubs["swing"].matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.02)
+        zt.obstacles_now(0.0, (Obstacle(5.0, 0.0, 0.3),))
+        ZenohTelemetrySink(zt, cable_l_m=1.0, status_fn=lambda app: {"mode": app}).on_tick(est, cmd, "OFFBOARD")
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            with lock:
+                if len(got) == 5:
+                    break
+            time.sleep(0.02)
+    assert sorted(got) == ["obstacles", "setpoint", "state", "status", "swing"]
+    assert got["swing"]["r_max_m"] == 0.42 and got["swing"]["envelope_mode"] == "swing"
+    assert got["state"]["payload_pos_ned_m"] == pytest.approx(
+        (est.pos_ned_m + payload_offset_ned_m(0.2, -0.1, 1.0)).tolist())
+    assert got["setpoint"]["thrust_n"] == 14.7 and got["setpoint"]["q_ned_frd_wxyz"] == [1.0, 0, 0, 0]
+    assert got["status"]["mode"] == "OFFBOARD" and got["obstacles"]["count"] == 1
