@@ -134,7 +134,7 @@ class FlightApp:
         self.last_cmd: Command | None = None
         self._marker = asyncio.Event()
         self._marker_pending = False  # a new lockstep marker arrived in the datagram being handled
-        self._woke_sequencer = False  # ... and so did a COMMAND_ACK someone awaits
+        self._woke_sequencer = False  # ... and so did an answer (COMMAND_ACK, PARAM_VALUE) someone awaits
         self._tick_error: Exception | None = None
         self._last_marker_ms = -1
         self._marker_seen_wall = 0.0
@@ -159,6 +159,7 @@ class FlightApp:
             fut = self._params.pop(pid, None)
             if fut is not None and not fut.done():
                 fut.set_result(float(msg.param_value))
+                self._woke_sequencer = True
         elif mtype == "SYSTEM_TIME" and msg.get_srcSystem() == self.state.vehicle_sysid:
             now = time.monotonic()
             # A repeated marker (same time) is the vehicle re-asking after a lost answer: answer again only
@@ -170,7 +171,8 @@ class FlightApp:
 
     def _on_datagram_done(self) -> None:
         """Lockstep: answer a new marker right after its datagram, without a trip through the event loop —
-        unless the same datagram woke the sequencer (a COMMAND_ACK), which then runs first, as before."""
+        unless the same datagram woke the sequencer (an awaited COMMAND_ACK or PARAM_VALUE), which then runs
+        first, as before."""
         woke, self._woke_sequencer = self._woke_sequencer, False
         if not self._marker_pending:
             return
