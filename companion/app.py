@@ -27,7 +27,7 @@ import contextlib
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol
@@ -84,6 +84,9 @@ class FlyOptions:
     wall_timeout_s: float | None = None
     obstacle_source: Callable[[float], Sequence[Obstacle]] | None = None
     telemetry: TelemetrySink | None = None
+    # Awaited once the autopilot is known, before arming (its system id decides e.g. the Zenoh vehicle id);
+    # may set ``app.telemetry`` and ``app.obstacle_source``.
+    on_connected: Callable[[FlightApp], Awaitable[None]] | None = None
 
 
 @dataclass
@@ -93,17 +96,21 @@ class LoopStats:
     ticks: int = 0
     late_ticks: int = 0
     tick_s: list[float] = field(default_factory=list)
+    send_s: list[float] = field(default_factory=list)
     jitter_s: list[float] = field(default_factory=list)
 
     def summary(self) -> dict[str, float | int]:
-        """ticks, tick time p50/p99 (ms), late ticks, jitter p99 (ms)."""
+        """ticks; tick (compute) and send time p50/p99/max (ms); late ticks; jitter p99 (ms, real time only)."""
         t = np.array(self.tick_s) if self.tick_s else np.zeros(1)
+        snd = np.array(self.send_s) if self.send_s else np.zeros(1)
         j = np.array(self.jitter_s) if self.jitter_s else np.zeros(1)
         return {
             "ticks": self.ticks,
             "tick_ms_p50": float(np.percentile(t, 50) * 1e3),
             "tick_ms_p99": float(np.percentile(t, 99) * 1e3),
             "tick_ms_max": float(t.max() * 1e3),
+            "send_ms_p50": float(np.percentile(snd, 50) * 1e3),
+            "send_ms_p99": float(np.percentile(snd, 99) * 1e3),
             "late_ticks": self.late_ticks,
             "jitter_ms_p99": float(np.percentile(np.abs(j), 99) * 1e3),
         }
@@ -132,6 +139,10 @@ class FlightApp:
         self.outcome = "running"
         self.abort_reason: str | None = None
         self.last_cmd: Command | None = None
+        self.telemetry: TelemetrySink | None = opts.telemetry
+        self.obstacle_source: Callable[[float], Sequence[Obstacle]] | None = opts.obstacle_source
+        self._last_obstacles: Sequence[Obstacle] | None = None
+        self._obstacles_seen: dict[tuple, Obstacle] = {}
         self._marker = asyncio.Event()
         self._marker_pending = False  # a new lockstep marker arrived in the datagram being handled
         self._woke_sequencer = False  # ... and so did an answer (COMMAND_ACK, PARAM_VALUE) someone awaits
@@ -246,28 +257,47 @@ class FlightApp:
             self._tick()
 
     def _tick(self) -> None:
+        """One control tick: estimate → (plan → control) → setpoint out; then log and publish.
+
+        ``tick`` time is the companion's own work (telemetry folded in → setpoint packed); the send is timed
+        apart, because on a busy machine the kernel may run the receiving simulator inside our sendto().
+        """
         start = time.perf_counter()
         est = self.state.estimate()
         cmd: Command | None = None
         if est is not None and self._core_active:
-            obstacles = self.opts.obstacle_source(est.t_s) if self.opts.obstacle_source else self.mission.obstacles
+            obstacles = self.obstacle_source(est.t_s) if self.obstacle_source else self.mission.obstacles
+            if obstacles is not self._last_obstacles:
+                self._last_obstacles = obstacles
+                for o in obstacles:
+                    self._obstacles_seen.setdefault((o.x_m, o.y_m, o.radius_m, o.height_m), o)
             cmd = self.core.update(est, obstacles)
             self.last_cmd = cmd
-            self._send_setpoint(est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm)
-            self._record(est, cmd)
+            t_s, q, thrust = est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm
         else:
             # Idle stream (before OFFBOARD, or while the vehicle flies an internal mode): level, zero thrust.
             yaw = float(est.euler_rad[2]) if est is not None else 0.0
-            self._send_setpoint(est.t_s if est is not None else 0.0, quat_from_euler(0.0, 0.0, yaw), 0.0)
-            if est is not None and self.phase in ("land", "abort"):
-                self._record(est, None)
+            t_s, q, thrust = (est.t_s if est is not None else 0.0), quat_from_euler(0.0, 0.0, yaw), 0.0
+        computed = time.perf_counter()
+        self._send_setpoint(t_s, q, thrust)
+        sent = time.perf_counter()
         self.stats.ticks += 1
-        self.stats.tick_s.append(time.perf_counter() - start)
-        if self.opts.telemetry is not None and est is not None:
+        self.stats.tick_s.append(computed - start)
+        self.stats.send_s.append(sent - computed)
+        if est is None:
+            return
+        if cmd is not None or self.phase in ("land", "abort"):
+            self._record(est, cmd)
+        if self.telemetry is not None:
             try:
-                self.opts.telemetry.on_tick(est, cmd, self)
+                self.telemetry.on_tick(est, cmd, self)
             except Exception:
                 log.exception("telemetry sink failed; continuing")
+
+    @property
+    def obstacles_seen(self) -> tuple[Obstacle, ...]:
+        """Every obstacle the planner has been given during the flight (mission and live ones)."""
+        return tuple(self._obstacles_seen.values())
 
     def _record(self, est: Estimate, cmd: Command | None) -> None:
         """One log row; the payload point from the cable angles when known, else the payload's own stream."""
@@ -378,6 +408,8 @@ class FlightApp:
                 log.warning("could not read %s from the autopilot; assuming hover thrust %.2f (--hover-thrust)",
                             name, self.profile.hover_thrust_norm)
         self.core.profile = self.profile
+        if self.opts.on_connected is not None:
+            await self.opts.on_connected(self)
         log.info("connected to system %s (%s autopilot) in mode %s; thrust and modes as profile %r (hover %.2f)",
                  self.state.vehicle_sysid, self.profile.autopilot, self.state.mode_name, self.profile.name,
                  self.profile.hover_thrust_norm)

@@ -43,6 +43,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         for k, v in res.items():
             print(f"  {k:32s} {v}")
         return 0
+    if args.target == "zenoh":
+        from companion.zenoh_cli import cmd_bench_zenoh
+
+        return cmd_bench_zenoh(args.seconds)
     raise SlungpilotError(f"bench target {args.target!r} is not available in this build")
 
 
@@ -100,6 +104,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_sitl_arguments(sitl)
     sitl.set_defaults(func=_cmd_sitl)
 
+    from companion.zenoh_cli import add_listen_parser, add_obstacles_parser, add_router_parser
+
+    add_listen_parser(sub)
+    add_obstacles_parser(sub)
+    add_router_parser(sub)
+
     from lab.cli import add_evaluate_parser, add_experiments_parser
 
     add_experiments_parser(sub)
@@ -111,9 +121,10 @@ def build_parser() -> argparse.ArgumentParser:
         description="Benchmarks that print numbers; nothing is asserted. Run on an idle machine.",
     )
     bench.add_argument(
-        "target", choices=["model", "sitl", "fly"],
+        "target", choices=["model", "sitl", "fly", "zenoh"],
         help="model: RK4 steps/s of the dynamics kernel; sitl: lockstep real-time factor of the bundled vehicle; "
-             "fly: the forest mission end to end (real-time factor, tick p50/p99)",
+             "fly: the forest mission end to end (real-time factor, tick p50/p99); zenoh: 250 Hz swing stream "
+             "latency/loss between two processes and the cost per publish",
     )
     bench.add_argument("--seconds", type=float, default=3.0, help="measuring time per benchmark (s)")
     bench.add_argument("--repeats", type=int, default=2, help="fly: how many flights")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import signal
 import time
@@ -26,6 +27,13 @@ from companion.mission import Mission, load_mission
 from companion.profile import PROFILE_NAMES, profile_by_name
 from companion.report import write_run
 from companion.vehicle_state import SWING_INPUTS
+from companion.zenoh_io import (
+    TelemetryOptions,
+    ZenohTelemetry,
+    ZenohTelemetrySink,
+    add_zenoh_arguments,
+    zenoh_config_from_args,
+)
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +72,7 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-land", action="store_true", help="hold at the goal instead of landing")
     p.add_argument("--no-land-on-abort", action="store_true", help="on Ctrl-C hold instead of landing")
     p.add_argument("--heartbeat-timeout", type=float, default=20.0, help="seconds to wait for the autopilot")
+    add_zenoh_arguments(p, "companion")
 
 
 @dataclass
@@ -123,6 +132,21 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
         raise ConfigError(f"--rate-hz: must be in (0, 2000], got {opts.rate_hz}")
     wall0 = time.monotonic()
     stack = contextlib.AsyncExitStack()
+    zt_holder: list[ZenohTelemetry] = []
+    if not args.no_zenoh:
+        zcfg = zenoh_config_from_args(args, "companion")  # flag errors before anything starts
+
+        async def connect_zenoh(app: FlightApp) -> None:
+            """Open the Zenoh streams under the vehicle id (default: the autopilot's MAVLink system id)."""
+            vid = args.vehicle_id or str(app.state.vehicle_sysid)
+            zt = ZenohTelemetry(zcfg, TelemetryOptions(prefix=args.zenoh_prefix, vehicle_id=vid))
+            await stack.enter_async_context(zt)
+            zt_holder.append(zt)
+            zt.set_config_provider(lambda: effective_config(app, args))
+            app.telemetry = ZenohTelemetrySink(zt, mission.vehicle.l, status_fn=status_of)
+            app.obstacle_source = zt.obstacle_source(mission.obstacles)
+
+        opts.on_connected = connect_zenoh
     app: FlightApp | None = None
     error: BaseException | None = None
     async with stack:
@@ -168,10 +192,54 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
         "vehicle": mission.vehicle.as_dict(),
     }
     app.log.wall_time_s = wall
+    seen = app.obstacles_seen
+    if seen:
+        app.log.obstacles = seen  # live obstacles count for clearance and collisions too
+    if zt_holder:
+        zt = zt_holder[0]
+        extra["zenoh"] = {"keys_prefix": f"{args.zenoh_prefix}/{zt.options.vehicle_id}", "published": dict(zt.seq),
+                          "obstacles_in_accepted": zt.store.accepted_count,
+                          "obstacles_in_rejected": zt.store.rejected_count}
     report = write_run(app.log, mission, extra, run_dir, args.report, plots=not args.no_plots)
     if error is not None:
         raise error
     return FlyResult(app.outcome, report, run_dir)
+
+
+def status_of(app: FlightApp) -> dict[str, Any]:
+    """The 1 Hz status sample: mode, armed, link health, mission progress, rejected-input counters."""
+    est = app.state
+    progress = None
+    if est.pos_ned_m is not None:
+        goal = app.mission.goal_ned_m
+        progress = {"distance_to_goal_m": float(((est.pos_ned_m[0] - goal[0]) ** 2
+                                                 + (est.pos_ned_m[1] - goal[1]) ** 2) ** 0.5),
+                    "core_phase": app.core.phase}
+    return {
+        "mode": est.mode_name, "armed": est.armed, "phase": app.phase, "outcome": app.outcome,
+        "link": {"heartbeats": est.heartbeats, "received": app.link.received, "sent": app.link.sent,
+                 "vehicle_time_s": est.t_s},
+        "progress": progress,
+        "rejected_input": {"mavlink": dict(app.link.rejected)},
+        "ticks": app.stats.ticks,
+    }
+
+
+def effective_config(app: FlightApp, args: argparse.Namespace) -> dict[str, Any]:
+    """What the ``config`` queryable answers: the effective mission, vehicle and controller parameters."""
+    m = app.mission
+    return {
+        "mission": {"name": m.name, "start_ned_m": list(map(float, m.start_ned_m)),
+                    "goal_ned_m": list(map(float, m.goal_ned_m)), "planner": m.planner, "controller": m.controller,
+                    "timeout_s": m.timeout_s, "hold_s": m.hold_s, "land": m.land, "source": m.source_path,
+                    "wind": {"model": m.wind.model, "scale": m.wind.scale},
+                    "obstacles": [o.as_dict() for o in m.obstacles]},
+        "vehicle": m.vehicle.as_dict(),
+        "controller": dataclasses.asdict(app.core.cfg),
+        "profile": {"name": app.profile.name, "hover_thrust_norm": app.profile.hover_thrust_norm},
+        "rate_hz": app.opts.rate_hz, "lockstep": app.opts.lockstep, "connect": app.opts.connect,
+        "swing_input": app.opts.swing_input,
+    }
 
 
 def run_fly(args: argparse.Namespace) -> int:
