@@ -18,7 +18,8 @@ def run(mission_path: Path = DEFAULT_MISSION, repeats: int = 1) -> list[dict[str
         with tempfile.TemporaryDirectory() as tmp:
             p = argparse.ArgumentParser()
             add_fly_arguments(p)
-            args = p.parse_args(["--sitl", "--mission", str(mission_path), "--run-dir", tmp, "--no-plots"])
+            args = p.parse_args(["--sitl", "--no-zenoh", "--mission", str(mission_path), "--run-dir", tmp,
+                                 "--no-plots"])
             mission = mission_from_args(args)
             t0 = time.monotonic()
             res = asyncio.run(fly_async(args, mission))

@@ -31,12 +31,14 @@ REPORT_KEYS = (
 
 
 def fly_args(run_dir: Path, plots: bool, gains: Path | None = None) -> argparse.Namespace:
-    """The parsed arguments of ``slungpilot fly --sitl --run-dir RUN_DIR [--no-plots]`` (lockstep)."""
+    """The parsed arguments of ``slungpilot fly --sitl --no-zenoh --run-dir RUN_DIR [--no-plots]`` (lockstep).
+
+    No Zenoh: batch flights run side by side and would all want the default listen port."""
     from companion.fly import add_fly_arguments
 
     p = argparse.ArgumentParser()
     add_fly_arguments(p)
-    argv = ["--sitl", "--run-dir", str(run_dir)]
+    argv = ["--sitl", "--no-zenoh", "--run-dir", str(run_dir)]
     if not plots:
         argv.append("--no-plots")
     if gains is not None:

@@ -76,7 +76,8 @@ def test_tlog_is_readable_by_pymavlink(forest_run):
 def test_bad_mission_file_refused_before_takeoff_with_exit_2(tmp_path, edit, match):
     bad = tmp_path / "bad.toml"
     bad.write_text(edit(FOREST.read_text()))
-    proc = _slungpilot("fly", "--sitl", "--mission", str(bad), "--run-dir", str(tmp_path / "run"), timeout=60)
+    proc = _slungpilot("fly", "--sitl", "--no-zenoh", "--mission", str(bad), "--run-dir", str(tmp_path / "run"),
+                       timeout=60)
     assert proc.returncode == 2, proc.stderr
     assert str(bad) in proc.stderr and match in proc.stderr
     assert proc.stderr.count("\n") <= 2, "one clear message, no traceback"
@@ -86,7 +87,8 @@ def test_bad_mission_file_refused_before_takeoff_with_exit_2(tmp_path, edit, mat
 def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
     run_dir = tmp_path / "abort"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "companion.cli", "-v", "fly", "--sitl", "--realtime", "--mission", str(FOREST),
+        [sys.executable, "-m", "companion.cli", "-v", "fly", "--sitl", "--realtime", "--no-zenoh", "--mission",
+         str(FOREST),
          "--run-dir", str(run_dir)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
     )
@@ -107,7 +109,7 @@ def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
     rep = json.loads((run_dir / "report.json").read_text())
     assert rep["outcome"] == "aborted" and rep["reached_goal"] is False
     assert rep["final_phase"] in ("landed", "land_timeout")
-    assert rep["sim_time_s"] > 3.0
+    assert rep["sim_time_s"] > 1.0  # it was flying (mission rows only; the landing is not counted)
     from pymavlink import mavutil
 
     mlog = mavutil.mavlink_connection(str(run_dir / "flight.tlog"))
@@ -120,8 +122,8 @@ def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
 @pytest.mark.parametrize(("swing_input", "envelope"), [("none", "full_cable"), ("payload_position", "swing")])
 def test_flies_without_the_cable_sensor(tmp_path, swing_input, envelope):
     """No cable-angle sensor: fall back to the payload's position stream, or to nothing (full-cable envelope)."""
-    proc = _slungpilot("fly", "--sitl", "--mission", str(FOREST), "--run-dir", str(tmp_path), "--no-plots",
-                       "--swing-input", swing_input)
+    proc = _slungpilot("fly", "--sitl", "--no-zenoh", "--mission", str(FOREST), "--run-dir", str(tmp_path),
+                       "--no-plots", "--swing-input", swing_input)
     assert proc.returncode == 0, proc.stderr[-2000:]
     rep = json.loads((tmp_path / "report.json").read_text())
     assert rep["reached_goal"] and rep["collisions"] == 0
@@ -145,8 +147,8 @@ def test_flies_an_autopilot_it_did_not_start_reading_its_hover_thrust(tmp_path):
     )
     try:
         assert veh.stdout is not None and veh.stdout.readline().startswith("SITL READY")
-        proc = _slungpilot("fly", "--connect", f"udpin://127.0.0.1:{comp_port}", "--lockstep", "--mission",
-                           str(FOREST), "--run-dir", str(tmp_path), "--no-plots")
+        proc = _slungpilot("fly", "--connect", f"udpin://127.0.0.1:{comp_port}", "--lockstep", "--no-zenoh",
+                           "--mission", str(FOREST), "--run-dir", str(tmp_path), "--no-plots")
     finally:
         veh.send_signal(signal.SIGINT)
         veh.wait(timeout=20)
