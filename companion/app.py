@@ -98,6 +98,8 @@ class LoopStats:
     tick_s: list[float] = field(default_factory=list)
     send_s: list[float] = field(default_factory=list)
     jitter_s: list[float] = field(default_factory=list)
+    first: tuple[float, float] | None = None  # (wall monotonic s, vehicle time s) of the first tick with telemetry
+    last: tuple[float, float] | None = None
 
     def summary(self) -> dict[str, float | int]:
         """ticks; tick (compute) and send time p50/p99/max (ms); late ticks; jitter p99 (ms, real time only)."""
@@ -113,7 +115,14 @@ class LoopStats:
             "send_ms_p99": float(np.percentile(snd, 99) * 1e3),
             "late_ticks": self.late_ticks,
             "jitter_ms_p99": float(np.percentile(np.abs(j), 99) * 1e3),
+            "realtime_factor": self.realtime_factor(),
         }
+
+    def realtime_factor(self) -> float | None:
+        """Vehicle seconds flown per wall second between the first and the last tick (lockstep speed)."""
+        if self.first is None or self.last is None or self.last[0] <= self.first[0]:
+            return None
+        return (self.last[1] - self.first[1]) / (self.last[0] - self.first[0])
 
 
 class FlightApp:
@@ -286,6 +295,9 @@ class FlightApp:
         self.stats.send_s.append(sent - computed)
         if est is None:
             return
+        self.stats.last = (sent, est.t_s)
+        if self.stats.first is None:
+            self.stats.first = self.stats.last
         if cmd is not None or self.phase in ("land", "abort"):
             self._record(est, cmd)
         if self.telemetry is not None:
