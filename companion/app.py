@@ -26,6 +26,7 @@ import asyncio
 import contextlib
 import logging
 import math
+import socket
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -87,6 +88,7 @@ class FlyOptions:
     # Awaited once the autopilot is known, before arming (its system id decides e.g. the Zenoh vehicle id);
     # may set ``app.telemetry`` and ``app.obstacle_source``.
     on_connected: Callable[[FlightApp], Awaitable[None]] | None = None
+    sock: socket.socket | None = None  # an already bound UDP socket for the link (fly --sitl reserves one)
 
 
 @dataclass
@@ -136,7 +138,7 @@ class FlightApp:
         )
         self.swing_sources: dict[str, int] = {}
         self._last_swing_source = ""
-        self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path)
+        self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path, sock=opts.sock)
         self.link.on_datagram_done = self._on_datagram_done
         self.profile = opts.profile or profile_by_name("px4", opts.hover_thrust_norm)
         self.core = FlightCore(mission, gains=opts.gains, profile=self.profile)

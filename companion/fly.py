@@ -158,6 +158,7 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
                 SitlProcess(mission, run_dir, lockstep=opts.lockstep, extra_args=period_args)
             )
             opts.connect = sitl.companion_url
+            opts.sock = sitl.companion_sock
         app = FlightApp(mission, opts)
         loop = asyncio.get_running_loop()
         with contextlib.suppress(NotImplementedError, RuntimeError):

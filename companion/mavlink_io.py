@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 import struct
 import time
 from collections import Counter
@@ -112,8 +113,10 @@ class MavlinkLink:
         src_system: int = 1,
         src_component: int = MAV_COMP_ID_ONBOARD_COMPUTER,
         tlog: Path | None = None,
+        sock: socket.socket | None = None,
     ) -> None:
         self.url = LinkUrl.parse(url)
+        self._sock = sock  # an already bound socket to use instead of binding the URL's port (udpin)
         self.handler = handler
         self.mav = mavlink2.MAVLink(self, srcSystem=src_system, srcComponent=src_component)
         self.mav.robust_parsing = True
@@ -130,7 +133,9 @@ class MavlinkLink:
         """Bind the socket (udpin) or create the sending socket (udpout)."""
         loop = asyncio.get_running_loop()
         try:
-            if self.url.mode == "udpin":
+            if self._sock is not None:
+                self._transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self), sock=self._sock)
+            elif self.url.mode == "udpin":
                 self._transport, _ = await loop.create_datagram_endpoint(
                     lambda: _Protocol(self), local_addr=(self.url.host, self.url.port)
                 )

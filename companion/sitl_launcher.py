@@ -33,6 +33,10 @@ def vehicle_toml(mission: Mission) -> str:
     return "\n".join(lines) + "\n"
 
 
+class _PortTaken(Exception):
+    """The vehicle could not bind its ports: another process took them after we chose them."""
+
+
 class SitlProcess:
     """``async with SitlProcess(mission, workdir) as sitl:`` then connect to ``sitl.companion_url``."""
 
@@ -50,7 +54,11 @@ class SitlProcess:
         self.lockstep = lockstep
         self.extra_args = extra_args or []
         self.ready_timeout_s = ready_timeout_s
-        self.companion_port = free_udp_port()
+        # The companion's socket is bound here and handed to the link, so no other process can take the port
+        # between choosing it and using it; the vehicle's ports are retried if another process won the race.
+        self.companion_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.companion_sock.bind(("127.0.0.1", 0))
+        self.companion_port = self.companion_sock.getsockname()[1]
         self.vehicle_port = free_udp_port()
         self.gcs_port = free_udp_port()
         self.proc: asyncio.subprocess.Process | None = None
@@ -81,6 +89,17 @@ class SitlProcess:
         return argv + self.extra_args
 
     async def __aenter__(self) -> SitlProcess:
+        for attempt in range(3):
+            try:
+                await self._start()
+                return self
+            except _PortTaken:
+                log.info("SITL ports taken by another process (attempt %d); choosing others", attempt + 1)
+                self.vehicle_port, self.gcs_port = free_udp_port(), free_udp_port()
+        self.companion_sock.close()
+        raise LinkError("could not find free UDP ports for the SITL vehicle")
+
+    async def _start(self) -> None:
         argv = self.argv()
         log.info("starting the bundled vehicle: %s", " ".join(argv))
         self._stderr = self._stderr_path.open("wb")
@@ -93,6 +112,10 @@ class SitlProcess:
                 while True:
                     line = await self.proc.stdout.readline()
                     if not line:
+                        await self.proc.wait()
+                        self._stderr.close()
+                        if "Address already in use" in self._stderr_path.read_text(errors="replace"):
+                            raise _PortTaken
                         raise LinkError(f"the SITL vehicle exited before it was ready; see {self._stderr_path}")
                     text = line.decode(errors="replace").strip()
                     if text.startswith("SITL READY"):
@@ -101,11 +124,12 @@ class SitlProcess:
         except TimeoutError:
             await self._stop()
             raise LinkError(f"the SITL vehicle was not ready within {self.ready_timeout_s:.0f} s") from None
+        except _PortTaken:
+            raise
         except BaseException:
             await self._stop()
             raise
         log.info("%s", self.ready_line)
-        return self
 
     async def __aexit__(self, *exc: object) -> None:
         await self._stop()
@@ -124,3 +148,4 @@ class SitlProcess:
                 await proc.wait()
         if getattr(self, "_stderr", None) is not None:
             self._stderr.close()
+        self.companion_sock.close()  # the link has its own reference while it is open
