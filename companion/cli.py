@@ -135,22 +135,26 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the process exit code (2 for configuration errors)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    level = logging.WARNING - 10 * min(args.verbose, 2)
+def dispatch(args: argparse.Namespace, prog: str = "slungpilot") -> int:
+    """Set up logging from ``-v`` and run ``args.func``; errors become one line on stderr and an exit code
+    (2 for configuration errors, 130 for Ctrl-C). Shared by every entry point (``python -m lab`` …)."""
+    level = logging.WARNING - 10 * min(getattr(args, "verbose", 0), 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
         return int(args.func(args) or 0)
     except SlungpilotError as exc:
-        print(f"slungpilot: error: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
-        print("slungpilot: interrupted", file=sys.stderr)
+        print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # output piped into e.g. `head`
         return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the process exit code (2 for configuration errors)."""
+    return dispatch(build_parser().parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -103,6 +103,18 @@ def plot_timeseries(a: Mapping[str, np.ndarray], path: Path, title: str = "") ->
     return path
 
 
+def draw_trunks_3d(ax, obstacles: Sequence[Obstacle], n: int = 24, lw: float = 0.6) -> None:
+    """Wire-frame cylinders (ground to top) for the trunks on a 3-D axis in north/east/altitude."""
+    th = np.linspace(0.0, 2.0 * np.pi, n)
+    for o in obstacles:
+        for h in (0.0, o.height_m):
+            ax.plot(o.x_m + o.radius_m * np.cos(th), o.y_m + o.radius_m * np.sin(th), np.full_like(th, h),
+                    color="saddlebrown", lw=lw)
+        for k in range(0, n, max(1, n // 4)):
+            ax.plot([o.x_m + o.radius_m * np.cos(th[k])] * 2, [o.y_m + o.radius_m * np.sin(th[k])] * 2,
+                    [0.0, o.height_m], color="saddlebrown", lw=lw)
+
+
 def plot_3d(a: Mapping[str, np.ndarray], obstacles, path: Path, title: str = "") -> Path:
     """3-D trajectory (Figs. 7, 10), altitude up, to ``path``."""
     fig = plt.figure(figsize=(8, 6))
@@ -112,14 +124,7 @@ def plot_3d(a: Mapping[str, np.ndarray], obstacles, path: Path, title: str = "")
     ax.plot(pos[:, 0], pos[:, 1], -pos[:, 2], color="tab:blue", label="quadrotor")
     ok = np.all(np.isfinite(pay), axis=1)
     ax.plot(pay[ok, 0], pay[ok, 1], -pay[ok, 2], color="tab:red", label="payload")
-    th = np.linspace(0, 2 * np.pi, 24)
-    for o in obstacles:
-        for h in (0.0, o.height_m):
-            ax.plot(o.x_m + o.radius_m * np.cos(th), o.y_m + o.radius_m * np.sin(th), np.full_like(th, h),
-                    color="saddlebrown", lw=0.6)
-        for k in range(0, 24, 6):
-            ax.plot([o.x_m + o.radius_m * np.cos(th[k])] * 2, [o.y_m + o.radius_m * np.sin(th[k])] * 2,
-                    [0.0, o.height_m], color="saddlebrown", lw=0.6)
+    draw_trunks_3d(ax, obstacles)
     ax.set_xlabel("north x (m)")
     ax.set_ylabel("east y (m)")
     ax.set_zlabel("altitude (m)")

@@ -70,19 +70,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m lab``: same exit codes as ``slungpilot`` (2 for configuration errors)."""
-    import logging
-    import sys
+    from companion.cli import dispatch
 
-    from companion.errors import SlungpilotError
-
-    args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.WARNING - 10 * min(args.verbose, 2),
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    try:
-        return int(args.func(args) or 0)
-    except SlungpilotError as exc:
-        print(f"slungpilot: error: {exc}", file=sys.stderr)
-        return exc.exit_code
-    except KeyboardInterrupt:
-        print("slungpilot: interrupted", file=sys.stderr)
-        return 130
+    return dispatch(build_parser().parse_args(argv))

@@ -19,6 +19,7 @@ import numpy as np
 from matplotlib.patches import Circle
 
 from companion.obstacles import Obstacle
+from companion.plots import draw_trunks_3d
 
 Arrays = Mapping[str, np.ndarray]
 DPI = 90
@@ -116,14 +117,7 @@ def plot_3d_comparison(runs: Mapping[str, Arrays], obstacles: Sequence[Obstacle]
     """3-D quadrotor (solid) and payload (dotted) trajectories of every run in one view (Figs. 7, 10)."""
     fig = plt.figure(figsize=(7.5, 5.5))
     ax = fig.add_subplot(projection="3d")
-    th = np.linspace(0.0, 2.0 * np.pi, 20)
-    for o in obstacles:
-        for h in (0.0, o.height_m):
-            ax.plot(o.x_m + o.radius_m * np.cos(th), o.y_m + o.radius_m * np.sin(th), np.full_like(th, h),
-                    color="saddlebrown", lw=0.5)
-        for k in range(0, 20, 5):
-            ax.plot([o.x_m + o.radius_m * np.cos(th[k])] * 2, [o.y_m + o.radius_m * np.sin(th[k])] * 2,
-                    [0.0, o.height_m], color="saddlebrown", lw=0.5)
+    draw_trunks_3d(ax, obstacles, n=20, lw=0.5)
     for k, (label, a) in enumerate(runs.items()):
         pos, pay = a["pos_ned_m"], a["payload_pos_ned_m"]
         ax.plot(pos[:, 0], pos[:, 1], -pos[:, 2], color=f"C{k}", lw=1.2, label=f"{label} quadrotor")

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.rotations import quat_from_euler
+
 
 @dataclass(frozen=True)
 class PositionHoldGains:
@@ -35,21 +37,6 @@ class PositionHoldGains:
                 raise ValueError(f"{k}: must be finite and > 0, got {v}")
         if self.tilt_max_rad >= 1.2:
             raise ValueError(f"tilt_max_rad: must be < 1.2 rad, got {self.tilt_max_rad}")
-
-
-def quat_from_euler(phi: float, theta: float, psi: float) -> np.ndarray:
-    """Unit quaternion [w, x, y, z] (body FRD → NED) of ZYX Euler angles (rad)."""
-    cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)
-    cp, sp = math.cos(0.5 * theta), math.sin(0.5 * theta)
-    cy, sy = math.cos(0.5 * psi), math.sin(0.5 * psi)
-    return np.array(
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ]
-    )
 
 
 def position_hold_target(

@@ -15,7 +15,7 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion import mavlink_fast as mf
-from sim_bridge.position_hold import quat_from_euler
+from companion.rotations import quat_from_euler
 
 MSG_HEARTBEAT = mavlink2.MAVLINK_MSG_ID_HEARTBEAT
 MSG_SYS_STATUS = mavlink2.MAVLINK_MSG_ID_SYS_STATUS
