@@ -91,3 +91,45 @@ def test_config_queryable_and_liveliness(zenoh_flight):
     assert "smc" in body["controller"]
     kinds = [k for key, k in seen["alive"] if key == "slungpilot/1/alive"]
     assert kinds[0].endswith("PUT") and kinds[-1].endswith("DELETE"), kinds
+
+
+def test_two_vehicles_two_companions_one_subscriber_through_a_router(tmp_path):
+    """Two bundled vehicles, two companions and one subscriber, all Zenoh clients of one Python router."""
+    endpoint = f"tcp/127.0.0.1:{_free_tcp_port()}"
+    router = subprocess.Popen(
+        [sys.executable, "-m", "companion.cli", "zenoh-router", "--zenoh-listen", endpoint, "--duration", "150"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        assert "router" in router.stdout.readline()
+        sub = subprocess.Popen(
+            [sys.executable, str(ROOT / "tests" / "helpers" / "zenoh_count.py"), endpoint, "client",
+             str(tmp_path / "seen.json"), "2"],
+            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        assert sub.stdout.readline().strip() == "ready"
+        mission = _open_field_mission(tmp_path)
+        flights = [
+            subprocess.Popen(
+                [sys.executable, "-m", "companion.cli", "fly", "--sitl", "--mission", str(mission), "--no-plots",
+                 "--run-dir", str(tmp_path / f"v{vid}"), "--zenoh-mode", "client", "--zenoh-connect", endpoint,
+                 "--vehicle-id", vid],
+                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            )
+            for vid in ("1", "2")
+        ]
+        for f in flights:
+            _, err = f.communicate(timeout=240)
+            assert f.returncode == 0, err[-2000:]
+        _, serr = sub.communicate(timeout=60)
+        assert sub.returncode == 0, serr[-2000:]
+    finally:
+        router.terminate()
+        router.wait(timeout=20)
+    seen = json.loads((tmp_path / "seen.json").read_text())
+    assert seen["gone"] == ["slungpilot/1/alive", "slungpilot/2/alive"]
+    for vid in ("1", "2"):
+        seqs = seen["seqs"][f"slungpilot/{vid}/swing"]
+        rep = json.loads((tmp_path / f"v{vid}" / "report.json").read_text())
+        assert rep["zenoh"]["keys_prefix"] == f"slungpilot/{vid}"
+        assert len(seqs) > 1000 and seqs == list(range(seqs[0], seqs[0] + len(seqs)))
