@@ -39,6 +39,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.errors import LinkError
 from companion.estimate import Estimate
 from companion.flight_core import Command, FlightCore
+from companion.mav_commands import MavCommander
 from companion.mavlink_fast import send_set_attitude_target
 from companion.mavlink_io import MavlinkLink
 from companion.metrics import FlightLog
@@ -160,29 +161,17 @@ class FlightApp:
         self._tick_error: Exception | None = None
         self._last_marker_ms = -1
         self._marker_seen_wall = 0.0
-        self._acks: dict[int, asyncio.Future] = {}
-        self._params: dict[str, asyncio.Future] = {}
+        self.commander = MavCommander(self.link, lambda: (self.state.vehicle_sysid, self.state.vehicle_compid))
         self._abort = asyncio.Event()
         self._done = asyncio.Event()
         self._core_active = False
-        self._hold_started_s: float | None = None
-        self._t_wall0 = time.monotonic()
 
     # ------------------------------------------------------------------ input
     def _on_message(self, msg: Any) -> None:
         mtype = self.state.ingest(msg)
-        if mtype == "COMMAND_ACK" and msg.get_srcSystem() == self.state.vehicle_sysid:
-            fut = self._acks.get(int(msg.command))
-            if fut is not None and not fut.done():
-                fut.set_result(int(msg.result))
-                self._woke_sequencer = True
-        elif mtype == "PARAM_VALUE" and msg.get_srcSystem() == self.state.vehicle_sysid:
-            pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else str(msg.param_id)
-            fut = self._params.pop(pid, None)
-            if fut is not None and not fut.done():
-                fut.set_result(float(msg.param_value))
-                self._woke_sequencer = True
-        elif mtype == "SYSTEM_TIME" and msg.get_srcSystem() == self.state.vehicle_sysid:
+        if self.commander.on_message(msg):
+            self._woke_sequencer = True
+        if mtype == "SYSTEM_TIME" and msg.get_srcSystem() == self.state.vehicle_sysid:
             now = time.monotonic()
             # A repeated marker (same time) is the vehicle re-asking after a lost answer: answer again only
             # if we have not answered for 0.5 s, so duplicates never double-step a lockstep simulation.
@@ -341,43 +330,9 @@ class FlightApp:
         )
 
     # ------------------------------------------------------------------ sequencer
-    async def _command(self, command: int, params: Sequence[float], retries: int = 3, timeout_s: float = 1.0) -> int:
-        """COMMAND_LONG with retries; returns MAV_RESULT. Raises LinkError when never acknowledged."""
-        p = list(params) + [0.0] * (7 - len(params))
-        for attempt in range(retries):
-            fut: asyncio.Future = asyncio.get_running_loop().create_future()
-            self._acks[command] = fut
-            self.link.mav.command_long_send(
-                self.state.vehicle_sysid or 1, self.state.vehicle_compid, command, attempt, *p
-            )
-            try:
-                async with asyncio.timeout(timeout_s):
-                    return await fut
-            except TimeoutError:
-                log.warning("no COMMAND_ACK for command %d (attempt %d)", command, attempt + 1)
-            finally:
-                self._acks.pop(command, None)
-        raise LinkError(f"vehicle never acknowledged MAVLink command {command}")
-
-    async def _read_param(self, name: str, timeout_s: float = 1.0) -> float | None:
-        """PARAM_REQUEST_READ by name; the value, or None when the autopilot does not answer in time."""
-        fut: asyncio.Future = asyncio.get_running_loop().create_future()
-        self._params[name] = fut
-        for _ in range(2):
-            self.link.mav.param_request_read_send(
-                self.state.vehicle_sysid or 1, self.state.vehicle_compid, name.encode(), -1
-            )
-            try:
-                async with asyncio.timeout(timeout_s):
-                    return float(await asyncio.shield(fut))
-            except TimeoutError:
-                continue
-        self._params.pop(name, None)
-        return None
-
     async def _set_mode(self, what: str) -> int:
         """Switch to the profile's ``offboard``, ``hold`` or ``land`` mode; returns MAV_RESULT."""
-        return await self._command(mavlink2.MAV_CMD_DO_SET_MODE, self.profile.mode_params(what))
+        return await self.commander.command(mavlink2.MAV_CMD_DO_SET_MODE, self.profile.mode_params(what))
 
     async def _wait_until(self, cond: Callable[[], bool], timeout_s: float, what: str) -> bool:
         try:
@@ -415,7 +370,7 @@ class FlightApp:
         if self.opts.hover_thrust_norm is None:
             # The autopilot knows its hover thrust (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER): ask for it.
             name = "MOT_THST_HOVER" if self.profile.autopilot == "ardupilot" else "MPC_THR_HOVER"
-            value = await self._read_param(name)
+            value = await self.commander.read_param(name)
             if value is not None and 0.05 <= value <= 0.95:
                 self.profile = replace(self.profile, hover_thrust_norm=float(value))
             else:
@@ -432,7 +387,7 @@ class FlightApp:
                            (mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED, interval_us),
                            (mavlink2.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY, interval_us),
                            (mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 1e5)):
-            res = await self._command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, [msg_id, us])
+            res = await self.commander.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, [msg_id, us])
             if res != mavlink2.MAV_RESULT_ACCEPTED:
                 log.warning("vehicle refused message interval for id %d (result %d)", msg_id, res)
         self.phase = "prestream"
@@ -441,7 +396,7 @@ class FlightApp:
         if self._abort.is_set():
             return await self._abort_sequence()
         self.phase = "arm"
-        res = await self._command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, [1.0])
+        res = await self.commander.command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, [1.0])
         if res != mavlink2.MAV_RESULT_ACCEPTED:
             raise LinkError(f"arming refused (MAV_RESULT {res}); vehicle said: {self.state.statustext[-3:]}")
         self.phase = "offboard"
@@ -466,7 +421,7 @@ class FlightApp:
     async def _land(self) -> None:
         self.phase = "land"
         self._core_active = False
-        res = await self._command(mavlink2.MAV_CMD_NAV_LAND, [0, 0, 0, math.nan, math.nan, math.nan, math.nan])
+        res = await self.commander.command(mavlink2.MAV_CMD_NAV_LAND, [0, 0, 0, math.nan, math.nan, math.nan, math.nan])
         if res != mavlink2.MAV_RESULT_ACCEPTED:
             log.warning("NAV_LAND refused (result %d); trying AUTO.LAND mode", res)
             await self._set_mode("land")
