@@ -27,13 +27,8 @@ from companion.mission import Mission, load_mission
 from companion.profile import PROFILE_NAMES, profile_by_name
 from companion.report import write_run
 from companion.vehicle_state import SWING_INPUTS
-from companion.zenoh_io import (
-    TelemetryOptions,
-    ZenohTelemetry,
-    ZenohTelemetrySink,
-    add_zenoh_arguments,
-    zenoh_config_from_args,
-)
+from companion.zenoh_io import TelemetryOptions, ZenohTelemetry, ZenohTelemetrySink
+from companion.zenoh_session import add_zenoh_arguments, zenoh_config_from_args
 
 log = logging.getLogger(__name__)
 

@@ -30,13 +30,8 @@ import numpy as np
 import zenoh
 
 from companion.obstacles import Obstacle
-from companion.zenoh_io import (
-    TelemetryOptions,
-    ZenohTelemetry,
-    add_zenoh_arguments,
-    zenoh_config,
-    zenoh_config_from_args,
-)
+from companion.zenoh_io import TelemetryOptions, ZenohTelemetry
+from companion.zenoh_session import add_zenoh_arguments, zenoh_config, zenoh_config_from_args
 
 MISSION_OBSTACLES = (Obstacle(3.0, 0.5, 0.3), Obstacle(8.0, -0.5, 0.25))
 

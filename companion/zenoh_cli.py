@@ -25,7 +25,7 @@ from companion import telemetry_schema as ts
 from companion.config import read_toml
 from companion.errors import ConfigError
 from companion.obstacle_store import parse_obstacles_in
-from companion.zenoh_io import (
+from companion.zenoh_session import (
     DEFAULT_PREFIX,
     add_zenoh_arguments,
     check_key_part,

@@ -25,7 +25,7 @@ import zenoh
 
 from companion import telemetry_schema as ts
 from companion.zenoh_bench import free_tcp_port
-from companion.zenoh_io import zenoh_config
+from companion.zenoh_session import zenoh_config
 
 ROOT = Path(__file__).resolve().parents[1]
 

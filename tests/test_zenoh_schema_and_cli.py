@@ -18,14 +18,8 @@ from companion.errors import ConfigError, LinkError
 from companion.obstacles import Obstacle
 from companion.zenoh_bench import free_tcp_port
 from companion.zenoh_cli import add_listen_parser, add_obstacles_parser, add_router_parser, load_obstacles_payload
-from companion.zenoh_io import (
-    TelemetryOptions,
-    ZenohTelemetry,
-    _Every,
-    add_zenoh_arguments,
-    zenoh_config,
-    zenoh_config_from_args,
-)
+from companion.zenoh_io import TelemetryOptions, ZenohTelemetry, _Every
+from companion.zenoh_session import add_zenoh_arguments, zenoh_config, zenoh_config_from_args
 
 ROOT = Path(__file__).resolve().parents[1]
 
