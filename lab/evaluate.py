@@ -8,7 +8,8 @@ by default as a full lockstep MAVLink flight against the bundled vehicle (``mode
 Outcome classes (:func:`lab.runner.classify`): ``success`` = goal reached (within 0.1 m horizontally) with
 zero collisions; ``collision`` = at least one obstacle's clearance < 0 (airframe circle or payload point);
 ``stuck`` = no collision and the goal never reached before the mission timeout (a local minimum of the
-potential field, an orbit or a stall); ``error`` = the flight produced no metrics.
+potential field, an orbit or a stall); ``lost_control`` = not reached and the payload swung past the model's
+±π/2 bound (a divergence, not a planning failure); ``error`` = the flight produced no metrics.
 
 Output in ``--out`` (default ``runs/evaluate-<UTC time>``): ``summary.md`` and ``summary.json`` (rates,
 time-to-goal and max-swing median/p90, min-clearance distribution, per planner and per planner × density,
@@ -40,7 +41,7 @@ from lab.runner import MODES, Job, run_job
 log = logging.getLogger(__name__)
 
 PLANNERS = ("safe", "traditional", "improved")
-CLASSES = ("success", "collision", "stuck", "error")
+CLASSES = ("success", "collision", "stuck", "lost_control", "error")
 
 
 def _worker_init(level: int) -> None:
@@ -97,6 +98,7 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
         "success_rate": counts["success"] / n if n else None,
         "collision_rate": counts["collision"] / n if n else None,
         "stuck_rate": counts["stuck"] / n if n else None,
+        "lost_control_rate": counts["lost_control"] / n if n else None,
         "error_rate": counts["error"] / n if n else None,
         "time_to_goal_s": _quantiles([r["time_to_goal_s"] for r in ok]),
         "max_swing_rad": _quantiles([r["max_swing_rad"] for r in results]),
@@ -214,17 +216,19 @@ def summary_markdown(s: dict[str, Any], png: Path | None = None) -> str:
         f" (the same for every planner), controller {sp['controller']}, timeout {sp['timeout_s']:g} s.",
         "",
         "Success = goal reached and zero collisions; collision = any obstacle clearance < 0 (airframe circle or "
-        "payload); stuck = no collision but the goal not reached before the timeout (local minimum).",
+        "payload); stuck = no collision but the goal not reached before the timeout (local minimum); lost = "
+        "the payload swung past ±π/2 (loss of control, not a planning failure).",
         "",
-        "| planner | n | success | collision | stuck | error | time to goal median / p90 (s) | "
+        "| planner | n | success | collision | stuck | lost | error | time to goal median / p90 (s) | "
         "max swing median / p90 (rad) | min clearance p10 / median / min (m) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for p, t in s["per_planner"].items():
         tg, sw, mc = t["time_to_goal_s"], t["max_swing_rad"], t["min_clearance_m"]
         lines.append(
             f"| {p} | {t['n']} | {_f(t['success_rate'], pct=True)} | {_f(t['collision_rate'], pct=True)} | "
-            f"{_f(t['stuck_rate'], pct=True)} | {_f(t['error_rate'], pct=True)} | "
+            f"{_f(t['stuck_rate'], pct=True)} | {_f(t['lost_control_rate'], pct=True)} | "
+            f"{_f(t['error_rate'], pct=True)} | "
             f"{_f(tg['median'])} / {_f(tg['p90'])} | "
             f"{_f(sw['median'], 3)} / {_f(sw['p90'], 3)} | {_f(mc['p10'], 3)} / {_f(mc['median'], 3)} / "
             f"{_f(mc['min'], 3)} |"
@@ -242,7 +246,7 @@ def summary_markdown(s: dict[str, Any], png: Path | None = None) -> str:
               "`slungpilot fly --sitl --mission <out>/runs/<planner>/d<density>/s<seed>/mission.toml`.", ""]
     any_fail = False
     for p, t in s["per_planner"].items():
-        for cls in ("collision", "stuck", "error"):
+        for cls in ("collision", "stuck", "lost_control", "error"):
             fails = [f for f in t["failures"] if f["class"] == cls]
             if not fails:
                 continue

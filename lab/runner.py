@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,16 +47,22 @@ def fly_args(run_dir: Path, plots: bool, gains: Path | None = None) -> argparse.
     return p.parse_args(argv)
 
 
+LOST_CONTROL_SWING_RAD = math.pi / 2  # the model's own bound on the swing angles (eq. 1)
+
+
 def classify(rep: dict[str, Any]) -> str:
     """``success`` (goal reached, zero collisions), ``collision`` (any obstacle touched, goal or not),
-    ``stuck`` (goal never reached and nothing touched before the timeout: a local minimum, an orbit or a
-    stall), or ``error`` (the flight did not produce metrics)."""
+    ``lost_control`` (goal never reached and the payload swung past the model's ±π/2 bound: a divergence,
+    not a planning failure), ``stuck`` (goal never reached, nothing touched, control kept before the timeout:
+    a local minimum, an orbit or a stall), or ``error`` (the flight did not produce metrics)."""
     if rep.get("error"):
         return "error"
     if (rep.get("collisions") or 0) > 0:
         return "collision"
     if rep.get("reached_goal"):
         return "success"
+    if (rep.get("max_swing_rad") or 0.0) >= LOST_CONTROL_SWING_RAD:
+        return "lost_control"
     return "stuck"
 
 

@@ -58,6 +58,7 @@ def _physics_steps(
     u = np.empty(4)
     d = np.empty(6)
     w = np.empty(3)
+    tilt = np.empty(3)
     hover = (p[0] + p[1]) * p[2]
     for _ in range(n):
         wv = 0.0 if (landed or wind_k == 0.0) else wind_k * eq49_signal(t)
@@ -72,7 +73,26 @@ def _physics_steps(
                 w[2] = -math.sin(phi) * x[12] + math.cos(phi) * math.cos(th) * x[13]
                 _rate_torque(w, tgt_rates, inertia, gp[12], tau)
             else:
-                _smc_torque(x[3:6], x[11:14], tgt_euler, tgt_euler_rate, inertia, gp, tau)
+                # Tilt priority (as PX4's attitude control): keep the commanded thrust direction
+                # b3 = R_d·e3 at the *current* heading, so a yaw error (e.g. yaw torque saturated in strong
+                # wind) never tilts the thrust the wrong way; the yaw channel still tracks ψ_d.
+                sf = math.sin(tgt_euler[0])
+                cf = math.cos(tgt_euler[0])
+                st = math.sin(tgt_euler[1])
+                ct = math.cos(tgt_euler[1])
+                sp = math.sin(tgt_euler[2])
+                cp = math.cos(tgt_euler[2])
+                b0 = cf * st * cp + sf * sp
+                b1 = cf * st * sp - sf * cp
+                b2 = cf * ct
+                sy = math.sin(x[5])
+                cy = math.cos(x[5])
+                v0 = cy * b0 + sy * b1  # b3 in the current heading frame: [cφ·sθ, −sφ, cφ·cθ]
+                v1 = -sy * b0 + cy * b1
+                tilt[0] = math.asin(min(1.0, max(-1.0, -v1)))
+                tilt[1] = math.atan2(v0, b2)
+                tilt[2] = tgt_euler[2]
+                _smc_torque(x[3:6], x[11:14], tilt, tgt_euler_rate, inertia, gp, tau)
             _mix(thrust, tau, a_inv, f_max, not landed, f_out)
         else:
             for i in range(4):

@@ -29,6 +29,8 @@ def test_classify_success_collision_stuck_error():
     assert classify({"reached_goal": True, "collisions": 1}) == "collision"
     assert classify({"reached_goal": False, "collisions": 2}) == "collision"
     assert classify({"reached_goal": False, "collisions": 0}) == "stuck"
+    assert classify({"reached_goal": False, "collisions": 0, "max_swing_rad": 2.0}) == "lost_control"
+    assert classify({"reached_goal": False, "collisions": 0, "max_swing_rad": 0.6}) == "stuck"
     assert classify({"error": "LinkError: x"}) == "error"
 
 
@@ -54,7 +56,7 @@ def _check_out(out: Path, summary: dict, n_missions: int) -> None:
     md = (out / "summary.md").read_text()
     assert summary["mode"] in md and "missions/min" in md
     for r in map(json.loads, lines):
-        assert r["class"] in ("success", "collision", "stuck")  # never "error"
+        assert r["class"] in ("success", "collision", "stuck", "lost_control")  # never "error"
         if r["class"] != "success":  # every failure keeps a replayable mission file
             assert load_mission(r["mission_file"]).planner == r["planner"]
             assert str(r["seed"]) in md

@@ -135,3 +135,19 @@ def test_idle_on_ground_with_yaw_error_stays_landed():
     sim.step(3000)
     assert sim.landed and sim.pos_ned_m[2] == 0.0
     assert sim.thrust_n <= 0.5 * P.hover_thrust_n + 1e-9
+
+
+def test_tilt_priority_keeps_thrust_direction_when_heading_is_off():
+    """Commanded: 10° roll at heading 0 (thrust pushes east). The vehicle points east (yaw 90°) and has not
+    turned yet: it must still push east, not north — the thrust direction comes before the heading."""
+    x0 = np.zeros(16)
+    x0[2] = -5.0
+    x0[5] = math.pi / 2
+    sim = VehicleSim(P, WindConfig("none"), x0=x0)
+    sim.armed = True
+    roll = math.radians(10.0)
+    sim.set_attitude_target(quat_from_euler(roll, 0.0, 0.0), P.hover_thrust_n / math.cos(roll))
+    sim.step(300)
+    f = sim.thrust_vector_ned_n
+    assert f[1] > 0.12 * P.hover_thrust_n and abs(f[0]) < 0.05 * P.hover_thrust_n, f
+    assert abs(sim.euler_rad[2]) < math.pi / 2  # and it is turning towards the commanded heading
