@@ -185,6 +185,9 @@ class VehicleSim:
         self.rotor_thrust_n = np.zeros(4)
         self.torque_nm = np.zeros(3)
         self.disturbance = np.zeros(6)
+        self._zeros3 = np.zeros(3)
+        self._consts_key: tuple | None = None
+        self._consts: tuple = ()
 
     # ---------------------------------------------------------------- targets
     def set_attitude_target(
@@ -216,6 +219,16 @@ class VehicleSim:
         self.set_attitude_target(quat_from_euler(*euler_rad), thrust_n)
 
     # ---------------------------------------------------------------- stepping
+    def _kernel_constants(self) -> tuple:
+        """Packed gains, mixer matrices and rotor limit, rebuilt only when ``gains``/``rotor`` are replaced
+        (the parameter protocol swaps the frozen dataclasses at run time)."""
+        key = (self.gains, self.rotor)
+        if self._consts_key != key:
+            self._consts_key = key
+            self._consts = (gains_packed(self.gains), mixer_matrix(self.rotor), mixer_inverse(self.rotor),
+                            max_rotor_thrust_n(self.rotor, self.params))
+        return self._consts
+
     def step(self, n_steps: int = 1) -> None:
         """Advance ``n_steps`` physics steps of ``dt_s`` (one compiled call)."""
         _check_domain(self.x)
@@ -223,13 +236,12 @@ class VehicleSim:
             rates = self.target_rates_frd_rad_s
             tgt_euler_rate = np.linalg.solve(euler_rate_matrix(self.x[3], self.x[4]), rates)
         else:
-            rates = np.zeros(3)
-            tgt_euler_rate = np.zeros(3)
+            rates = tgt_euler_rate = self._zeros3
+        gp, a_mat, a_inv, f_max = self._kernel_constants()
         t, landed, ok = _physics_steps(
             self.x, self.t_s, int(n_steps), self.dt_s, self._p, wind_scale_factor(self.wind),
             self.target_euler_rad, tgt_euler_rate, self.rates_only, rates, self.target_thrust_n,
-            gains_packed(self.gains), mixer_matrix(self.rotor), mixer_inverse(self.rotor),
-            max_rotor_thrust_n(self.rotor, self.params), self.armed, self.landed,
+            gp, a_mat, a_inv, f_max, self.armed, self.landed,
             self.rotor_thrust_n, self.torque_nm, self.disturbance,
         )
         self.t_s = t
