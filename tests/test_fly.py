@@ -156,3 +156,13 @@ def test_flies_an_autopilot_it_did_not_start_reading_its_hover_thrust(tmp_path):
     rep = json.loads((tmp_path / "report.json").read_text())
     assert rep["profile"] == "px4" and rep["hover_thrust_norm"] == pytest.approx(0.55, abs=1e-6)
     assert rep["reached_goal"] and rep["collisions"] == 0
+
+
+def test_no_autopilot_fails_clearly_in_bounded_time(tmp_path):
+    from companion.sitl_launcher import free_udp_port
+
+    proc = _slungpilot("fly", "--connect", f"udpin://127.0.0.1:{free_udp_port()}", "--heartbeat-timeout", "1.5",
+                       "--no-zenoh", "--run-dir", str(tmp_path), timeout=30)
+    assert proc.returncode == 3  # LinkError
+    assert "no autopilot heartbeat" in proc.stderr and "Traceback" not in proc.stderr
+    assert json.loads((tmp_path / "report.json").read_text())["reached_goal"] is False
