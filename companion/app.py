@@ -163,6 +163,9 @@ class FlightApp:
         self._marker_seen_wall = 0.0
         self.commander = MavCommander(self.link, lambda: (self.state.vehicle_sysid, self.state.vehicle_compid))
         self._abort = asyncio.Event()
+        self._waiting: tuple[Callable[[], bool], asyncio.Future] | None = None  # lockstep: sequencer's condition
+        self._held: tuple[float, np.ndarray, float] | None = None  # lockstep: setpoint held for the sequencer
+        self._held_since = 0.0
         self._done = asyncio.Event()
         self._core_active = False
 
@@ -221,6 +224,9 @@ class FlightApp:
     # ------------------------------------------------------------------ loops
     async def _heartbeat_loop(self) -> None:
         while not self._done.is_set():
+            if self._held is not None and time.monotonic() - self._held_since > 0.5:
+                log.warning("lockstep: a setpoint was held 0.5 s for the sequencer; releasing it")
+                self._release_setpoint()
             if self.link.connected:
                 self.link.mav.heartbeat_send(
                     mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0,
@@ -279,7 +285,11 @@ class FlightApp:
             yaw = float(est.euler_rad[2]) if est is not None else 0.0
             t_s, q, thrust = (est.t_s if est is not None else 0.0), quat_from_euler(0.0, 0.0, yaw), 0.0
         computed = time.perf_counter()
-        self._send_setpoint(t_s, q, thrust)
+        if self.opts.lockstep and self._check_waiting():
+            self._held = (t_s, q, thrust)  # the sequencer acts first; it releases this when it waits again
+            self._held_since = time.monotonic()
+        else:
+            self._send_setpoint(t_s, q, thrust)
         sent = time.perf_counter()
         self.stats.ticks += 1
         self.stats.tick_s.append(computed - start)
@@ -335,8 +345,25 @@ class FlightApp:
         return await self.commander.command(mavlink2.MAV_CMD_DO_SET_MODE, self.profile.mode_params(what))
 
     async def _wait_until(self, cond: Callable[[], bool], timeout_s: float, what: str) -> bool:
+        """Wait (at most ``timeout_s`` wall seconds) until ``cond()``; False on timeout or abort.
+
+        Lockstep: the condition is checked by the tick itself, after it has folded in the step's telemetry and
+        before its setpoint goes out; when it holds, the setpoint is held back until the sequencer has acted
+        (sent its commands, had them acknowledged) and waits again. So every command lands at the same
+        simulated time in every run — the flight is repeatable, not subject to wall-clock polling.
+        """
+        if cond():
+            return True
+        if self._abort.is_set():
+            return False
         try:
             async with asyncio.timeout(timeout_s):
+                if self.opts.lockstep:
+                    fut: asyncio.Future = asyncio.get_running_loop().create_future()
+                    self._waiting = (cond, fut)
+                    self._release_setpoint()  # the sequencer is idle now: let simulated time go on
+                    await fut
+                    return not self._abort.is_set()
                 while not cond():
                     if self._abort.is_set():
                         return False
@@ -344,7 +371,28 @@ class FlightApp:
         except TimeoutError:
             log.warning("timed out waiting for %s", what)
             return False
+        finally:
+            self._waiting = None
         return True
+
+    def _check_waiting(self) -> bool:
+        """Lockstep tick hook: resolve the sequencer's condition if it now holds; True if the setpoint
+        must be held back for the sequencer's turn."""
+        w = self._waiting
+        if w is None or w[1].done():
+            return False
+        cond, fut = w
+        if cond() or self._abort.is_set():
+            fut.set_result(True)
+            return True
+        return False
+
+    def _release_setpoint(self) -> None:
+        """Send a setpoint held back for the sequencer (lockstep), which advances simulated time."""
+        held, self._held = self._held, None
+        if held is not None:
+            self._held_since = 0.0
+            self._send_setpoint(*held)
 
     def _sim_time(self) -> float:
         return self.state.t_s
@@ -353,6 +401,7 @@ class FlightApp:
         try:
             await self._fly_sequence()
         finally:
+            self._release_setpoint()
             self._done.set()
             self._marker.set()  # release a lockstep tick loop waiting for the next step
 

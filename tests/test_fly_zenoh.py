@@ -38,9 +38,10 @@ def zenoh_flight(tmp_path_factory):
          json.dumps({"obstacles": [LIVE_TRUNK]})],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
+    assert watch.stdout.readline().strip() == "ready"
     fly = subprocess.run(
         [sys.executable, "-m", "companion.cli", "fly", "--sitl", "--mission", str(_open_field_mission(tmp)),
-         "--run-dir", str(tmp / "run"), "--no-plots", "--zenoh-listen", endpoint],
+         "--run-dir", str(tmp / "run"), "--no-plots", "--zenoh-connect", endpoint],
         cwd=ROOT, capture_output=True, text=True, timeout=240,
     )
     _, werr = watch.communicate(timeout=60)

@@ -2,11 +2,11 @@
 
 Usage: python zenoh_watch.py ENDPOINT OUT.json [OBSTACLE_JSON]
 
-Connects to ENDPOINT, records the swing sequence numbers, the obstacle sets, the state track and the
-liveliness of ``slungpilot/1``, asks the ``config`` queryable once, and - once the vehicle is airborne at
-mission altitude - publishes four malformed samples and then OBSTACLE_JSON on
-``slungpilot/1/obstacles/in/perception``. Stops when the vehicle's liveliness token goes away (or after
-150 s) and writes what it saw to OUT.json.
+Listens on ENDPOINT (the companion connects to it, so the watcher is up before the flight starts), records
+the swing sequence numbers, the obstacle sets, the state track and the liveliness of ``slungpilot/1``; once
+the vehicle is airborne at mission altitude it publishes four malformed samples and then OBSTACLE_JSON on
+``slungpilot/1/obstacles/in/perception``, then asks the ``config`` queryable once. Stops when the vehicle's
+liveliness token goes away (or after 150 s) and writes what it saw to OUT.json.
 """
 
 import json
@@ -46,10 +46,11 @@ def on_alive(s: zenoh.Sample) -> None:
         gone.set()
 
 
-with open_session(zenoh_config("listener", connect=[endpoint])) as session:
+with open_session(zenoh_config("listener", listen=[endpoint])) as session:
     session.declare_subscriber("slungpilot/1/**", on_sample)
     session.liveliness().declare_subscriber("slungpilot/*/alive", on_alive, history=True)
     pub = session.declare_publisher("slungpilot/1/obstacles/in/perception")
+    print("ready", flush=True)
     deadline = time.monotonic() + 150.0
     while not gone.is_set() and time.monotonic() < deadline:
         time.sleep(0.005)
@@ -57,11 +58,12 @@ with open_session(zenoh_config("listener", connect=[endpoint])) as session:
             last = seen["state"][-1] if seen["state"] else None
         if last is None:
             continue
-        if seen["config"] is None:
+        pos = last.get("pos_ned_m")
+        if seen["published_at_x"] is not None and seen["config"] is None:
+            # after feeding the trunk: a query blocks until its replies are final
             for reply in session.get("slungpilot/1/config", timeout=2.0):
                 if reply.ok is not None:
                     seen["config"] = json.loads(reply.ok.payload.to_bytes())
-        pos = last.get("pos_ned_m")
         if obstacle_doc and seen["published_at_x"] is None and pos and pos[2] < -1.8:
             for bad in (b"not json", b'{"obstacles": [{"x_m": 1, "y_m": 0, "radius_m": NaN}]}',
                         b'{"obstacles": [{"x_m": 1, "y_m": 0, "radius_m": -0.3}]}', b'{"trunks": []}'):
