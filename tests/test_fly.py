@@ -181,3 +181,27 @@ def test_lockstep_flight_is_repeatable_bit_for_bit(forest_run, tmp_path):
     assert a.files == b.files and len(a["t_s"]) > 1000
     for k in a.files:
         assert np.array_equal(a[k], b[k], equal_nan=True), k
+
+
+def test_ctrl_c_in_lockstep_holds_and_lands(tmp_path):
+    """In lockstep the sequencer runs at the tick's pace: Ctrl-C still switches to hold and lands."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "companion.cli", "-v", "fly", "--sitl", "--no-zenoh", "--no-plots", "--mission",
+         str(FOREST), "--run-dir", str(tmp_path)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            if "Mode: OFFBOARD" in line:
+                break
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGINT)
+        _out, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err[-2000:]
+    assert "Mode: AUTO.LOITER" in err and "Mode: AUTO.LAND" in err
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["outcome"] == "aborted" and rep["final_phase"] == "landed" and rep["reached_goal"] is False
