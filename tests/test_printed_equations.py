@@ -12,31 +12,18 @@ import math
 
 import numpy as np
 import pytest
+from test_model_lagrangian import (  # tests/ is a plain directory on sys.path (pytest's prepend mode)
+    PARAMS,
+    bias,
+    generalized_force,
+    held_swing_accelerations,
+    mass_matrix,
+    random_case,
+    rk4_swing,
+    simulate_model,
+)
 
 from companion.model import VehicleParams, accelerations
-
-try:  # tests/ is a plain directory: pytest puts it on sys.path ("prepend" import mode)
-    from test_model_lagrangian import (
-        PARAMS,
-        bias,
-        generalized_force,
-        held_swing_accelerations,
-        mass_matrix,
-        random_case,
-        rk4_swing,
-        simulate_model,
-    )
-except ImportError:  # pragma: no cover - if tests/ ever becomes a package
-    from tests.test_model_lagrangian import (
-        PARAMS,
-        bias,
-        generalized_force,
-        held_swing_accelerations,
-        mass_matrix,
-        random_case,
-        rk4_swing,
-        simulate_model,
-    )
 
 N_CASES = 60
 
