@@ -8,6 +8,7 @@ the key, e.g. ``config/vehicle.toml: [vehicle] m: must be > 0, got -1.0``.
 from __future__ import annotations
 
 import dataclasses
+import importlib.resources
 import math
 import tomllib
 import types
@@ -19,6 +20,38 @@ from typing import Any, TypeVar
 from companion.errors import ConfigError
 
 T = TypeVar("T")
+
+#: The package that holds the shipped config files (the repository's ``config/`` folder, see pyproject.toml).
+CONFIG_PACKAGE = "companion.configs"
+
+
+def shipped_config(relative: str) -> Path:
+    """Path of a shipped config file, e.g. ``shipped_config("missions/forest.toml")``.
+
+    Read with importlib.resources, so it works from a source tree, an editable install and a wheel alike.
+    """
+    return Path(str(importlib.resources.files(CONFIG_PACKAGE).joinpath(relative)))
+
+
+def shipped_missions() -> dict[str, Path]:
+    """The missions that ship with slungpilot, by name (file stem): ``{"forest": Path, "group1": Path, ...}``."""
+    folder = importlib.resources.files(CONFIG_PACKAGE).joinpath("missions")
+    return {Path(e.name).stem: Path(str(e)) for e in sorted(folder.iterdir(), key=lambda e: e.name)
+            if e.name.endswith(".toml")}
+
+
+def resolve_mission(arg: str | Path) -> Path:
+    """A mission argument as a file: an existing path wins, else a shipped mission by name (``forest``,
+    ``group1.toml``); :class:`ConfigError` naming the known missions otherwise."""
+    p = Path(arg)
+    if p.exists():
+        return p
+    missions = shipped_missions()
+    name = p.stem if p.suffix == ".toml" and p.parent == Path(".") else str(arg)
+    if name in missions:
+        return missions[name]
+    raise ConfigError(f"{arg}: no such mission file, and no shipped mission of that name "
+                      f"(shipped: {', '.join(missions)}; `slungpilot missions` lists them)")
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""Subcommands ``experiments`` and ``evaluate`` for the ``slungpilot`` CLI (wired in ``companion/cli.py``),
+"""Subcommands ``experiments`` and ``evaluate`` for the ``slungpilot`` CLI (wired in ``companion/cli/main.py``),
 also runnable as ``python -m lab experiments|evaluate``."""
 
 from __future__ import annotations
@@ -70,6 +70,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m lab``: same exit codes as ``slungpilot`` (2 for configuration errors)."""
-    from companion.cli import dispatch
+    from companion.cli.dispatch import dispatch
 
     return dispatch(build_parser().parse_args(argv))

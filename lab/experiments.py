@@ -24,16 +24,16 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from companion.fly import REPO_ROOT
-from companion.mission import Mission, load_mission
+from companion.config import shipped_config
+from companion.core.mission import Mission, load_mission
 from lab import figures
 from lab.evaluate import run_jobs
 from lab.runner import Job
 
 log = logging.getLogger(__name__)
 
-GROUP1_FILE = REPO_ROOT / "config" / "missions" / "group1.toml"
-GROUP2_FILE = REPO_ROOT / "config" / "missions" / "forest.toml"
+GROUP1_FILE = shipped_config("missions/group1.toml")
+GROUP2_FILE = shipped_config("missions/forest.toml")
 GROUP1_CONTROLLERS = ("pid", "smc", "smc_ff")
 GROUP2_PLANNERS = ("traditional", "improved", "safe")
 

@@ -1,6 +1,6 @@
 """Multi-run comparison figures (headless matplotlib, PNG) for ``experiments`` and ``evaluate``.
 
-Inputs are the per-tick arrays of :func:`companion.report.log_arrays` as saved in each run folder's
+Inputs are the per-tick arrays of :func:`companion.report.run_folder.log_arrays` as saved in each run folder's
 ``flight_log.npz`` (``t_s``, ``pos_ned_m``, ``payload_pos_ned_m``, ``swing``, ``r_max_m`` …), keyed by the
 run's label (controller or planner name).
 """
@@ -18,8 +18,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Circle
 
-from companion.obstacles import Obstacle
-from companion.plots import draw_trunks_3d
+from companion.core.obstacles import Obstacle
+from companion.report.plots import draw_trunks_3d
 
 Arrays = Mapping[str, np.ndarray]
 DPI = 90

@@ -29,10 +29,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from companion.mission import Mission
-from companion.model import VehicleParams
-from companion.obstacles import Obstacle
-from companion.wind import WindConfig
+from companion.core.mission import Mission
+from companion.core.model import VehicleParams
+from companion.core.obstacles import Obstacle
+from companion.core.wind import WindConfig
 
 TRAP_KINDS = ("none", "pair", "cluster", "mixed")
 

@@ -1,8 +1,8 @@
 """Fly one mission in a worker: over MAVLink against the bundled vehicle (lockstep) or in-process.
 
-``mavlink`` mode is exactly ``slungpilot fly --sitl --mission FILE`` (``companion.fly.fly_async`` with the
+``mavlink`` mode is exactly ``slungpilot fly --sitl --mission FILE`` (``companion.cli.fly.fly_async`` with the
 ``fly`` parser's defaults, the vehicle started as a separate process on free loopback ports, lockstep);
-``inprocess`` mode runs ``sim_bridge.inprocess.fly_inprocess``: the same FlightCore (planner, controller,
+``inprocess`` mode runs ``lab.inprocess.fly_inprocess``: the same FlightCore (planner, controller,
 envelope) and the same vehicle physics, without MAVLink. Both return issue 4's report keys.
 
 The functions here are top-level so that ``concurrent.futures`` spawn workers can pickle them.
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from companion.mission import Mission, mission_to_toml
+from companion.core.mission import Mission, mission_to_toml
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +35,7 @@ def fly_args(run_dir: Path, plots: bool, gains: Path | None = None) -> argparse.
     """The parsed arguments of ``slungpilot fly --sitl --no-zenoh --run-dir RUN_DIR [--no-plots]`` (lockstep).
 
     No Zenoh: batch flights run side by side and would all want the default listen port."""
-    from companion.fly import add_fly_arguments
+    from companion.cli.fly import add_fly_arguments
 
     p = argparse.ArgumentParser()
     add_fly_arguments(p)
@@ -80,7 +80,7 @@ class Job:
 
 
 def _fly_mavlink(job: Job) -> dict[str, Any]:
-    from companion.fly import fly_async
+    from companion.cli.fly import fly_async
 
     args = fly_args(job.run_dir, job.plots, job.gains)
     result = asyncio.run(fly_async(args, job.mission))
@@ -90,9 +90,9 @@ def _fly_mavlink(job: Job) -> dict[str, Any]:
 
 
 def _fly_inprocess(job: Job) -> dict[str, Any]:
-    from companion.fly import DEFAULT_GAINS, load_gains
-    from companion.report import write_run
-    from sim_bridge.inprocess import fly_inprocess
+    from companion.cli.fly import DEFAULT_GAINS, load_gains
+    from companion.report.run_folder import write_run
+    from lab.inprocess import fly_inprocess
 
     gains = load_gains(job.gains or DEFAULT_GAINS)
     flog = fly_inprocess(job.mission, gains=gains)

@@ -3,7 +3,7 @@
 Starts the vehicle (``python -m sim_bridge --lockstep``, 1 kHz physics, 4 ms control period) as a
 subprocess and drives it from this process over real UDP with a minimal 250 Hz hover client: it decodes
 only the SYSTEM_TIME marker and the vehicle's LOCAL_POSITION_NED (other frames are skipped by message id;
-``companion.mavlink_fast``, CRC checked) and answers
+``companion.mavlink_io.codec``, CRC checked) and answers
 each marker with a level-attitude SET_ATTITUDE_TARGET whose thrust holds 2 m. Prints and returns simulated
 seconds per wall second and the CPU time per control step of either side (less sensitive than the
 real-time factor to other processes competing for the cores). Nothing is asserted.
@@ -16,7 +16,7 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.mavlink_fast import decode_lite, send_set_attitude_target
+from companion.mavlink_io.codec import decode_lite, send_set_attitude_target
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 
 M = mavlink2

@@ -9,9 +9,9 @@ import logging
 import sys
 
 from companion.config import dataclass_from_table
+from companion.core.model import VehicleParams, load_vehicle_params
+from companion.core.wind import WindConfig
 from companion.errors import ConfigError
-from companion.model import VehicleParams, load_vehicle_params
-from companion.wind import WindConfig
 from sim_bridge.vehicle import SitlConfig, SitlVehicle
 
 log = logging.getLogger(__name__)

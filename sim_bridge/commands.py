@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from sim_bridge import px4_modes
+from companion.autopilots import px4_modes
 from sim_bridge.params import param_id_str
 
 log = logging.getLogger(__name__)

@@ -24,11 +24,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 from numba import njit
 
-from companion.model import VehicleParams
+from companion.core.kernel_cache import use_kernel_cache
+from companion.core.model import VehicleParams
 
 _S2 = math.sqrt(2.0) / 2.0
 
@@ -82,6 +84,10 @@ class InnerLoopGains:
 def gains_packed(g: InnerLoopGains) -> np.ndarray:
     """Gains as the (13,) array the compiled kernel takes: c(3), k(3), k_sat(3), boundary(3), rate_gain."""
     return np.array([*g.c, *g.k, *g.k_sat, *g.boundary, g.rate_gain], dtype=np.float64)
+
+
+# before the first kernel (see companion.core.kernel_cache)
+use_kernel_cache(Path(__file__))
 
 
 @njit(cache=True)

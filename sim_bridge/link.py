@@ -3,7 +3,7 @@
 Each datagram is cut into frames here (UDP keeps frame boundaries, so nothing is carried over between
 datagrams): bytes before a frame marker are *garbage*, a MAVLink 1 frame (0xFE) is *mavlink1*, a frame longer
 than what is left is *truncated*, unknown incompatibility flags or a signed frame is *bad_flags*, then
-:func:`companion.mavlink_fast.decode_lite` (pymavlink's ``MAVLink.decode``, precompiled) checks CRC and
+:func:`companion.mavlink_io.codec.decode_lite` (pymavlink's ``MAVLink.decode``, precompiled) checks CRC and
 length (*bad_crc*) and knows the id (*unknown_id*). Only decoded MAVLink 2 messages reach the handler.
 The link answers whoever talked to it last.
 """
@@ -18,7 +18,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.mavlink_fast import FrameError, decode_lite
+from companion.mavlink_io.codec import FrameError, decode_lite
 
 log = logging.getLogger(__name__)
 

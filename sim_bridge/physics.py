@@ -12,12 +12,13 @@ lag); rotor thrust is limited to [0, f_max] per rotor.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 from numba import njit
 
-from companion.errors import ModelError
-from companion.model import (
+from companion.core.kernel_cache import use_kernel_cache
+from companion.core.model import (
     IDX_Z,
     VehicleParams,
     _check_domain,
@@ -26,8 +27,9 @@ from companion.model import (
     payload_offset_ned_m,
     rotation_body_to_ned,
 )
-from companion.rotations import euler_from_quat, quat_from_euler
-from companion.wind import WindConfig, eq49_signal, wind_scale_factor
+from companion.core.rotations import euler_from_quat, quat_from_euler
+from companion.core.wind import WindConfig, eq49_signal, wind_scale_factor
+from companion.errors import ModelError
 from sim_bridge.inner_loop import (
     InnerLoopGains,
     RotorConfig,
@@ -41,6 +43,10 @@ from sim_bridge.inner_loop import (
 )
 
 __all__ = ["InnerLoopGains", "RotorConfig", "VehicleSim"]
+
+
+# before the first kernel (see companion.core.kernel_cache)
+use_kernel_cache(Path(__file__), Path(__file__).with_name("inner_loop.py"))
 
 
 @njit(cache=True)

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.rotations import quat_from_euler
+from companion.core.rotations import quat_from_euler
 
 
 @dataclass(frozen=True)

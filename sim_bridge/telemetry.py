@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion import mavlink_fast as mf
-from companion.rotations import quat_from_euler
+from companion.core.rotations import quat_from_euler
+from companion.mavlink_io import codec as mf
 
 MSG_HEARTBEAT = mavlink2.MAVLINK_MSG_ID_HEARTBEAT
 MSG_SYS_STATUS = mavlink2.MAVLINK_MSG_ID_SYS_STATUS

@@ -20,10 +20,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.autopilots import px4_modes
+from companion.core.model import VehicleParams
+from companion.core.wind import WindConfig
 from companion.errors import ModelError
-from companion.model import VehicleParams
-from companion.wind import WindConfig
-from sim_bridge import commands, px4_modes, telemetry
+from sim_bridge import commands, telemetry
 from sim_bridge.link import MavUdpLink, RejectCounters, open_link
 from sim_bridge.params import build_param_table, gains_from_params
 from sim_bridge.physics import InnerLoopGains, RotorConfig, VehicleSim

@@ -15,10 +15,10 @@ from companion.control import (
     payload_reaction_n,
 )
 from companion.control.params import FeedForwardGains
+from companion.core.model import VehicleParams, accelerations, rotation_body_to_ned
+from companion.core.rotations import euler_from_quat
+from companion.core.wind import WindConfig
 from companion.errors import ConfigError
-from companion.model import VehicleParams, accelerations, rotation_body_to_ned
-from companion.rotations import euler_from_quat
-from companion.wind import WindConfig
 from sim_bridge.physics import VehicleSim
 
 P = VehicleParams()

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from companion.envelope import envelope_radii_m, full_cable_r_max_m, payload_pos_ned_m, r_max_m
-from companion.estimate import swing_from_payload
-from companion.model import VehicleParams
+from companion.core.envelope import envelope_radii_m, full_cable_r_max_m, payload_pos_ned_m, r_max_m
+from companion.core.model import VehicleParams
+from companion.estimation.estimate import swing_from_payload
 
 P = VehicleParams()
 

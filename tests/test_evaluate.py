@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.mission import load_mission
+from companion.core.mission import load_mission
 from lab.evaluate import evaluate, summarise
 from lab.forests import ForestSpec
 from lab.runner import classify

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from companion.estimate import Estimate
-from companion.flight_core import FlightCore
-from companion.mission import Mission
-from companion.obstacles import Obstacle
-from companion.profile import VehicleProfile, profile_by_name
+from companion.autopilots.profile import VehicleProfile, profile_by_name
+from companion.core.mission import Mission
+from companion.core.obstacles import Obstacle
+from companion.estimation.estimate import Estimate
+from companion.flight.core import FlightCore
 
 
 def _mission(planner="safe", controller="smc_ff"):
@@ -86,7 +86,7 @@ def test_every_combination_gives_a_finite_unit_quaternion(planner, controller):
 
 
 def test_profiles_carry_the_mode_family():
-    from companion.profile import profile_for_autopilot
+    from companion.autopilots.profile import profile_for_autopilot
 
     px4 = profile_by_name("px4")
     assert px4.mode_params("offboard") == [1.0, 6.0, 0.0]

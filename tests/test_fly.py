@@ -16,7 +16,7 @@ FOREST = ROOT / "config" / "missions" / "forest.toml"
 
 def _slungpilot(*args: str, timeout: float = 240.0, cwd: Path | None = None) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "companion.cli", *args], capture_output=True, text=True, timeout=timeout,
+        [sys.executable, "-m", "companion.cli.main", *args], capture_output=True, text=True, timeout=timeout,
         cwd=cwd or ROOT,
     )
 
@@ -87,7 +87,7 @@ def test_bad_mission_file_refused_before_takeoff_with_exit_2(tmp_path, edit, mat
 def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
     run_dir = tmp_path / "abort"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "companion.cli", "-v", "fly", "--sitl", "--realtime", "--no-zenoh", "--mission",
+        [sys.executable, "-m", "companion.cli.main", "-v", "fly", "--sitl", "--realtime", "--no-zenoh", "--mission",
          str(FOREST),
          "--run-dir", str(run_dir)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
@@ -137,7 +137,7 @@ def test_flies_without_the_cable_sensor(tmp_path, swing_input, envelope):
 def test_flies_an_autopilot_it_did_not_start_reading_its_hover_thrust(tmp_path):
     """The path a real PX4 takes: vehicle started separately, companion listens (udpin), picks the PX4 profile
     from the HEARTBEAT and reads MPC_THR_HOVER instead of assuming it."""
-    from companion.sitl_launcher import free_udp_port
+    from companion.cli.sitl_launcher import free_udp_port
 
     comp_port, veh_port, gcs_port = free_udp_port(), free_udp_port(), free_udp_port()
     veh = subprocess.Popen(
@@ -159,7 +159,7 @@ def test_flies_an_autopilot_it_did_not_start_reading_its_hover_thrust(tmp_path):
 
 
 def test_no_autopilot_fails_clearly_in_bounded_time(tmp_path):
-    from companion.sitl_launcher import free_udp_port
+    from companion.cli.sitl_launcher import free_udp_port
 
     proc = _slungpilot("fly", "--connect", f"udpin://127.0.0.1:{free_udp_port()}", "--heartbeat-timeout", "1.5",
                        "--no-zenoh", "--run-dir", str(tmp_path), timeout=30)
@@ -186,7 +186,7 @@ def test_lockstep_flight_is_repeatable_bit_for_bit(forest_run, tmp_path):
 def test_ctrl_c_in_lockstep_holds_and_lands(tmp_path):
     """In lockstep the sequencer runs at the tick's pace: Ctrl-C still switches to hold and lands."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "companion.cli", "-v", "fly", "--sitl", "--no-zenoh", "--no-plots", "--mission",
+        [sys.executable, "-m", "companion.cli.main", "-v", "fly", "--sitl", "--no-zenoh", "--no-plots", "--mission",
          str(FOREST), "--run-dir", str(tmp_path)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
     )

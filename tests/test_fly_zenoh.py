@@ -40,7 +40,7 @@ def zenoh_flight(tmp_path_factory):
     )
     assert watch.stdout.readline().strip() == "ready"
     fly = subprocess.run(
-        [sys.executable, "-m", "companion.cli", "fly", "--sitl", "--mission", str(_open_field_mission(tmp)),
+        [sys.executable, "-m", "companion.cli.main", "fly", "--sitl", "--mission", str(_open_field_mission(tmp)),
          "--run-dir", str(tmp / "run"), "--no-plots", "--zenoh-connect", endpoint],
         cwd=ROOT, capture_output=True, text=True, timeout=240,
     )
@@ -98,7 +98,7 @@ def test_two_vehicles_two_companions_one_subscriber_through_a_router(tmp_path):
     """Two bundled vehicles, two companions and one subscriber, all Zenoh clients of one Python router."""
     endpoint = f"tcp/127.0.0.1:{_free_tcp_port()}"
     router = subprocess.Popen(
-        [sys.executable, "-m", "companion.cli", "zenoh-router", "--zenoh-listen", endpoint, "--duration", "150"],
+        [sys.executable, "-m", "companion.cli.main", "zenoh-router", "--zenoh-listen", endpoint, "--duration", "150"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
@@ -112,7 +112,7 @@ def test_two_vehicles_two_companions_one_subscriber_through_a_router(tmp_path):
         mission = _open_field_mission(tmp_path)
         flights = [
             subprocess.Popen(
-                [sys.executable, "-m", "companion.cli", "fly", "--sitl", "--mission", str(mission), "--no-plots",
+                [sys.executable, "-m", "companion.cli.main", "fly", "--sitl", "--mission", str(mission), "--no-plots",
                  "--run-dir", str(tmp_path / f"v{vid}"), "--zenoh-mode", "client", "--zenoh-connect", endpoint,
                  "--vehicle-id", vid],
                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.mission import load_mission, mission_to_toml
+from companion.core.mission import load_mission, mission_to_toml
 from lab.forests import ForestSpec, generate_forest
 
 

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from companion.model import VehicleParams
-from companion.rotations import euler_from_quat, quat_from_euler
-from companion.wind import WindConfig, eq49_signal, wind_disturbance
+from companion.core.model import VehicleParams
+from companion.core.rotations import euler_from_quat, quat_from_euler
+from companion.core.wind import WindConfig, eq49_signal, wind_disturbance
 from sim_bridge.inner_loop import RotorConfig, max_rotor_thrust_n, mix, mixer_matrix
 from sim_bridge.physics import VehicleSim
 
@@ -42,7 +42,7 @@ def test_roll_step_15deg_reached_in_half_a_second_and_held_under_wind_with_paylo
 
 def test_wind_torque_would_flip_an_uncontrolled_vehicle():
     """Guard that the roll test is meaningful: with the inner loop off (zero torque) eq. 49 tips it over."""
-    from companion.model import rk4_step
+    from companion.core.model import rk4_step
 
     x = np.zeros(16)
     x[2] = -5.0

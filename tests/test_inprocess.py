@@ -4,9 +4,9 @@ from pathlib import Path
 
 import pytest
 
-from companion.metrics import compute_metrics
-from companion.mission import load_mission
-from sim_bridge.inprocess import fly_inprocess
+from companion.core.mission import load_mission
+from companion.report.metrics import compute_metrics
+from lab.inprocess import fly_inprocess
 
 MISSIONS = Path(__file__).resolve().parents[1] / "config" / "missions"
 

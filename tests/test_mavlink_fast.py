@@ -1,4 +1,4 @@
-"""companion.mavlink_fast: hand-packed frames are byte-identical to pymavlink's; decode_frame agrees with
+"""companion.mavlink_io.codec: hand-packed frames are byte-identical to pymavlink's; decode_frame agrees with
 pymavlink's decoder; bad frames raise FrameError, never anything else."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import random
 import pytest
 from pymavlink.dialects.v20 import common as M
 
-from companion import mavlink_fast as mf
+from companion.mavlink_io import codec as mf
 
 
 class _Sink:
@@ -181,7 +181,7 @@ def _vehicle_datagram(seq0: int = 0) -> bytes:
 
 
 def _link(tmp_path=None):
-    from companion.mavlink_io import MavlinkLink
+    from companion.mavlink_io.link import MavlinkLink
 
     got: list = []
     link = MavlinkLink("udpin://127.0.0.1:14999", got.append, tlog=None if tmp_path is None else tmp_path / "t.tlog")
@@ -234,7 +234,7 @@ def test_companion_link_counts_bad_input_and_still_delivers_good_frames() -> Non
 
 
 def test_vehicle_state_takes_lite_messages_and_refuses_nonfinite_swing() -> None:
-    from companion.vehicle_state import VehicleState
+    from companion.estimation.vehicle_state import VehicleState
 
     mav, _ = _pair(sysid=1, compid=1)
     mf.send_heartbeat(mav, M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, 128 | 1, 6 << 16, M.MAV_STATE_ACTIVE)

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from companion.metrics import FlightLog, compute_metrics
-from companion.mission import Mission
-from companion.obstacles import Obstacle
+from companion.core.mission import Mission
+from companion.core.obstacles import Obstacle
+from companion.report.metrics import FlightLog, compute_metrics
 
 
 class _Cmd:
@@ -82,7 +82,7 @@ def test_empty_log_refused():
 
 
 def test_select_keeps_rows_and_columns_aligned():
-    from companion.metrics import FlightLog
+    from companion.report.metrics import FlightLog
 
     log = FlightLog(planner="safe", controller="smc_ff", mission="m")
     for k in range(5):

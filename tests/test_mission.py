@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from companion.core.mission import load_mission, mission_to_toml
 from companion.errors import ConfigError
-from companion.mission import load_mission, mission_to_toml
 
 ROOT = Path(__file__).resolve().parents[1]
 FOREST = ROOT / "config" / "missions" / "forest.toml"

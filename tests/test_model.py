@@ -5,8 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.errors import ConfigError, ModelError
-from companion.model import (
+from companion.core.model import (
     VehicleParams,
     accelerations,
     dynamics,
@@ -15,6 +14,7 @@ from companion.model import (
     rk4_batch,
     rk4_step,
 )
+from companion.errors import ConfigError, ModelError
 
 P = VehicleParams()
 
@@ -41,7 +41,7 @@ def test_energy_conserved_in_free_fall_with_spin_and_swing():
 
 def test_energy_not_conserved_when_coriolis_term_is_wrong():
     """Guard that the energy test can fail: a model with a sign error in one velocity term drifts."""
-    from companion import model
+    from companion.core import model
 
     x = _spinning_swinging_state()
     e0 = energy_j(x, P)

@@ -1,8 +1,8 @@
-"""Independent numeric Euler–Lagrange check of ``companion.model`` and the pendulum periods of issue 2.
+"""Independent numeric Euler–Lagrange check of ``companion.core.model`` and the pendulum periods of issue 2.
 
 The Lagrangian is written here straight from the paper's eqs. 3–9 (nothing taken from ``model.py``), the
 Euler–Lagrange equations (eq. 14) are formed by central finite differences, and the resulting q̈ is
-compared with :func:`companion.model.accelerations` at many random states and inputs. The generalized
+compared with :func:`companion.core.model.accelerations` at many random states and inputs. The generalized
 force is Q = [F + d_ξ, R_ηᵀ·(τ + d_τ), 0, 0] with F = −R_F·[0, 0, T] (eqs. 11–12): the torques are
 body-frame torques (see docs/model-derivation.md).
 
@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.model import VehicleParams, accelerations, rk4_step
+from companion.core.model import VehicleParams, accelerations, rk4_step
 
 # --------------------------------------------------------------------------------------------------------
 # The Lagrangian of eq. 10, built from eqs. 3–9 (NED, z down, V = −M·g·z − m·g·z_p).

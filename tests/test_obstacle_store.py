@@ -8,8 +8,8 @@ import re
 
 import pytest
 
-from companion.obstacle_store import MAX_OBSTACLES_PER_SAMPLE, MAX_SOURCES, ObstacleStore, parse_obstacles_in
-from companion.obstacles import Obstacle
+from companion.core.obstacles import Obstacle
+from companion.zenoh_io.obstacle_store import MAX_OBSTACLES_PER_SAMPLE, MAX_SOURCES, ObstacleStore, parse_obstacles_in
 
 MISSION = (Obstacle(1.0, 2.0, 0.3), Obstacle(5.0, -1.0, 0.4))
 TRUNK = {"x_m": 6.0, "y_m": 0.1, "radius_m": 0.3, "height_m": 4.0, "safe_distance_m": 0.1,
@@ -136,7 +136,7 @@ def test_bad_samples_are_counted_ignored_and_logged_at_most_once_per_second(
     st.ingest(SRC, sample([TRUNK]), now_s=0.0)
     before = st.current(0.0, MISSION)
     v = st.version
-    with caplog.at_level(logging.WARNING, logger="companion.obstacle_store"):
+    with caplog.at_level(logging.WARNING, logger="companion.zenoh_io.obstacle_store"):
         for i in range(50):
             fake_wall[0] = 100.0 + i * 0.05  # 2.5 s of wall time
             assert not st.ingest(SRC, b'{"obstacles": [{"x_m": NaN}]}', now_s=0.1)

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.obstacles import Obstacle
+from companion.core.obstacles import Obstacle
 from companion.planning import PlanInput, PlannerParams, ReferenceGenerator, SafePlanner, make_planner
 from companion.planning.apf import attractive_force, repulsive_force, rho0_traditional_m, rho_star_improved_m
 from companion.planning.safe import predicted_envelope_m

@@ -5,7 +5,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from companion.obstacles import Obstacle
+from companion.core.obstacles import Obstacle
 from companion.planning import PlanInput, PlannerParams, ReferenceGenerator, SafePlanner
 
 AIRFRAME_M = 0.28

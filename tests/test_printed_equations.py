@@ -3,7 +3,7 @@ derivation. One test per row found correct and one per typo named in docs/model-
 checking the *stated* difference (so the document cannot drift from the truth).
 
 The reference ("derived") side is the finite-difference Euler–Lagrange machinery of
-tests/test_model_lagrangian.py (the Lagrangian written from eqs. 3–9) and ``companion.model`` itself.
+tests/test_model_lagrangian.py (the Lagrangian written from eqs. 3–9) and ``companion.core.model`` itself.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from test_model_lagrangian import (  # tests/ is a plain directory on sys.path (
     simulate_model,
 )
 
-from companion.model import VehicleParams, accelerations
+from companion.core.model import VehicleParams, accelerations
 
 N_CASES = 60
 

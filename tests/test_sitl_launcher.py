@@ -4,8 +4,8 @@ import asyncio
 import socket
 from pathlib import Path
 
-from companion.mission import load_mission
-from companion.sitl_launcher import SitlProcess
+from companion.cli.sitl_launcher import SitlProcess
+from companion.core.mission import load_mission
 
 FOREST = Path(__file__).resolve().parents[1] / "config" / "missions" / "forest.toml"
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.rotations import euler_from_quat
-from sim_bridge import px4_modes
+from companion.autopilots import px4_modes
+from companion.core.rotations import euler_from_quat
 from sim_bridge.commands import parse_attitude_target
 from sim_bridge.link import MavUdpLink, RejectCounters
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle

@@ -1,6 +1,6 @@
 """Zenoh streams between real processes over loopback: no gaps, obstacles in, queryable, liveliness, router.
 
-The publisher is ``python -m companion.zenoh_bench drive`` (ZenohTelemetry used as the flight app uses it);
+The publisher is ``python -m companion.cli.bench_zenoh drive`` (ZenohTelemetry used as the flight app uses it);
 this test process is the subscriber. Every wait is bounded; ports are free ones, never 7447.
 """
 
@@ -23,9 +23,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from companion import telemetry_schema as ts
-from companion.zenoh_bench import free_tcp_port
-from companion.zenoh_session import zenoh_config
+from companion.cli.bench_zenoh import free_tcp_port
+from companion.zenoh_io import schema as ts
+from companion.zenoh_io.session import zenoh_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -82,7 +82,7 @@ class Proc:
 
 @contextmanager
 def driver(*args: str) -> Iterator[Proc]:
-    proc = Proc(["-m", "companion.zenoh_bench", "drive", *args])
+    proc = Proc(["-m", "companion.cli.bench_zenoh", "drive", *args])
     try:
         yield proc
     finally:
@@ -241,7 +241,7 @@ def test_config_queryable_answers_and_liveliness_token_goes_when_the_process_sto
 
 def test_two_vehicles_through_a_router_seen_by_one_subscriber() -> None:
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
-    router = Proc(["-m", "companion.zenoh_cli", "zenoh-router", "--zenoh-listen", ep, "--duration", "50"])
+    router = Proc(["-m", "companion.cli.zenoh_cmds", "zenoh-router", "--zenoh-listen", ep, "--duration", "50"])
     col = Collector()
     try:
         deadline = time.monotonic() + 20

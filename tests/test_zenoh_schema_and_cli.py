@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion import telemetry_schema as ts
+from companion.cli.bench_zenoh import free_tcp_port
+from companion.cli.zenoh_cmds import add_listen_parser, add_obstacles_parser, add_router_parser, load_obstacles_payload
+from companion.core.obstacles import Obstacle
 from companion.errors import ConfigError, LinkError
-from companion.obstacles import Obstacle
-from companion.zenoh_bench import free_tcp_port
-from companion.zenoh_cli import add_listen_parser, add_obstacles_parser, add_router_parser, load_obstacles_payload
-from companion.zenoh_io import TelemetryOptions, ZenohTelemetry, _Every
-from companion.zenoh_session import add_zenoh_arguments, zenoh_config, zenoh_config_from_args
+from companion.zenoh_io import schema as ts
+from companion.zenoh_io.session import add_zenoh_arguments, zenoh_config, zenoh_config_from_args
+from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry, _Every
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -163,14 +163,14 @@ def test_listen_json_and_obstacles_publish_against_a_running_driver(tmp_path: Pa
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
     toml = tmp_path / "trunk.toml"
     toml.write_text("[[obstacles]]\nx_m = 6.0\ny_m = 0.1\nradius_m = 0.3\n")
-    drv = _run(["companion.zenoh_bench", "drive", "--zenoh-listen", ep, "--vehicle-id", "5", "--realtime",
+    drv = _run(["companion.cli.bench_zenoh", "drive", "--zenoh-listen", ep, "--vehicle-id", "5", "--realtime",
                 "--ticks", "0"])
     procs = [drv]
     try:
-        lis = _run(["companion.zenoh_cli", "listen", "slungpilot/5/obstacles", "--json", "--zenoh-connect", ep,
+        lis = _run(["companion.cli.zenoh_cmds", "listen", "slungpilot/5/obstacles", "--json", "--zenoh-connect", ep,
                     "--duration", "25"])
         procs.append(lis)
-        pub = _run(["companion.zenoh_cli", "obstacles", "publish", str(toml), "--vehicle-id", "5", "--name", "cam",
+        pub = _run(["companion.cli.zenoh_cmds", "obstacles", "publish", str(toml), "--vehicle-id", "5", "--name", "cam",
                     "--zenoh-connect", ep, "--wait-s", "15"])
         procs.append(pub)
         out, err = pub.communicate(timeout=40)
@@ -188,12 +188,12 @@ def test_listen_json_and_obstacles_publish_against_a_running_driver(tmp_path: Pa
             if "slungpilot/5/obstacles/in/cam" in d["sample"]["sources"]:
                 found = d["sample"]
         assert found is not None and found["count"] == 3
-        bad = _run(["companion.zenoh_cli", "obstacles", "publish", str(tmp_path / "missing.toml"),
+        bad = _run(["companion.cli.zenoh_cmds", "obstacles", "publish", str(tmp_path / "missing.toml"),
                     "--zenoh-connect", ep])
         procs.append(bad)
         _, err = bad.communicate(timeout=40)
         assert bad.returncode == 2 and "missing.toml: file not found" in err
-        view = _run(["companion.zenoh_cli", "listen", "--zenoh-connect", ep, "--duration", "2.5"])
+        view = _run(["companion.cli.zenoh_cmds", "listen", "--zenoh-connect", ep, "--duration", "2.5"])
         procs.append(view)
         out, err = view.communicate(timeout=40)
         assert view.returncode == 0, err
@@ -216,10 +216,10 @@ def test_sink_publishes_a_tick_of_the_app_types() -> None:
 
     import zenoh
 
-    from companion.estimate import Estimate
-    from companion.flight_core import Command
-    from companion.model import payload_offset_ned_m
-    from companion.zenoh_io import ZenohTelemetrySink
+    from companion.core.model import payload_offset_ned_m
+    from companion.estimation.estimate import Estimate
+    from companion.flight.core import Command
+    from companion.zenoh_io.telemetry import ZenohTelemetrySink
 
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
     got: dict[str, dict] = {}

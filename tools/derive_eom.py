@@ -288,7 +288,7 @@ def report(verbose: bool) -> int:
     for name, qp, qi in zip(("phi", "theta", "psi"), Q_phys[3:6], Q_ident[3:6], strict=True):
         out(f"     {name}: {plain(sp.expand(qp))}    (eq. 15: {plain(qi)})\n")
     if verbose:
-        out("   closed form used in companion.model._deriv: I·Ω̇ = τ + d − Ω×IΩ;  η̈ = R_η⁻¹(Ω̇ − Ṙ_η·η̇)\n")
+        out("   closed form used in companion.core.model._deriv: I·Ω̇ = τ + d − Ω×IΩ;  η̈ = R_η⁻¹(Ω̇ − Ṙ_η·η̇)\n")
 
     # Eq. 38: thrust-direction inversion.
     out("== Eq. 38 (attitude + thrust from F = −R_F·[0,0,T])\n")

@@ -7,9 +7,9 @@ import math
 
 import numpy as np
 
-from companion.model import VehicleParams, energy_j, rk4_step
-from companion.rotations import quat_from_euler
-from companion.wind import WindConfig
+from companion.core.model import VehicleParams, energy_j, rk4_step
+from companion.core.rotations import quat_from_euler
+from companion.core.wind import WindConfig
 from sim_bridge.physics import VehicleSim
 
 P = VehicleParams()

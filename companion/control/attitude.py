@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from companion.rotations import quat_from_euler
+from companion.core.rotations import quat_from_euler
 
 
 def limit_force_xyz(

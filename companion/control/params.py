@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from companion.config import dataclass_from_table, read_toml
+from companion.config import dataclass_from_table, read_toml, shipped_config
 from companion.errors import ConfigError
 from companion.planning.params import PlannerParams
 
@@ -118,7 +118,7 @@ _TABLES = {
     "planner": PlannerParams,
 }
 
-DEFAULT_CONTROLLER_TOML = Path(__file__).resolve().parents[2] / "config" / "controller.toml"
+DEFAULT_CONTROLLER_TOML = shipped_config("controller.toml")
 
 
 def load_controller_config(path: str | Path | None = None) -> ControllerConfig:

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.control.params import FeedForwardGains, PidGains, SmcGains
-from companion.model import VehicleParams
+from companion.core.model import VehicleParams
 
 
 @dataclass(frozen=True, slots=True)

@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from companion.obstacles import Obstacle
+from companion.core.obstacles import Obstacle
 from companion.planning.base import PlanInput, PlanOutput, saturate
 from companion.planning.params import PlannerParams
 

@@ -16,7 +16,7 @@ from typing import Protocol
 
 import numpy as np
 
-from companion.obstacles import Obstacle
+from companion.core.obstacles import Obstacle
 
 
 @dataclass(frozen=True, slots=True)

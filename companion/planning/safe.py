@@ -43,7 +43,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from companion.obstacles import Obstacle
+from companion.core.obstacles import Obstacle
 from companion.planning.base import PlanInput, PlanOutput
 from companion.planning.params import PlannerParams
 

@@ -10,7 +10,7 @@ import time
 
 import zenoh
 
-from companion.zenoh_session import open_session, zenoh_config
+from companion.zenoh_io.session import open_session, zenoh_config
 
 endpoint, mode, out_path, n_vehicles = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 lock = threading.Lock()

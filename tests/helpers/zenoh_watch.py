@@ -16,7 +16,7 @@ import time
 
 import zenoh
 
-from companion.zenoh_session import open_session, zenoh_config
+from companion.zenoh_io.session import open_session, zenoh_config
 
 endpoint, out_path = sys.argv[1], sys.argv[2]
 obstacle_doc = sys.argv[3] if len(sys.argv) > 3 else None

@@ -1,0 +1,251 @@
+"""``slungpilot fly``: load a mission, optionally start the bundled vehicle, fly, write the run folder.
+
+Run folder (default ``runs/<UTC time>-<mission>-<planner>-<controller>/``): ``report.json``,
+``summary.txt``, ``flight.tlog`` (every MAVLink frame in and out), ``flight_log.npz`` (per-tick arrays),
+``plan.png``, ``timeseries.png``, ``trajectory3d.png``; with ``--sitl`` also ``vehicle.toml`` and
+``sitl.log`` (the vehicle's own log).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import signal
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from companion.autopilots.profile import PROFILE_NAMES, profile_by_name
+from companion.config import resolve_mission, shipped_config
+from companion.control.params import ControllerConfig, load_controller_config
+from companion.core.mission import Mission, load_mission
+from companion.errors import ConfigError
+from companion.estimation.vehicle_state import SWING_INPUTS
+from companion.flight.app import FlightApp, FlyOptions
+from companion.report.run_folder import write_run
+from companion.zenoh_io.session import add_zenoh_arguments, zenoh_config_from_args
+from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry, ZenohTelemetrySink
+
+log = logging.getLogger(__name__)
+
+DEFAULT_MISSION = shipped_config("missions/forest.toml")
+DEFAULT_GAINS = shipped_config("controller.toml")
+
+
+def add_fly_arguments(p: argparse.ArgumentParser) -> None:
+    """The ``fly`` options."""
+    p.add_argument("--mission", default=str(DEFAULT_MISSION), metavar="FILE|NAME",
+                   help="mission TOML file, or the name of a shipped mission (`slungpilot missions` lists them; "
+                        "default: forest, the paper's Table 2 forest)")
+    p.add_argument("--connect", default="udpin://0.0.0.0:14540",
+                   help="autopilot link: udpin://HOST:PORT (listen, default) or udpout://HOST:PORT")
+    p.add_argument("--sitl", action="store_true",
+                   help="start the bundled SITL vehicle on free local ports (lockstep unless --realtime)")
+    p.add_argument("--realtime", action="store_true", help="with --sitl: fly in real time to watch it live")
+    p.add_argument("--lockstep", action="store_true",
+                   help="the vehicle is a lockstep simulator (driven by its SYSTEM_TIME step markers)")
+    p.add_argument("--planner", choices=["traditional", "improved", "safe", "none"], help="override the mission's")
+    p.add_argument("--controller", choices=["smc_ff", "smc", "pid"], help="override the mission's")
+    p.add_argument("--gains", type=Path, default=DEFAULT_GAINS, help="controller/planner gains TOML")
+    p.add_argument("--profile", choices=PROFILE_NAMES, default=None,
+                   help="vehicle profile: thrust mapping (newtons → 0..1) and flight-mode family (default: "
+                        "bundled with --sitl, else chosen from the autopilot's HEARTBEAT: px4 or ardupilot)")
+    p.add_argument("--hover-thrust", type=float, default=None,
+                   help="normalized hover thrust of your vehicle (PX4 MPC_THR_HOVER); overrides the profile's")
+    p.add_argument("--rate-hz", type=float, default=250.0, help="outer-loop rate (Hz)")
+    p.add_argument("--payload-sysid", type=int, default=2, help="MAVLink system id of the payload's own stream")
+    p.add_argument("--swing-input", choices=SWING_INPUTS, default="auto",
+                   help="swing measurement to use: auto = cable-angle sensor (DEBUG_FLOAT_ARRAY 'SWING'), else the "
+                        "payload's position stream, else none (no feed-forward, full-cable envelope)")
+    p.add_argument("--run-dir", type=Path, default=None, help="where to write the run folder")
+    p.add_argument("--report", type=Path, default=None, help="also write the JSON report to this file")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--no-land", action="store_true", help="hold at the goal instead of landing")
+    p.add_argument("--no-land-on-abort", action="store_true", help="on Ctrl-C hold instead of landing")
+    p.add_argument("--heartbeat-timeout", type=float, default=20.0, help="seconds to wait for the autopilot")
+    add_zenoh_arguments(p, "companion")
+
+
+@dataclass
+class FlyResult:
+    """What a flight produced."""
+
+    outcome: str
+    report: dict[str, Any]
+    run_dir: Path
+
+
+def load_gains(path: Path | None) -> ControllerConfig:
+    """Controller/planner gains from TOML (defaults when the file is absent and was not asked for)."""
+    if path is None or (path == DEFAULT_GAINS and not path.exists()):
+        return ControllerConfig()
+    return load_controller_config(path)
+
+
+def mission_from_args(args: argparse.Namespace) -> Mission:
+    """The mission file with CLI overrides applied; ConfigError (exit 2) when it is broken."""
+    mission = load_mission(resolve_mission(args.mission))
+    changes: dict[str, Any] = {}
+    if args.planner:
+        changes["planner"] = args.planner
+    if args.controller:
+        changes["controller"] = args.controller
+    if args.no_land:
+        changes["land"] = False
+    return mission.with_(**changes) if changes else mission
+
+
+def default_run_dir(mission: Mission) -> Path:
+    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
+    return Path("runs") / f"{stamp}-{mission.name}-{mission.planner}-{mission.controller}"
+
+
+async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
+    """Fly ``mission`` as the parsed ``args`` say; always writes the run folder, even after Ctrl-C."""
+    run_dir = args.run_dir or default_run_dir(mission)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    profile_name = args.profile or ("bundled" if args.sitl else None)
+    try:
+        profile = profile_by_name(profile_name, args.hover_thrust) if profile_name else None
+        if args.hover_thrust is not None:
+            profile_by_name("px4", args.hover_thrust)  # validates the value even when the profile comes later
+    except ValueError as exc:
+        raise ConfigError(f"--hover-thrust/--profile: {exc}") from None
+    gains = load_gains(args.gains)
+    opts = FlyOptions(
+        connect=args.connect, rate_hz=args.rate_hz, lockstep=args.lockstep or (args.sitl and not args.realtime),
+        profile=profile, hover_thrust_norm=args.hover_thrust, gains=gains, payload_sysid=args.payload_sysid,
+        swing_input=args.swing_input,
+        heartbeat_timeout_s=args.heartbeat_timeout,
+        land_on_abort=not args.no_land_on_abort, tlog_path=run_dir / "flight.tlog",
+    )
+    if opts.rate_hz <= 0 or opts.rate_hz > 2000:
+        raise ConfigError(f"--rate-hz: must be in (0, 2000], got {opts.rate_hz}")
+    wall0 = time.monotonic()
+    stack = contextlib.AsyncExitStack()
+    zt_holder: list[ZenohTelemetry] = []
+    if not args.no_zenoh:
+        zcfg = zenoh_config_from_args(args, "companion")  # flag errors before anything starts
+
+        async def connect_zenoh(app: FlightApp) -> None:
+            """Open the Zenoh streams under the vehicle id (default: the autopilot's MAVLink system id)."""
+            vid = args.vehicle_id or str(app.state.vehicle_sysid)
+            zt = ZenohTelemetry(zcfg, TelemetryOptions(prefix=args.zenoh_prefix, vehicle_id=vid))
+            await stack.enter_async_context(zt)
+            zt_holder.append(zt)
+            zt.set_config_provider(lambda: effective_config(app, args))
+            app.telemetry = ZenohTelemetrySink(zt, mission.vehicle.l, status_fn=status_of)
+            app.obstacle_source = zt.obstacle_source(mission.obstacles)
+
+        opts.on_connected = connect_zenoh
+    app: FlightApp | None = None
+    error: BaseException | None = None
+    async with stack:
+        if args.sitl:
+            from companion.cli.sitl_launcher import SitlProcess
+
+            period_args = ["--control-period-ms", str(round(1000.0 / opts.rate_hz))]
+            sitl = await stack.enter_async_context(
+                SitlProcess(mission, run_dir, lockstep=opts.lockstep, extra_args=period_args)
+            )
+            opts.connect = sitl.companion_url
+            opts.sock = sitl.companion_sock
+        app = FlightApp(mission, opts)
+        loop = asyncio.get_running_loop()
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(signal.SIGINT, app.request_abort)
+            loop.add_signal_handler(signal.SIGTERM, app.request_abort, "terminated (SIGTERM)")
+        try:
+            await app.run()
+        except Exception as exc:  # still write what we have, then re-raise
+            error = exc
+        finally:
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                loop.remove_signal_handler(signal.SIGINT)
+                loop.remove_signal_handler(signal.SIGTERM)
+    wall = time.monotonic() - wall0
+    extra = {
+        "outcome": app.outcome if error is None else f"error: {error}",
+        "final_phase": app.phase,
+        "abort_reason": app.abort_reason,
+        "wall_time_s": wall,
+        "loop": app.stats.summary(),
+        "link": {"received": app.link.received, "sent": app.link.sent, "rejected": dict(app.link.rejected)},
+        "vehicle_statustext": app.state.statustext[-20:],
+        "swing_input": opts.swing_input,
+        "swing_sources": app.swing_sources,
+        "profile": app.profile.name,
+        "hover_thrust_norm": app.profile.hover_thrust_norm,
+        "lockstep": opts.lockstep,
+        "connect": opts.connect,
+        "run_dir": str(run_dir),
+        "tlog": str(run_dir / "flight.tlog"),
+        "wind": {"model": mission.wind.model, "scale": mission.wind.scale},
+        "vehicle": mission.vehicle.as_dict(),
+    }
+    app.log.wall_time_s = wall
+    seen = app.obstacles_seen
+    if seen:
+        app.log.obstacles = seen  # live obstacles count for clearance and collisions too
+    if zt_holder:
+        zt = zt_holder[0]
+        extra["zenoh"] = {"keys_prefix": f"{args.zenoh_prefix}/{zt.options.vehicle_id}", "published": dict(zt.seq),
+                          "obstacles_in_accepted": zt.store.accepted_count,
+                          "obstacles_in_rejected": zt.store.rejected_count}
+    report = write_run(app.log, mission, extra, run_dir, args.report, plots=not args.no_plots)
+    if error is not None:
+        raise error
+    return FlyResult(app.outcome, report, run_dir)
+
+
+def status_of(app: FlightApp) -> dict[str, Any]:
+    """The 1 Hz status sample: mode, armed, link health, mission progress, rejected-input counters."""
+    est = app.state
+    progress = None
+    if est.pos_ned_m is not None:
+        goal = app.mission.goal_ned_m
+        progress = {"distance_to_goal_m": float(((est.pos_ned_m[0] - goal[0]) ** 2
+                                                 + (est.pos_ned_m[1] - goal[1]) ** 2) ** 0.5),
+                    "core_phase": app.core.phase}
+    return {
+        "mode": est.mode_name, "armed": est.armed, "phase": app.phase, "outcome": app.outcome,
+        "link": {"heartbeats": est.heartbeats, "received": app.link.received, "sent": app.link.sent,
+                 "vehicle_time_s": est.t_s},
+        "progress": progress,
+        "rejected_input": {"mavlink": dict(app.link.rejected)},
+        "ticks": app.stats.ticks,
+    }
+
+
+def effective_config(app: FlightApp, args: argparse.Namespace) -> dict[str, Any]:
+    """What the ``config`` queryable answers: the effective mission, vehicle and controller parameters."""
+    m = app.mission
+    return {
+        "mission": {"name": m.name, "start_ned_m": list(map(float, m.start_ned_m)),
+                    "goal_ned_m": list(map(float, m.goal_ned_m)), "planner": m.planner, "controller": m.controller,
+                    "timeout_s": m.timeout_s, "hold_s": m.hold_s, "land": m.land, "source": m.source_path,
+                    "wind": {"model": m.wind.model, "scale": m.wind.scale},
+                    "obstacles": [o.as_dict() for o in m.obstacles]},
+        "vehicle": m.vehicle.as_dict(),
+        "controller": dataclasses.asdict(app.core.cfg),
+        "profile": {"name": app.profile.name, "hover_thrust_norm": app.profile.hover_thrust_norm},
+        "rate_hz": app.opts.rate_hz, "lockstep": app.opts.lockstep, "connect": app.opts.connect,
+        "swing_input": app.opts.swing_input,
+    }
+
+
+def run_fly(args: argparse.Namespace) -> int:
+    """CLI entry: exit 0 when the mission completed (goal reached), 1 otherwise, 2 on config errors."""
+    from companion.report.run_folder import summary_text
+
+    mission = mission_from_args(args)
+    result = asyncio.run(fly_async(args, mission))
+    print(summary_text(result.report))
+    if result.outcome == "aborted":
+        return 130
+    return 0 if result.outcome == "completed" and result.report.get("reached_goal") else 1

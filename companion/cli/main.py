@@ -1,0 +1,162 @@
+"""The ``slungpilot`` command line: one entry point, one subcommand per job.
+
+This is the only module in ``companion`` that may reach into ``sim_bridge`` (to start the bundled vehicle
+or benchmark it); everything else in the companion talks to a vehicle over MAVLink only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from companion import __version__
+from companion.cli.dispatch import dispatch
+from companion.errors import SlungpilotError
+
+log = logging.getLogger(__name__)
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.target == "model":
+        from companion.cli import bench_model
+
+        print("slungpilot bench model: RK4 (1 kHz step) of the 8-DOF quadrotor-payload model, numba kernels")
+        res = bench_model.run(seconds=args.seconds)
+        print(f"  cold start (compile or load cache): {res.pop('cold_start_s'):8.3f} s")
+        for k, v in res.items():
+            print(f"  {k:32s} {v:14,.0f}")
+        return 0
+    if args.target == "fly":
+        from companion.cli import bench_fly
+
+        print("slungpilot bench fly: forest mission (Table 2, eq. 49 wind) against the bundled vehicle, lockstep,")
+        print("  end to end = mission sim time / wall time of the whole command (vehicle start-up, connect, landing);")
+        print("  in flight  = vehicle time / wall time between the first and last tick (the lockstep loop itself);")
+        print("  tick       = the companion's work per tick, telemetry in to setpoint packed (send timed apart)")
+        for i, r in enumerate(bench_fly.run(repeats=args.repeats)):
+            print(f"  run {i + 1}: end to end {r['realtime_factor']:.1f}x (sim {r['sim_time_s']:.1f} s in "
+                  f"{r['wall_time_s']:.2f} s), in flight {r['flight_realtime_factor']:.1f}x; {r['ticks']} ticks, "
+                  f"tick p50 {r['tick_ms_p50']:.3f} ms, p99 {r['tick_ms_p99']:.3f} ms, max {r['tick_ms_max']:.2f} ms; "
+                  f"goal reached: {r['reached_goal']}")
+        return 0
+    if args.target == "sitl":
+        from sim_bridge.bench import run_bench_sitl
+
+        print("slungpilot bench sitl: lockstep vehicle (1 kHz physics) driven by a 250 Hz hover client over UDP")
+        res = run_bench_sitl(args.seconds)
+        for k, v in res.items():
+            print(f"  {k:32s} {v}")
+        return 0
+    if args.target == "zenoh":
+        from companion.cli.zenoh_cmds import cmd_bench_zenoh
+
+        return cmd_bench_zenoh(args.seconds)
+    raise SlungpilotError(f"bench target {args.target!r} is not available in this build")
+
+
+def _cmd_missions(args: argparse.Namespace) -> int:
+    from companion.config import shipped_missions
+    from companion.core.mission import load_mission
+
+    for name, path in shipped_missions().items():
+        m = load_mission(path)
+        print(f"{name:12s} {len(m.obstacles):3d} obstacles, start {list(map(float, m.start_ned_m))} → goal "
+              f"{list(map(float, m.goal_ned_m))} (NED m), planner {m.planner}, controller {m.controller}  {path}")
+    return 0
+
+
+def _cmd_fly(args: argparse.Namespace) -> int:
+    from companion.cli.fly import run_fly
+
+    return run_fly(args)
+
+
+def _cmd_sitl(args: argparse.Namespace) -> int:
+    from sim_bridge.cli import run_sitl
+
+    return run_sitl(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every subcommand; ``--help`` on each explains it."""
+    parser = argparse.ArgumentParser(
+        prog="slungpilot",
+        description=(
+            "Companion-computer autopilot for a quadrotor carrying a cable-suspended payload: "
+            "swing-aware APF planning and sliding-mode control, sent as SET_ATTITUDE_TARGET over MAVLink."
+        ),
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    parser.add_argument("--version", action="version", version=f"slungpilot {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    from companion.cli.fly import add_fly_arguments
+
+    fly = sub.add_parser(
+        "fly",
+        help="fly a mission: plan around obstacles with the live swing envelope, stream SET_ATTITUDE_TARGET",
+        description=(
+            "Fly a mission file against an autopilot over MAVLink/UDP (PX4, ArduPilot) or, with --sitl, against "
+            "the bundled vehicle started on free local ports (lockstep: as fast as possible, deterministic). "
+            "Waits for the heartbeat, streams setpoints, arms, switches to OFFBOARD, climbs, flies to the goal, "
+            "holds, lands, and writes a run folder: report.json, plots, flight.tlog. Ctrl-C holds, lands and "
+            "still writes the report. Exit 0 when the goal was reached, 1 when not, 2 on a broken mission file."
+        ),
+    )
+    add_fly_arguments(fly)
+    fly.set_defaults(func=_cmd_fly)
+
+    from sim_bridge.cli import add_sitl_arguments
+
+    sitl = sub.add_parser(
+        "sitl",
+        help="run the bundled SITL vehicle (PX4-like MAVLink on UDP 14580/18570 → 14540/14550)",
+        description=(
+            "The bundled software-in-the-loop vehicle: flies the paper's quadrotor-payload model with its own "
+            "attitude loop and eq. 49 wind, and speaks MAVLink 2 like PX4's SITL (HEARTBEAT, telemetry, commands, "
+            "OFFBOARD via SET_ATTITUDE_TARGET, params). See docs/sitl.md for messages and the lockstep handshake."
+        ),
+    )
+    add_sitl_arguments(sitl)
+    sitl.set_defaults(func=_cmd_sitl)
+
+    from companion.cli.zenoh_cmds import add_listen_parser, add_obstacles_parser, add_router_parser
+
+    add_listen_parser(sub)
+    add_obstacles_parser(sub)
+    add_router_parser(sub)
+
+    from lab.cli import add_evaluate_parser, add_experiments_parser
+
+    add_experiments_parser(sub)
+    add_evaluate_parser(sub)
+
+    missions = sub.add_parser("missions", help="list the shipped missions (use their names with fly --mission)",
+                              description="The missions that ship with slungpilot, by name, with where they fly.")
+    missions.set_defaults(func=_cmd_missions)
+
+    bench = sub.add_parser(
+        "bench",
+        help="print performance numbers (model, sitl, fly, zenoh)",
+        description="Benchmarks that print numbers; nothing is asserted. Run on an idle machine.",
+    )
+    bench.add_argument(
+        "target", choices=["model", "sitl", "fly", "zenoh"],
+        help="model: RK4 steps/s of the dynamics kernel; sitl: lockstep real-time factor of the bundled vehicle; "
+             "fly: the forest mission end to end (real-time factor, tick p50/p99); zenoh: 250 Hz swing stream "
+             "latency/loss between two processes and the cost per publish",
+    )
+    bench.add_argument("--seconds", type=float, default=3.0, help="measuring time per benchmark (s)")
+    bench.add_argument("--repeats", type=int, default=2, help="fly: how many flights")
+    bench.set_defaults(func=_cmd_bench)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the process exit code (2 for configuration errors)."""
+    return dispatch(build_parser().parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,151 @@
+"""Start the bundled SITL vehicle as a separate process on free loopback ports (for ``fly --sitl``).
+
+The companion never imports the simulator: it runs ``python -m sim_bridge`` and talks MAVLink to it, the
+same way it talks to PX4 or ArduPilot.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import signal
+import socket
+import sys
+from pathlib import Path
+
+from companion.core.mission import Mission
+from companion.errors import LinkError
+
+log = logging.getLogger(__name__)
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def vehicle_toml(mission: Mission) -> str:
+    """The mission's vehicle parameters in config/vehicle.toml format."""
+    lines = ["[vehicle]"] + [f"{k} = {v!r}" for k, v in mission.vehicle.as_dict().items()]
+    return "\n".join(lines) + "\n"
+
+
+class _PortTaken(Exception):
+    """The vehicle could not bind its ports: another process took them after we chose them."""
+
+
+class SitlProcess:
+    """``async with SitlProcess(mission, workdir) as sitl:`` then connect to ``sitl.companion_url``."""
+
+    def __init__(
+        self,
+        mission: Mission,
+        workdir: Path,
+        *,
+        lockstep: bool = True,
+        extra_args: list[str] | None = None,
+        ready_timeout_s: float = 60.0,
+    ) -> None:
+        self.mission = mission
+        self.workdir = workdir
+        self.lockstep = lockstep
+        self.extra_args = extra_args or []
+        self.ready_timeout_s = ready_timeout_s
+        # The companion's socket is bound here and handed to the link, so no other process can take the port
+        # between choosing it and using it; the vehicle's ports are retried if another process won the race.
+        self.companion_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.companion_sock.bind(("127.0.0.1", 0))
+        self.companion_port = self.companion_sock.getsockname()[1]
+        self.vehicle_port = free_udp_port()
+        self.gcs_port = free_udp_port()
+        self.proc: asyncio.subprocess.Process | None = None
+        self.ready_line = ""
+        self._stderr_path = workdir / "sitl.log"
+
+    @property
+    def companion_url(self) -> str:
+        """Where the companion listens for the vehicle: ``udpin://127.0.0.1:<port>``."""
+        return f"udpin://127.0.0.1:{self.companion_port}"
+
+    def argv(self) -> list[str]:
+        """The vehicle's command line."""
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        vfile = self.workdir / "vehicle.toml"
+        vfile.write_text(vehicle_toml(self.mission))
+        argv = [
+            sys.executable, "-m", "sim_bridge",
+            "--onboard-port", str(self.vehicle_port),
+            "--onboard-remote", f"127.0.0.1:{self.companion_port}",
+            "--gcs-port", str(self.gcs_port),
+            "--vehicle", str(vfile),
+            "--wind", self.mission.wind.model,
+            "--wind-scale", repr(self.mission.wind.scale),
+        ]
+        if self.lockstep:
+            argv.append("--lockstep")
+        return argv + self.extra_args
+
+    async def __aenter__(self) -> SitlProcess:
+        for attempt in range(3):
+            try:
+                await self._start()
+                return self
+            except _PortTaken:
+                log.info("SITL ports taken by another process (attempt %d); choosing others", attempt + 1)
+                self.vehicle_port, self.gcs_port = free_udp_port(), free_udp_port()
+        self.companion_sock.close()
+        raise LinkError("could not find free UDP ports for the SITL vehicle")
+
+    async def _start(self) -> None:
+        argv = self.argv()
+        log.info("starting the bundled vehicle: %s", " ".join(argv))
+        self._stderr = self._stderr_path.open("wb")
+        self.proc = await asyncio.create_subprocess_exec(
+            *argv, stdout=asyncio.subprocess.PIPE, stderr=self._stderr, stdin=asyncio.subprocess.DEVNULL
+        )
+        assert self.proc.stdout is not None
+        try:
+            async with asyncio.timeout(self.ready_timeout_s):
+                while True:
+                    line = await self.proc.stdout.readline()
+                    if not line:
+                        await self.proc.wait()
+                        self._stderr.close()
+                        if "Address already in use" in self._stderr_path.read_text(errors="replace"):
+                            raise _PortTaken
+                        raise LinkError(f"the SITL vehicle exited before it was ready; see {self._stderr_path}")
+                    text = line.decode(errors="replace").strip()
+                    if text.startswith("SITL READY"):
+                        self.ready_line = text
+                        break
+        except TimeoutError:
+            await self._stop()
+            raise LinkError(f"the SITL vehicle was not ready within {self.ready_timeout_s:.0f} s") from None
+        except _PortTaken:
+            raise
+        except BaseException:
+            await self._stop()
+            raise
+        log.info("%s", self.ready_line)
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self._stop()
+
+    async def _stop(self) -> None:
+        proc = self.proc
+        if proc is not None and proc.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                proc.send_signal(signal.SIGINT)
+            try:
+                async with asyncio.timeout(5.0):
+                    await proc.wait()
+            except TimeoutError:
+                with contextlib.suppress(ProcessLookupError):
+                    proc.kill()
+                await proc.wait()
+        if getattr(self, "_stderr", None) is not None:
+            self._stderr.close()
+        self.companion_sock.close()  # the link has its own reference while it is open

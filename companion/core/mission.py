@@ -1,0 +1,195 @@
+"""Mission files: where to fly, with which planner and controller, in which wind, around which trunks.
+
+Format (TOML; every table strict: unknown keys, missing required keys and wrong types are refused with
+``ConfigError("<file>: [table] key: message")``)::
+
+    [mission]                      # required
+    name = "forest"
+    start_ned_m = [0.0, 0.0, -2.0] # the vehicle climbs from the ground below start to this altitude
+    goal_ned_m = [10.0, 0.0, -2.0]
+    planner = "safe"               # traditional | improved | safe | none
+    controller = "smc_ff"          # smc_ff | smc | pid
+    timeout_s = 40.0
+    hold_s = 5.0                   # optional: hover at the goal this long, then phase "done"
+    land = true                    # optional: the app lands after the hold
+    [wind]                         # optional (default: none)
+    model = "paper"
+    scale = 1.0
+    [vehicle]                      # optional: VehicleParams overrides by field name
+    m = 0.25
+    [[obstacles]]                  # optional, any number; Obstacle keys (not "source")
+    x_m = 3.0
+    y_m = -0.22
+    radius_m = 0.3
+    height_m = 4.0
+    safe_distance_m = 0.1
+
+A start or goal whose airframe circle (r_uav + L_uav) would overlap an obstacle's safety ring
+(radius_m + safe_distance_m) below the obstacle's top is refused too.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from companion.config import dataclass_from_table, read_toml
+from companion.core.model import VehicleParams, vehicle_params_with
+from companion.core.obstacles import Obstacle
+from companion.core.wind import WindConfig
+from companion.errors import ConfigError
+
+PLANNERS = ("traditional", "improved", "safe", "none")
+CONTROLLERS = ("smc_ff", "smc", "pid")
+_MAX_COORD_M = 1.0e4
+
+
+@dataclass(frozen=True)
+class MissionTable:
+    """The ``[mission]`` table as written in the file (positions NED metres, times seconds)."""
+
+    name: str
+    start_ned_m: tuple[float, float, float]
+    goal_ned_m: tuple[float, float, float]
+    planner: str
+    controller: str
+    timeout_s: float
+    hold_s: float = 5.0
+    land: bool = True
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` on unknown planner/controller names or bad numbers."""
+        if not self.name:
+            raise ValueError("name: must not be empty")
+        if self.planner not in PLANNERS:
+            raise ValueError(f"planner: must be one of {', '.join(PLANNERS)}, got {self.planner!r}")
+        if self.controller not in CONTROLLERS:
+            raise ValueError(f"controller: must be one of {', '.join(CONTROLLERS)}, got {self.controller!r}")
+        for key in ("start_ned_m", "goal_ned_m"):
+            v = getattr(self, key)
+            if any(abs(c) > _MAX_COORD_M for c in v):
+                raise ValueError(f"{key}: coordinates beyond {_MAX_COORD_M} m")
+            if v[2] > 0.0:
+                raise ValueError(f"{key}: z = {v[2]} m is below the ground (NED: z <= 0 is above ground)")
+        if not 0.0 < self.timeout_s <= 3600.0:
+            raise ValueError(f"timeout_s: must be in (0, 3600], got {self.timeout_s}")
+        if not 0.0 <= self.hold_s <= 600.0:
+            raise ValueError(f"hold_s: must be in [0, 600], got {self.hold_s}")
+
+
+@dataclass(frozen=True)
+class Mission:
+    """A validated mission (see module docstring for the file format). Arrays are NED metres, (3,)."""
+
+    name: str
+    start_ned_m: np.ndarray
+    goal_ned_m: np.ndarray
+    planner: str
+    controller: str
+    timeout_s: float
+    wind: WindConfig = field(default_factory=lambda: WindConfig("none", 0.0))
+    vehicle: VehicleParams = field(default_factory=VehicleParams)
+    obstacles: tuple[Obstacle, ...] = ()
+    hold_s: float = 5.0
+    land: bool = True
+    source_path: str = ""
+
+    def with_(self, **changes: Any) -> Mission:
+        """A copy with fields replaced (e.g. another planner for a comparison run)."""
+        from dataclasses import replace
+
+        return replace(self, **changes)
+
+
+def _check_clear(where: str, key: str, p: np.ndarray, obstacles: tuple[Obstacle, ...], vp: VehicleParams) -> None:
+    airframe = vp.r_uav + vp.L_uav
+    for i, o in enumerate(obstacles):
+        if p[2] < -o.height_m:
+            continue  # above the trunk's top
+        d = math.hypot(p[0] - o.x_m, p[1] - o.y_m)
+        need = o.radius_m + o.safe_distance_m + airframe
+        if d < need:
+            raise ConfigError(
+                f"{where}: [mission] {key}: ({p[0]:g}, {p[1]:g}) is {d:.3f} m from obstacle {i} "
+                f"at ({o.x_m:g}, {o.y_m:g}); needs >= {need:.3f} m (radius + safe distance + airframe)"
+            )
+
+
+def mission_from_dict(data: dict[str, Any], where: str) -> Mission:
+    """Build and validate a :class:`Mission` from a parsed TOML document; ``where`` names the file."""
+    unknown = sorted(set(data) - {"mission", "wind", "vehicle", "obstacles"})
+    if unknown:
+        raise ConfigError(f"{where}: unknown table or key {unknown[0]!r} (known: mission, wind, vehicle, obstacles)")
+    if "mission" not in data:
+        raise ConfigError(f"{where}: missing required table [mission]")
+    mt = dataclass_from_table(MissionTable, data["mission"], where=f"{where}: [mission]")
+    wind = dataclass_from_table(WindConfig, data.get("wind", {"model": "none", "scale": 0.0}), where=f"{where}: [wind]")
+    vp = vehicle_params_with(VehicleParams(), data.get("vehicle", {}), where=f"{where}: [vehicle]")
+    raw_obs = data.get("obstacles", [])
+    if not isinstance(raw_obs, list):
+        raise ConfigError(f"{where}: obstacles: expected an array of tables [[obstacles]]")
+    obstacles = []
+    for i, t in enumerate(raw_obs):
+        w = f"{where}: [[obstacles]] #{i}"
+        if isinstance(t, dict) and "source" in t:
+            raise ConfigError(f"{w}: unknown key 'source' (set by the program, not the file)")
+        obstacles.append(dataclass_from_table(Obstacle, t, where=w))
+    obs = tuple(obstacles)
+    start = np.array(mt.start_ned_m, dtype=np.float64)
+    goal = np.array(mt.goal_ned_m, dtype=np.float64)
+    _check_clear(where, "start_ned_m", start, obs, vp)
+    _check_clear(where, "goal_ned_m", goal, obs, vp)
+    return Mission(
+        name=mt.name, start_ned_m=start, goal_ned_m=goal, planner=mt.planner, controller=mt.controller,
+        timeout_s=mt.timeout_s, wind=wind, vehicle=vp, obstacles=obs, hold_s=mt.hold_s, land=mt.land,
+        source_path=where,
+    )
+
+
+def load_mission(path: str | Path) -> Mission:
+    """Read and validate a mission file; raises :class:`ConfigError` naming the file and the key."""
+    return mission_from_dict(read_toml(path), str(path))
+
+
+def mission_to_toml(mission: Mission) -> str:
+    """The mission as a TOML document :func:`load_mission` reads back (used to replay generated forests)."""
+
+    def vec(v: np.ndarray) -> str:
+        return "[" + ", ".join(repr(float(c)) for c in v) + "]"
+
+    lines = [
+        "[mission]",
+        f'name = "{mission.name}"',
+        f"start_ned_m = {vec(mission.start_ned_m)}",
+        f"goal_ned_m = {vec(mission.goal_ned_m)}",
+        f'planner = "{mission.planner}"',
+        f'controller = "{mission.controller}"',
+        f"timeout_s = {float(mission.timeout_s)!r}",
+        f"hold_s = {float(mission.hold_s)!r}",
+        f"land = {'true' if mission.land else 'false'}",
+        "",
+        "[wind]",
+        f'model = "{mission.wind.model}"',
+        f"scale = {float(mission.wind.scale)!r}",
+        "",
+        "[vehicle]",
+    ]
+    for k, v in mission.vehicle.as_dict().items():
+        lines.append(f"{k} = {float(v)!r}")
+    for o in mission.obstacles:
+        lines += [
+            "",
+            "[[obstacles]]",
+            f"x_m = {o.x_m!r}",
+            f"y_m = {o.y_m!r}",
+            f"radius_m = {o.radius_m!r}",
+            f"height_m = {o.height_m!r}",
+            f"safe_distance_m = {o.safe_distance_m!r}",
+        ]
+        if o.vx_mps or o.vy_mps:
+            lines += [f"vx_mps = {o.vx_mps!r}", f"vy_mps = {o.vy_mps!r}"]
+    return "\n".join(lines) + "\n"

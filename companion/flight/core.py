@@ -1,0 +1,214 @@
+"""The per-tick pure glue of the companion: estimate → plan → reference → control → attitude setpoint.
+
+Phases: ``climb`` (vertical, from wherever the vehicle is, to the mission's start altitude; skipped when
+already there), ``cruise`` (planner towards the goal; horizontal from the planner, vertical straight to the
+goal's altitude with a braking profile), ``hold`` (at the goal for ``mission.hold_s``), ``done`` (hold
+finished or timeout; the app lands). No I/O, no clocks: time comes from the estimates.
+
+Swing input: an :class:`~companion.estimation.estimate.Estimate` with ``swing`` None means no swing measurement —
+the controller then flies without payload compensation and feed-forward and the planners use the
+full-cable envelope max(l, r_uav + L_uav) (``Command.envelope_mode == "full_cable"``).
+
+A swing that comes from the payload's own position stream (``swing_source == "payload_position"``, 10 Hz
+on the bundled vehicle, like ArduPilot's slung-payload stream) is used for the envelope and the planner
+only, not by the controller: the feed-forward differentiates α̇, and a 10 Hz staircase differentiated at
+250 Hz makes it inject spikes that excite the swing (measured: the forest flown that way swung to
+0.75 rad and never reached the goal). Only the cable-angle sensor, sampled at the control rate, feeds the
+payload compensation and the feed-forward.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.autopilots.profile import VehicleProfile
+from companion.control import (
+    ControllerConfig,
+    SwingAccelEstimator,
+    attitude_from_force,
+    limit_force_xyz,
+    make_position_controller,
+)
+from companion.core.envelope import full_cable_r_max_m, r_max_m
+from companion.core.mission import Mission
+from companion.core.obstacles import Obstacle
+from companion.estimation.estimate import Estimate
+from companion.planning import PlanInput, ReferenceGenerator, make_planner
+
+log = logging.getLogger(__name__)
+
+PHASES = ("climb", "cruise", "hold", "done")
+ARRIVE_HORIZ_M = 0.1
+ARRIVE_VERT_M = 0.25
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """One attitude setpoint plus what led to it (for SET_ATTITUDE_TARGET, the report and telemetry).
+
+    q_ned_frd_wxyz: attitude quaternion [w, x, y, z] body FRD → NED; thrust_n (N) and thrust_norm (0..1,
+    via the vehicle profile); euler_cmd_rad [φ, θ, ψ]; reference position/velocity/acceleration (NED, SI);
+    force_att_n / force_rep_n: the planner's attractive and repulsive parts (2,) (velocity units for the
+    APF-as-gradient-flow, see :mod:`companion.planning.apf`); r_max_m: envelope radius used;
+    envelope_mode: ``"swing"`` or ``"full_cable"``; phase; ff_accel (3,) m/s² anti-swing feed-forward;
+    plan_mode: ``"track"`` or ``"escape"`` (safe planner's trap escape).
+    """
+
+    t_s: float
+    q_ned_frd_wxyz: np.ndarray
+    thrust_n: float
+    thrust_norm: float
+    euler_cmd_rad: np.ndarray
+    ref_pos_ned_m: np.ndarray
+    ref_vel_ned_mps: np.ndarray
+    ref_acc_ned_mps2: np.ndarray
+    force_att_n: np.ndarray
+    force_rep_n: np.ndarray
+    r_max_m: float
+    envelope_mode: str
+    phase: str
+    ff_accel: np.ndarray
+    plan_mode: str = "track"
+
+
+class FlightCore:
+    """Per-tick flight logic for one mission; call :meth:`update` with each new estimate."""
+
+    def __init__(self, mission: Mission, gains: ControllerConfig | None = None, profile: VehicleProfile | None = None):
+        self.mission = mission
+        self.cfg = gains or ControllerConfig()
+        self.profile = profile or VehicleProfile()
+        self.params = mission.vehicle
+        self.planner = make_planner(mission.planner, self.cfg.planner)
+        self.controller = make_position_controller(mission.controller, self.cfg, self.params)
+        self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
+        self.ref: ReferenceGenerator | None = None
+        self.phase = "climb"
+        self.timed_out = False
+        self.t0_s: float | None = None
+        self.t_prev_s: float | None = None
+        self.t_arrived_s: float | None = None
+        self.yaw_rad = 0.0
+        hover = self.params.hover_thrust_n
+        lim = self.cfg.limits
+        self._thrust_min = lim.thrust_min_frac * hover
+        self._thrust_max = lim.thrust_max_frac * hover
+        self._full_cable_r_max = full_cable_r_max_m(self.params)
+        self._airframe_r = self.params.r_uav + self.params.L_uav
+        self._goal_xy = np.array(mission.goal_ned_m[:2], dtype=np.float64)
+
+    # ------------------------------------------------------------------------------------------------
+    def _vertical_speed(self, z_target: float) -> float:
+        """Desired vertical reference speed (m/s) towards ``z_target`` with a braking profile."""
+        assert self.ref is not None
+        p = self.cfg.planner
+        dz = z_target - self.ref.p[2]
+        v = min(p.vz_max_mps, math.sqrt(2.0 * 0.5 * p.az_max_mps2 * abs(dz)), p.ka * abs(dz))
+        return math.copysign(v, dz)
+
+    def _advance_phase(self, est: Estimate) -> None:
+        m = self.mission
+        t = est.t_s
+        if self.t0_s is not None and t - self.t0_s > m.timeout_s and self.phase != "done":
+            self.timed_out = True
+            self.phase = "done"
+            log.warning("mission %s: timeout after %.1f s in phase %s", m.name, m.timeout_s, self.phase)
+        if self.phase == "climb":
+            assert self.ref is not None
+            if abs(float(est.pos_ned_m[2]) - m.start_ned_m[2]) < ARRIVE_VERT_M and abs(
+                self.ref.p[2] - m.start_ned_m[2]
+            ) < 0.02:
+                self.phase = "cruise"
+        elif self.phase == "cruise":
+            dh = math.hypot(est.pos_ned_m[0] - m.goal_ned_m[0], est.pos_ned_m[1] - m.goal_ned_m[1])
+            if dh < ARRIVE_HORIZ_M and abs(float(est.pos_ned_m[2]) - m.goal_ned_m[2]) < ARRIVE_VERT_M:
+                self.phase = "hold"
+                self.t_arrived_s = t
+        elif self.phase == "hold":
+            assert self.t_arrived_s is not None
+            if t - self.t_arrived_s >= m.hold_s:
+                self.phase = "done"
+
+    # ------------------------------------------------------------------------------------------------
+    def update(self, est: Estimate, obstacles: Sequence[Obstacle] | None = None) -> Command:
+        """The setpoint for this tick. ``obstacles`` None means the mission's own list.
+
+        Cost matters here (it runs at the control rate, and the lockstep loop waits for it): tiny vectors
+        are handled as floats (math.hypot, no numpy temporaries); arrays are built only for the Command.
+        """
+        m = self.mission
+        obs = m.obstacles if obstacles is None else obstacles
+        pos = est.pos_ned_m
+        vel = est.vel_ned_mps
+        z = float(pos[2])
+        if self.ref is None:
+            self.ref = ReferenceGenerator(self.cfg.planner, np.asarray(pos, dtype=np.float64))
+            self.t0_s = est.t_s
+            self.yaw_rad = float(est.euler_rad[2])
+            if abs(z - m.start_ned_m[2]) < ARRIVE_VERT_M:
+                self.phase = "cruise"
+        dt = 0.004 if self.t_prev_s is None else est.t_s - self.t_prev_s
+        self.t_prev_s = est.t_s
+        self._advance_phase(est)
+
+        swing = None if est.swing is None else np.asarray(est.swing, dtype=np.float64)
+        if swing is not None:
+            r_max = r_max_m(float(swing[0]), float(swing[1]), self.params)
+            mode = "swing"
+            swing_acc = self.swing_acc.update_scalar(est.t_s, float(swing[2]), float(swing[3]))
+        else:
+            r_max = self._full_cable_r_max
+            mode = "full_cable"
+            self.swing_acc.reset()
+            swing_acc = (0.0, 0.0)
+
+        f_att = _ZERO2
+        f_rep = _ZERO2
+        plan_mode = "track"
+        ref = self.ref
+        if self.phase == "climb":
+            vdx = vdy = 0.0
+            vdz = self._vertical_speed(float(m.start_ned_m[2]))
+        elif self.phase == "cruise":
+            inp = PlanInput(
+                t_s=est.t_s, pos_m=np.asarray(pos[:2], dtype=np.float64), vel_mps=np.asarray(vel[:2], dtype=np.float64),
+                ref_pos_m=np.array(ref.p[:2]), ref_vel_mps=np.array(ref.v[:2]), goal_m=self._goal_xy, r_max_m=r_max,
+                swing=swing, cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
+            )
+            out = self.planner.plan(inp, obs)
+            vdx, vdy = float(out.v_des_mps[0]), float(out.v_des_mps[1])
+            vdz = self._vertical_speed(float(m.goal_ned_m[2]))
+            f_att, f_rep, plan_mode = out.force_att, out.force_rep, out.mode
+        else:  # hold / done: hover at the goal
+            ka = self.cfg.planner.ka
+            vdx = ka * (float(m.goal_ned_m[0]) - ref.p[0])
+            vdy = ka * (float(m.goal_ned_m[1]) - ref.p[1])
+            vdz = self._vertical_speed(float(m.goal_ned_m[2]))
+        if dt > 0.0:
+            ref.step((vdx, vdy, vdz), dt)
+
+        ctl_swing = swing if est.swing_source == "cable_sensor" else None
+        ctl = self.controller.update(
+            pos, vel, ref.p, ref.v, ref.a, ctl_swing, swing_acc if ctl_swing is not None else (0.0, 0.0),
+            max(dt, 1e-4),
+        )
+        lim = self.cfg.limits
+        fx, fy, fz = (float(v) for v in ctl.force_ned_n)
+        force = limit_force_xyz(fx, fy, fz, lim.tilt_max_rad, self._thrust_min, self._thrust_max)
+        q, thrust, euler = attitude_from_force(force, self.yaw_rad)
+        return Command(
+            t_s=est.t_s, q_ned_frd_wxyz=q, thrust_n=thrust,
+            thrust_norm=self.profile.thrust_to_norm(thrust, self.params.hover_thrust_n), euler_cmd_rad=euler,
+            ref_pos_ned_m=np.array(ref.p), ref_vel_ned_mps=np.array(ref.v), ref_acc_ned_mps2=np.array(ref.a),
+            force_att_n=f_att, force_rep_n=f_rep, r_max_m=r_max, envelope_mode=mode, phase=self.phase,
+            ff_accel=ctl.ff_acc_mps2, plan_mode=plan_mode,
+        )
+
+
+_ZERO2 = np.zeros(2)
+_ZERO2.flags.writeable = False

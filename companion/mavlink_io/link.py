@@ -1,0 +1,255 @@
+"""MAVLink 2 over UDP for the companion: a thin asyncio shell around pymavlink's generated codec.
+
+Connection URLs as MAVSDK and mavutil users know them:
+
+* ``udpin://0.0.0.0:14540`` — bind that port and talk to whoever sends to it (the default; PX4's SITL
+  sends its onboard link to 127.0.0.1:14540);
+* ``udpout://127.0.0.1:14580`` — send to that address from an ephemeral local port.
+
+Every datagram in and out is also written to a ``.tlog`` (8-byte big-endian microsecond UNIX time stamp +
+raw frame, the format ground stations write and ``mavlogdump.py`` reads). Undecodable input is counted and
+logged at most once a second per kind; it never raises into the flight loop.
+
+Hot path: a datagram made only of complete, unsigned, CRC-valid MAVLink 2 frames (what a vehicle sends) is
+decoded by :func:`companion.mavlink_io.codec.decode_lite`; anything else goes through pymavlink's own parser.
+``on_datagram_done`` (optional) is called after the messages of each datagram were handled.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import socket
+import struct
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlparse
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.errors import ConfigError, LinkError
+from companion.mavlink_io.codec import STX_V2 as _STX_V2
+from companion.mavlink_io.codec import decode_lite
+
+log = logging.getLogger(__name__)
+
+MAV_COMP_ID_ONBOARD_COMPUTER = 191
+_MIN_FRAME = 12  # MAVLink 2 header + CRC
+
+
+@dataclass(frozen=True)
+class LinkUrl:
+    """A parsed connection URL: ``mode`` is "udpin" (bind and answer) or "udpout" (send to)."""
+
+    mode: str
+    host: str
+    port: int
+
+    @classmethod
+    def parse(cls, url: str) -> LinkUrl:
+        """Parse ``udpin://host:port`` / ``udpout://host:port``; raise :class:`ConfigError` otherwise."""
+        u = urlparse(url)
+        if u.scheme not in ("udpin", "udpout", "udp"):
+            raise ConfigError(f"--connect {url!r}: scheme must be udpin:// or udpout://")
+        try:
+            port = u.port
+        except ValueError:
+            port = None
+        if not u.hostname or port is None or not 0 < port < 65536:
+            raise ConfigError(f"--connect {url!r}: expected udpin://HOST:PORT or udpout://HOST:PORT")
+        mode = "udpin" if u.scheme in ("udpin", "udp") else "udpout"
+        return cls(mode, u.hostname, port)
+
+
+_TLOG_STAMP = struct.Struct(">Q")
+
+
+class TlogWriter:
+    """Append-only .tlog: each record is a big-endian uint64 UNIX time in µs followed by the frame bytes."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = path.open("wb")
+
+    def write(self, frame: bytes) -> None:
+        if self._fh.closed:
+            return
+        self._fh.write(_TLOG_STAMP.pack(int(time.time() * 1e6)) + frame)
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self._fh.flush()
+            self._fh.close()
+
+
+class _Protocol(asyncio.DatagramProtocol):
+    def __init__(self, link: MavlinkLink) -> None:
+        self.link = link
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.link._on_datagram(data, addr)
+
+    def error_received(self, exc: Exception) -> None:  # e.g. ICMP port unreachable on loopback
+        self.link._count("socket_error", str(exc))
+
+
+class MavlinkLink:
+    """One MAVLink 2 UDP endpoint. Decoded messages go to ``handler(msg)``; sending via ``self.mav``.
+
+    ``self.mav`` is pymavlink's generated ``MAVLink`` object; use ``link.mav.<msg>_send(...)`` so that
+    sequence numbers are kept.
+    """
+
+    def __init__(
+        self,
+        url: str,
+        handler: Callable[[Any], None],
+        *,
+        src_system: int = 1,
+        src_component: int = MAV_COMP_ID_ONBOARD_COMPUTER,
+        tlog: Path | None = None,
+        sock: socket.socket | None = None,
+    ) -> None:
+        self.url = LinkUrl.parse(url)
+        self._sock = sock  # an already bound socket to use instead of binding the URL's port (udpin)
+        self.handler = handler
+        self.mav = mavlink2.MAVLink(self, srcSystem=src_system, srcComponent=src_component)
+        self.mav.robust_parsing = True
+        self.rejected: Counter[str] = Counter()
+        self.received = 0
+        self.sent = 0
+        self._last_log: dict[str, float] = {}
+        self._transport: asyncio.DatagramTransport | None = None
+        self._remote: tuple[str, int] | None = None if self.url.mode == "udpin" else (self.url.host, self.url.port)
+        self._tlog = TlogWriter(tlog) if tlog else None
+        self.on_datagram_done: Callable[[], None] | None = None  # called after each datagram's messages
+
+    async def open(self) -> None:
+        """Bind the socket (udpin) or create the sending socket (udpout)."""
+        loop = asyncio.get_running_loop()
+        try:
+            if self._sock is not None:
+                self._transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self), sock=self._sock)
+            elif self.url.mode == "udpin":
+                self._transport, _ = await loop.create_datagram_endpoint(
+                    lambda: _Protocol(self), local_addr=(self.url.host, self.url.port)
+                )
+            else:
+                local_host = "127.0.0.1" if self.url.host.startswith("127.") else "0.0.0.0"
+                self._transport, _ = await loop.create_datagram_endpoint(
+                    lambda: _Protocol(self), local_addr=(local_host, 0)
+                )
+        except OSError as exc:
+            raise LinkError(f"cannot open {self.url.mode}://{self.url.host}:{self.url.port}: {exc}") from None
+
+    def close(self) -> None:
+        """Close the socket and the tlog."""
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+        if self._tlog is not None:
+            self._tlog.close()
+
+    async def __aenter__(self) -> MavlinkLink:
+        await self.open()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def connected(self) -> bool:
+        """True once we know where to send (udpout always; udpin after the first valid frame)."""
+        return self._remote is not None
+
+    # pymavlink calls this to send a packed frame
+    def write(self, frame: bytes) -> None:
+        """File-like hook for pymavlink: send one frame to the remote (dropped before we know it)."""
+        if self._transport is None or self._remote is None:
+            return
+        frame = bytes(frame)
+        self._transport.sendto(frame, self._remote)
+        self.sent += 1
+        if self._tlog is not None:
+            self._tlog.write(frame)
+
+    def _count(self, kind: str, detail: str = "") -> None:
+        self.rejected[kind] += 1
+        now = time.monotonic()
+        if now - self._last_log.get(kind, -1e9) >= 1.0:
+            self._last_log[kind] = now
+            log.warning("MAVLink input rejected (%s, %d so far) %s", kind, self.rejected[kind], detail)
+
+    def _on_datagram(self, data: bytes, addr: tuple[str, int]) -> None:
+        msgs = self._split_fast(data)
+        if msgs is None:  # anything unusual: pymavlink's own parser, exactly as it always did
+            self._on_datagram_pymavlink(data, addr)
+            return
+        for frame, msg in msgs:
+            self.received += 1
+            if self._tlog is not None:  # one record per frame, even when a datagram carries several
+                self._tlog.write(frame)
+            try:
+                self.handler(msg)
+            except Exception:  # a bug in a handler must not kill the socket; log it loudly
+                log.exception("handler failed on %s", msg.get_type())
+        if self.url.mode == "udpin":
+            self._remote = addr
+        if self.on_datagram_done is not None:
+            self.on_datagram_done()
+
+    def _split_fast(self, data: bytes) -> list[tuple[bytes, Any]] | None:
+        """Decode a datagram made only of complete, unsigned MAVLink 2 frames of known, CRC-valid messages
+        (what a vehicle sends); None for anything else (garbage, MAVLink 1, signed, cut short, unknown id,
+        bad CRC, or bytes left in pymavlink's parser from an earlier datagram)."""
+        n = len(data)
+        if n == 0 or self.mav.buf_len() > 0:
+            return None
+        out = []
+        i = 0
+        while i < n:
+            if data[i] != _STX_V2 or i + _MIN_FRAME > n or data[i + 2] != 0:
+                return None
+            end = i + _MIN_FRAME + data[i + 1]
+            if end > n:
+                return None
+            frame = data[i:end]
+            try:
+                msg = decode_lite(frame)
+            except Exception:  # FrameError, or a value pymavlink's constructor refuses
+                return None
+            out.append((frame, msg))
+            i = end
+        return out
+
+    def _on_datagram_pymavlink(self, data: bytes, addr: tuple[str, int]) -> None:
+        try:
+            msgs = self.mav.parse_buffer(data)
+        except Exception as exc:  # pymavlink raises plain MAVError / struct.error on some garbage
+            self._count("undecodable", repr(exc)[:120])
+            return
+        if not msgs:
+            self._count("no_frame")
+            return
+        good = False
+        for msg in msgs:
+            if msg.get_type() == "BAD_DATA":
+                self._count("bad_data", getattr(msg, "reason", ""))
+                continue
+            good = True
+            self.received += 1
+            if self._tlog is not None:  # one record per frame, even when a datagram carries several
+                self._tlog.write(bytes(msg.get_msgbuf()))
+            try:
+                self.handler(msg)
+            except Exception:  # a bug in a handler must not kill the socket; log it loudly
+                log.exception("handler failed on %s", msg.get_type())
+        if good and self.url.mode == "udpin":
+            self._remote = addr
+        if self.on_datagram_done is not None:
+            self.on_datagram_done()

@@ -1,0 +1,131 @@
+"""After a flight: the JSON report, the per-tick log as .npz, the plots and the one-screen summary."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from companion.core.mission import Mission
+from companion.report.metrics import FlightLog, compute_metrics
+
+log = logging.getLogger(__name__)
+
+
+def log_arrays(flog: FlightLog) -> dict[str, np.ndarray]:
+    """The per-tick columns under the names :mod:`companion.report.plots` expects."""
+    names = {
+        "t_s": "t", "pos_ned_m": "pos", "vel_ned_mps": "vel", "euler_rad": "euler", "swing": "swing",
+        "payload_pos_ned_m": "payload_pos", "ref_pos_ned_m": "ref_pos", "ref_vel_ned_mps": "ref_vel",
+        "euler_cmd_rad": "euler_cmd", "thrust_n": "thrust_n", "r_max_m": "r_max_m", "ff_accel_mps2": "ff_accel",
+        "force_att_n": "force_att", "force_rep_n": "force_rep",
+    }
+    out = {k: flog.arr(v) for k, v in names.items()}
+    no_cmd = np.array([not p for p in flog.phase], dtype=bool)  # ticks without a command (landing, idle)
+    if no_cmd.any():
+        for k in ("ref_pos_ned_m", "ref_vel_ned_mps", "euler_cmd_rad", "r_max_m"):
+            out[k][no_cmd] = np.nan
+    return out
+
+
+def _clean(v: Any) -> Any:
+    """JSON-safe: NaN/inf become null, numpy scalars and arrays become Python values."""
+    if isinstance(v, dict):
+        return {k: _clean(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_clean(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _clean(v.tolist())
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def build_report(flog: FlightLog, mission: Mission, extra: dict[str, Any]) -> dict[str, Any]:
+    """Issue 4's report keys (from :func:`compute_metrics`) plus run facts in ``extra``."""
+    if len(flog) == 0:
+        rep: dict[str, Any] = {
+            "mission": mission.name, "planner": mission.planner, "controller": mission.controller,
+            "reached_goal": False, "time_to_goal_s": None, "path_length_m": 0.0, "payload_path_length_m": 0.0,
+            "max_swing_rad": None, "swing_settle_s": None, "min_clearance_m": None, "collisions": 0,
+            "sim_time_s": 0.0,
+        }
+    else:
+        # Metrics describe the mission the companion flew (climb, cruise, hold), not the autopilot's own landing
+        # afterwards; the plots and the .npz keep every row.
+        flown = np.array([bool(p) for p in flog.phase], dtype=bool)
+        rep = compute_metrics(flog.select(flown) if flown.any() else flog, mission)
+    swing_modes = [m for m in flog.envelope_mode if m]
+    rep["envelope_modes"] = {m: swing_modes.count(m) for m in sorted(set(swing_modes))}
+    rep.update(extra)
+    return _clean(rep)
+
+
+def write_run(
+    flog: FlightLog,
+    mission: Mission,
+    extra: dict[str, Any],
+    run_dir: Path,
+    report_path: Path | None = None,
+    plots: bool = True,
+) -> dict[str, Any]:
+    """Write report.json (and ``report_path`` if given), flight_log.npz and the PNG plots into ``run_dir``."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    rep = build_report(flog, mission, extra)
+    arrays = log_arrays(flog)
+    np.savez_compressed(run_dir / "flight_log.npz", **arrays)
+    if plots and len(flog) > 1:
+        from companion.report.plots import plot_flight
+
+        title = f"{mission.name}: {rep['planner']} + {rep['controller']}"
+        paths = plot_flight(arrays, flog.obstacles or mission.obstacles, mission.start_ned_m, mission.goal_ned_m,
+                            run_dir, title)
+        rep["plots"] = [str(p) for p in paths]
+    text = json.dumps(rep, indent=2, sort_keys=False)
+    (run_dir / "report.json").write_text(text + "\n")
+    if report_path is not None:
+        report_path.parent.mkdir(parents=True, exist_ok=True)
+        report_path.write_text(text + "\n")
+    (run_dir / "summary.txt").write_text(summary_text(rep) + "\n")
+    return rep
+
+
+def _fmt(v: Any, unit: str = "", digits: int = 2) -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.{digits}f}{unit}"
+    return f"{v}{unit}"
+
+
+def summary_text(rep: dict[str, Any]) -> str:
+    """The one-screen summary printed at the end of a flight."""
+    loop = rep.get("loop", {})
+    lines = [
+        f"mission {rep.get('mission')}  planner {rep.get('planner')}  controller {rep.get('controller')}  "
+        f"outcome {rep.get('outcome', '?')}",
+        f"  reached goal        {_fmt(rep.get('reached_goal'))}   time to goal {_fmt(rep.get('time_to_goal_s'), ' s')}",
+        f"  path length         {_fmt(rep.get('path_length_m'), ' m')} (payload "
+        f"{_fmt(rep.get('payload_path_length_m'), ' m')})",
+        f"  max swing           {_fmt(rep.get('max_swing_rad'), ' rad', 3)}   settled after "
+        f"{_fmt(rep.get('swing_settle_s'), ' s')} "
+        f"(after arrival {_fmt(rep.get('swing_settle_after_arrival_s'), ' s')})",
+        f"  min clearance       {_fmt(rep.get('min_clearance_m'), ' m', 3)}   collisions {rep.get('collisions')}",
+        f"  sim time            {_fmt(rep.get('sim_time_s'), ' s')}   wall time {_fmt(rep.get('wall_time_s'), ' s')}",
+    ]
+    if loop:
+        lines.append(
+            f"  loop                {loop.get('ticks')} ticks, tick p50 {_fmt(loop.get('tick_ms_p50'), ' ms', 3)}, "
+            f"p99 {_fmt(loop.get('tick_ms_p99'), ' ms', 3)}, late {loop.get('late_ticks')}"
+        )
+    if rep.get("run_dir"):
+        lines.append(f"  run folder          {rep['run_dir']}")
+    return "\n".join(lines)

@@ -1,0 +1,416 @@
+"""The companion's Zenoh shell: session flags, telemetry publishers, live obstacle input, config queryable.
+
+Streams (``<prefix>/<id>/...``, prefix default ``slungpilot``, id the vehicle id):
+``swing`` (every call, the control rate), ``state`` (50 Hz by sim time), ``setpoint`` (50 Hz), ``status``
+(1 Hz), ``obstacles`` (on change, at most 20 Hz, at least 1 Hz), liveliness token ``alive``, queryable
+``config``. Input: ``<prefix>/<id>/obstacles/in/**`` and ``<prefix>/world/obstacles/**``.
+
+Threading: Zenoh callbacks run on Zenoh's threads. They never block and never touch app state: obstacle
+samples and config queries are handed to the asyncio loop with ``loop.call_soon_threadsafe`` (when the
+object was entered with ``async with``; in plain ``with`` use they are queued directly on a thread-safe
+deque). Obstacle samples are ingested into the :class:`ObstacleStore` by :meth:`obstacles_now`, with the
+app's clock, so expiry counts in sim time and a new obstacle is used at the next control tick.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import contextlib
+import dataclasses
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from companion.core.obstacles import Obstacle
+from companion.errors import ConfigError
+from companion.zenoh_io import schema as ts
+from companion.zenoh_io.obstacle_store import ObstacleStore
+from companion.zenoh_io.session import DEFAULT_PREFIX, check_key_part, open_session
+
+log = logging.getLogger(__name__)
+
+MAX_INBOX = 1000
+MAX_INGEST_PER_TICK = 8  # bounds the parsing done in one control tick; the rest waits a tick
+MAX_QUEUE = 2000
+Vec = Sequence[float] | np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class TelemetryOptions:
+    """Keys and rates of the telemetry streams (rates in Hz of sim time; 0 means every call).
+
+    ``express`` off by default: with Zenoh's batching a starved TX thread does not drop samples (with
+    express each sample takes one of the 16 queue slots, and samples were lost under CPU load), and the
+    latency is the same in our measurements. ``background``: encode and put in a worker thread.
+    """
+
+    prefix: str = DEFAULT_PREFIX
+    vehicle_id: str = "1"
+    state_hz: float = 50.0
+    setpoint_hz: float = 50.0
+    status_hz: float = 1.0
+    obstacles_min_hz: float = 1.0
+    obstacles_max_hz: float = 20.0
+    express: bool = False
+    subscribe_obstacles: bool = True
+    background: bool = True
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` on bad keys or rates."""
+        for key in ("prefix", "vehicle_id"):
+            try:
+                check_key_part(key, getattr(self, key))
+            except ConfigError as exc:
+                raise ValueError(str(exc)) from None
+        for key in ("state_hz", "setpoint_hz", "status_hz", "obstacles_min_hz", "obstacles_max_hz"):
+            v = getattr(self, key)
+            if not math.isfinite(v) or v < 0.0:
+                raise ValueError(f"{key}: must be a finite rate >= 0 Hz, got {v!r}")
+        if self.obstacles_min_hz <= 0.0:
+            raise ValueError("obstacles_min_hz: must be > 0 Hz (the obstacles stream is sent at least this often)")
+
+
+class _Every:
+    """Decimation by the caller's clock: due at most once per ``period_s``, phase-locked to the schedule;
+    a clock that jumps back or far ahead restarts the schedule."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.period_s = 1.0 / rate_hz if rate_hz > 0.0 else 0.0
+        self._last = -math.inf
+        self._next = -math.inf
+
+    def due(self, t_s: float) -> bool:
+        if self.period_s == 0.0:
+            return True
+        if self._last <= t_s < self._next - 1e-9:
+            return False
+        if t_s < self._last or t_s >= self._next + self.period_s:
+            self._next = t_s + self.period_s
+        else:
+            self._next += self.period_s
+        self._last = t_s
+        return True
+
+
+def _tup(v: Vec) -> tuple[float, ...]:
+    return tuple(map(float, v))
+
+
+def _body(payload: Mapping[str, Any]) -> dict[str, Any]:
+    """Shallow copy with top-level numpy arrays copied out (the app may reuse its arrays)."""
+    body = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in payload.items()}
+    if not ts.HEADER_KEYS_SET.isdisjoint(body):
+        raise ValueError(f"{sorted(ts.HEADER_KEYS_SET & set(body))[0]}: is a header key, not a body field")
+    return body
+
+
+def _encode_obstacles(seq: int, vid: str, t_s: float, wall_s: float, obstacles: Sequence[Obstacle],
+                      rejected: int, version: int) -> bytes:
+    return ts.encode_dict(seq, vid, t_s, wall_s, ts.obstacles_body(obstacles, rejected, version), ts.OBSTACLES)
+
+
+class ZenohTelemetry:
+    """Publishers, obstacle input, liveliness token and config queryable of one vehicle.
+
+    Use ``async with ZenohTelemetry(cfg, opts) as zt:`` in the app (or ``with`` / :meth:`open` +
+    :meth:`close` without asyncio). Every ``publish_*`` returns True when a sample went out; after
+    :meth:`close` they do nothing. Call them from one thread (the app's loop).
+    """
+
+    def __init__(self, config: zenoh.Config, options: TelemetryOptions | None = None,
+                 *, store: ObstacleStore | None = None) -> None:
+        self.options = options or TelemetryOptions()
+        try:
+            self.options.validate()
+        except ValueError as exc:
+            raise ConfigError(f"zenoh telemetry: {exc}") from None
+        self._config = config
+        self.store = store if store is not None else ObstacleStore()
+        self._vid = self.options.vehicle_id
+        base = f"{self.options.prefix}/{self._vid}"
+        self.keys = {name: f"{base}/{name}" for name in ts.STREAMS}
+        self.keys["alive"] = f"{base}/alive"
+        self.keys["obstacles_in"] = f"{base}/obstacles/in/**"
+        self.keys["world_obstacles"] = f"{self.options.prefix}/world/obstacles/**"
+        self.seq = dict.fromkeys(ts.STREAMS, 0)
+        self.inbox_dropped = 0
+        self.dropped_local = 0
+        self.worker_errors = 0
+        self._queue: queue.SimpleQueue | None = None
+        self._thread: threading.Thread | None = None
+        self._stack: contextlib.ExitStack | None = None
+        self._session: zenoh.Session | None = None
+        self._pubs: dict[str, zenoh.Publisher] = {}
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._inbox: collections.deque[tuple[str, bytes]] = collections.deque()
+        self._provider: Callable[[], Mapping[str, Any]] | None = None
+        self._state_every = _Every(self.options.state_hz)
+        self._setpoint_every = _Every(self.options.setpoint_hz)
+        self._status_every = _Every(self.options.status_hz)
+        self._obs_heartbeat = _Every(self.options.obstacles_min_hz)
+        self._obs_cap = _Every(self.options.obstacles_max_hz)
+        self._obs_last: tuple[Obstacle, ...] | None = None
+        self._obs_dirty = False
+        self._last_t_s = math.nan
+        self.last_obstacles: tuple[Obstacle, ...] | None = None
+
+    # -- lifecycle -------------------------------------------------------------------------------------
+    def open(self) -> ZenohTelemetry:
+        """Open the session and declare everything; raises :class:`LinkError` if Zenoh cannot start."""
+        if self._session is not None:
+            return self
+        stack = contextlib.ExitStack()
+        try:
+            session = stack.enter_context(open_session(self._config))
+            for name, schema in ts.STREAMS.items():
+                if name == "config":
+                    continue
+                self._pubs[name] = session.declare_publisher(
+                    self.keys[name], encoding=zenoh.Encoding.APPLICATION_JSON.with_schema(ts.encoding_schema(schema)),
+                    congestion_control=zenoh.CongestionControl.DROP, express=self.options.express,
+                )
+            self._subs = []
+            if self.options.subscribe_obstacles:
+                for k in ("obstacles_in", "world_obstacles"):
+                    self._subs.append(session.declare_subscriber(self.keys[k], self._on_obstacle_sample))
+            self._queryable = session.declare_queryable(self.keys["config"], self._on_query)
+            self._token = session.liveliness().declare_token(self.keys["alive"])
+        except Exception:
+            self._pubs = {}
+            stack.close()
+            raise
+        self._stack, self._session = stack, session
+        if self.options.background:
+            self._queue = queue.SimpleQueue()
+            self._thread = threading.Thread(target=self._worker, args=(self._queue, dict(self._pubs)),
+                                            name=f"zenoh-pub-{self._vid}", daemon=True)
+            self._thread.start()
+        log.info("zenoh: publishing under %s/%s", self.options.prefix, self._vid)
+        return self
+
+    def close(self) -> None:
+        """Undeclare the token (subscribers see the vehicle go) and close the session. Idempotent."""
+        stack, self._stack = self._stack, None
+        self._session = None
+        self._pubs = {}
+        q, th, self._queue, self._thread = self._queue, self._thread, None, None
+        if q is not None and th is not None:
+            q.put(None)
+            th.join(timeout=2.0)
+        if stack is not None:
+            with contextlib.suppress(Exception):
+                self._token.undeclare()
+            stack.close()
+
+    @property
+    def is_open(self) -> bool:
+        return self._session is not None
+
+    def __enter__(self) -> ZenohTelemetry:
+        return self.open()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    async def __aenter__(self) -> ZenohTelemetry:
+        self._loop = asyncio.get_running_loop()
+        return self.open()
+
+    async def __aexit__(self, *exc: object) -> None:
+        self.close()
+        self._loop = None
+
+    # -- streams out -----------------------------------------------------------------------------------
+    def _emit(self, name: str, encode: Callable[..., bytes], *args: Any) -> bool:
+        """Number the sample and send it: encoded and put by the worker thread (``background``), else here."""
+        if not self._pubs:
+            return False
+        seq = self.seq[name]
+        self.seq[name] = seq + 1
+        q = self._queue
+        if q is not None:
+            if q.qsize() >= MAX_QUEUE:
+                self.dropped_local += 1
+                return False
+            q.put((name, encode, (seq, self._vid, *args)))
+            return True
+        self._pubs[name].put(encode(seq, self._vid, *args))
+        return True
+
+    def _worker(self, q: queue.SimpleQueue, pubs: dict[str, zenoh.Publisher]) -> None:
+        """Background thread: encode and put queued samples in order until the ``None`` sentinel."""
+        last_log = -math.inf
+        while True:
+            item = q.get()
+            if item is None:
+                return
+            name, encode, args = item
+            try:
+                pubs[name].put(encode(*args))
+            except Exception as exc:
+                self.worker_errors += 1
+                if time.monotonic() - last_log >= 1.0:
+                    last_log = time.monotonic()
+                    log.warning("zenoh: %s sample not published: %s (%d so far)", name, exc, self.worker_errors)
+
+    def publish_swing(self, t_s: float, swing4: Vec | None, r_max_m: float, envelope_mode: str) -> bool:
+        """Swing (α, β rad; α̇, β̇ rad/s; None = no estimate), envelope radius (m) and mode; every call."""
+        self._last_t_s = t_s
+        sw = None if swing4 is None else tuple(map(float, swing4))
+        return self._emit("swing", ts.encode_swing, t_s, time.time(), sw, r_max_m, envelope_mode)
+
+    def publish_state(self, t_s: float, pos_ned_m: Vec, vel_ned_mps: Vec, euler_rad: Vec,
+                      payload_pos_ned_m: Vec | None) -> bool:
+        """Vehicle position (m), velocity (m/s), roll/pitch/yaw (rad), payload position (m); NED; 50 Hz."""
+        if not self._pubs or not self._state_every.due(t_s):
+            return False
+        return self._emit("state", ts.encode_state, t_s, time.time(), _tup(pos_ned_m), _tup(vel_ned_mps),
+                          _tup(euler_rad), None if payload_pos_ned_m is None else _tup(payload_pos_ned_m))
+
+    def publish_setpoint(self, t_s: float, payload: Mapping[str, Any]) -> bool:
+        """The app's setpoint dict (attitude, thrust, reference, forces; JSON-able values, numpy arrays
+        allowed; nested containers must not be mutated afterwards); 50 Hz."""
+        if not self._pubs or not self._setpoint_every.due(t_s):
+            return False
+        return self._emit("setpoint", ts.encode_dict, t_s, time.time(), _body(payload), ts.SETPOINT)
+
+    def publish_status(self, t_s: float, payload: Mapping[str, Any], *, force: bool = False) -> bool:
+        """The app's status dict (mode, armed, link health, progress, counters), plus ``obstacles_in``
+        counters of this object; 1 Hz unless ``force``."""
+        if not self._pubs or not (self._status_every.due(t_s) or force):
+            return False
+        body = _body(payload)
+        body.setdefault("obstacles_in", {
+            "accepted": self.store.accepted_count, "rejected": self.store.rejected_count,
+            "inbox_dropped": self.inbox_dropped, "pending": len(self._inbox),
+            "sources": list(self.store.sources()),
+        })
+        body.setdefault("zenoh", {"dropped_local": self.dropped_local, "worker_errors": self.worker_errors})
+        return self._emit("status", ts.encode_dict, t_s, time.time(), body, ts.STATUS)
+
+    def publish_obstacles(self, t_s: float, obstacles: Sequence[Obstacle]) -> bool:
+        """The obstacle set in use: sent when it changed (at most ``obstacles_max_hz``) and at least every
+        ``1/obstacles_min_hz`` s of sim time."""
+        if not self._pubs:
+            return False
+        if obstacles is not self._obs_last:
+            obs = tuple(obstacles)
+            if obs != self._obs_last:
+                self._obs_dirty = True
+            self._obs_last = obs
+        heartbeat = self._obs_heartbeat.due(t_s)
+        if not heartbeat and not (self._obs_dirty and self._obs_cap.due(t_s)):
+            return False
+        if heartbeat:
+            self._obs_cap.due(t_s)
+        self._obs_dirty = False
+        return self._emit("obstacles", _encode_obstacles, t_s, time.time(), self._obs_last or (),
+                          self.store.rejected_count, self.store.version)
+
+    # -- obstacles in ----------------------------------------------------------------------------------
+    def _on_obstacle_sample(self, sample: zenoh.Sample) -> None:
+        """Zenoh thread: copy out key and bytes, queue them; never blocks."""
+        if len(self._inbox) >= MAX_INBOX:
+            self.inbox_dropped += 1
+            return
+        item = (str(sample.key_expr), sample.payload.to_bytes())
+        loop = self._loop
+        if loop is None:
+            self._inbox.append(item)
+            return
+        try:
+            loop.call_soon_threadsafe(self._inbox.append, item)
+        except RuntimeError:  # loop closed while the session lives on
+            self.inbox_dropped += 1
+
+    def obstacles_now(self, now_s: float, mission_obstacles: Sequence[Obstacle] = ()) -> tuple[Obstacle, ...]:
+        """Ingest queued live samples (at most ``MAX_INGEST_PER_TICK``, oldest first) at app time ``now_s``;
+        the merged set to plan with now. Parsing costs ≈ 5–15 µs per obstacle, so one tick stays bounded."""
+        inbox = self._inbox
+        for _ in range(min(len(inbox), MAX_INGEST_PER_TICK)):
+            key, raw = inbox.popleft()
+            self.store.ingest(key, raw, now_s)
+        self.last_obstacles = self.store.current(now_s, mission_obstacles)
+        return self.last_obstacles
+
+    def obstacle_source(self, mission_obstacles: Sequence[Obstacle]) -> Callable[[float], tuple[Obstacle, ...]]:
+        """``t_s -> obstacles`` for ``FlyOptions.obstacle_source``."""
+        return lambda t_s: self.obstacles_now(t_s, mission_obstacles)
+
+    # -- config queryable ------------------------------------------------------------------------------
+    def set_config_provider(self, provider: Callable[[], Mapping[str, Any]]) -> None:
+        """``provider()`` returns the effective mission / vehicle / controller parameters as a dict; it is
+        called on the app's loop thread (or a Zenoh thread when not entered with ``async with``)."""
+        self._provider = provider
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        loop = self._loop
+        if loop is None:
+            self._answer(query)
+            return
+        try:
+            loop.call_soon_threadsafe(self._answer, query)
+        except RuntimeError:
+            query.drop()
+
+    def _answer(self, query: zenoh.Query) -> None:
+        try:
+            if self._provider is None:
+                query.reply_err(b"no config provider set")
+                return
+            body = {"config": self._provider()}
+            seq = self.seq["config"]
+            self.seq["config"] += 1
+            payload = ts.encode_dict(seq, self._vid, self._last_t_s, time.time(), body, ts.CONFIG)
+            query.reply(self.keys["config"], payload,
+                        encoding=zenoh.Encoding.APPLICATION_JSON.with_schema(ts.encoding_schema(ts.CONFIG)))
+        except Exception as exc:
+            log.warning("zenoh: config query failed: %s", exc)
+            with contextlib.suppress(Exception):
+                query.reply_err(f"config provider failed: {exc}".encode())
+        finally:
+            query.drop()
+
+
+class ZenohTelemetrySink:
+    """The app's ``TelemetrySink`` (``on_tick(est, cmd, app)``) over a :class:`ZenohTelemetry`.
+
+    Per tick: swing (``est.swing``, ``cmd.r_max_m``, ``cmd.envelope_mode``), state (payload position from the
+    swing and ``cable_l_m``), setpoint (every field of ``cmd``), status (``status_fn(app)``, default empty)
+    and the obstacle set last returned by ``zt.obstacles_now`` (use ``zt.obstacle_source(...)`` as the
+    app's obstacle source). Duck-typed: only those attribute names are read.
+    """
+
+    def __init__(self, zt: ZenohTelemetry, cable_l_m: float,
+                 status_fn: Callable[[Any], Mapping[str, Any]] | None = None) -> None:
+        self.zt = zt
+        self.cable_l_m = cable_l_m
+        self.status_fn = status_fn
+
+    def on_tick(self, est: Any, cmd: Any, app: Any) -> None:
+        """Publish this tick's samples (decimation happens inside :class:`ZenohTelemetry`)."""
+        zt, t = self.zt, float(est.t_s)
+        r_max = float(getattr(cmd, "r_max_m", math.nan)) if cmd is not None else math.nan
+        mode = str(getattr(cmd, "envelope_mode", "none")) if cmd is not None else "none"
+        zt.publish_swing(t, est.swing, r_max, mode)
+        payload = None
+        if est.swing is not None:
+            a, b = float(est.swing[0]), float(est.swing[1])
+            # = companion.core.model.payload_offset_ned_m (eqs. 3-4), inlined to keep numba out of the CLI tools
+            payload = np.asarray(est.pos_ned_m, dtype=float) + self.cable_l_m * np.array(
+                [math.sin(a) * math.cos(b), -math.sin(b), math.cos(a) * math.cos(b)])
+        zt.publish_state(t, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, payload)
+        if cmd is not None and dataclasses.is_dataclass(cmd):
+            zt.publish_setpoint(t, {f.name: getattr(cmd, f.name) for f in dataclasses.fields(cmd) if f.name != "t_s"})
+        zt.publish_status(t, self.status_fn(app) if self.status_fn is not None else {})
+        if zt.last_obstacles is not None:
+            zt.publish_obstacles(t, zt.last_obstacles)

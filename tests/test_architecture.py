@@ -1,0 +1,161 @@
+"""The architecture as rules a test can check (issue 13): no import cycles, pure cores stay pure, the walls
+between the companion, the bundled vehicle and the lab hold, and the package list ships every package.
+
+Imports are read from the source (AST), including those inside functions: a lazy import is still a
+dependency. ``from pkg import name`` counts as importing ``pkg.name`` when that is a module of ours.
+"""
+
+from __future__ import annotations
+
+import ast
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("companion", "sim_bridge", "lab")
+
+#: Pure cores: no I/O frameworks, however indirectly.
+PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "companion.estimation",
+                 "companion.autopilots", "companion.flight.core", "companion.flight.sequence",
+                 "companion.flight.health", "companion.report.metrics")
+IO_FRAMEWORKS = ("asyncio", "pymavlink", "zenoh", "socket")
+#: What the bundled vehicle may use of the companion: the shared model and MAVLink helpers.
+SIM_MAY_IMPORT = ("companion.core", "companion.mavlink_io.codec", "companion.mavlink_io.signing",
+                  "companion.autopilots", "companion.errors", "companion.config", "companion")
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    if parts[0] == "config":  # shipped as companion.configs
+        parts = ["companion", "configs", *parts[1:]]
+    return ".".join(parts)
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in (*PACKAGES, "config"):
+        for f in (ROOT / pkg).rglob("*.py"):
+            out[_module_name(f)] = f
+    return out
+
+
+MODULES = _modules()
+
+
+def _imports(name: str) -> set[str]:
+    """Every module (ours or third-party top-level) that module ``name`` imports, anywhere in its body."""
+    path = MODULES[name]
+    tree = ast.parse(path.read_text(), str(path))
+    is_pkg = path.name == "__init__.py"
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                out.add(a.name)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = name.split(".") if is_pkg else name.split(".")[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                mod = ".".join([*base, node.module] if node.module else base)
+            else:
+                mod = node.module or ""
+            for a in node.names:
+                full = f"{mod}.{a.name}"
+                out.add(full if full in MODULES else mod)
+    return {m for m in out if m and m != "__future__"}
+
+
+GRAPH = {m: _imports(m) for m in MODULES}
+
+
+def _ours(m: str) -> bool:
+    return m.split(".")[0] in PACKAGES
+
+
+def _closure(start: str) -> set[str]:
+    seen, todo = set(), [start]
+    while todo:
+        m = todo.pop()
+        for d in GRAPH.get(m, ()):
+            if d not in seen:
+                seen.add(d)
+                if d in GRAPH:
+                    todo.append(d)
+    return seen
+
+
+def test_no_import_cycles():
+    """Tarjan's strongly connected components over our modules: every component is a single module."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    cycles: list[list[str]] = []
+    counter = [0]
+
+    def strong(v: str) -> None:
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in GRAPH[v]:
+            if w not in GRAPH:
+                continue
+            if w not in index:
+                strong(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                cycles.append(sorted(comp))
+
+    for v in sorted(GRAPH):
+        if v not in index:
+            strong(v)
+    assert cycles == []
+
+
+@pytest.mark.parametrize("module", sorted(m for m in MODULES if m.startswith(PURE_PREFIXES)))
+def test_pure_cores_import_no_io(module):
+    deps = _closure(module)
+    bad = sorted(d for d in deps if d.split(".")[0] in IO_FRAMEWORKS)
+    assert not bad, f"{module} reaches {bad}"
+    impure = sorted(d for d in deps if _ours(d) and not d.startswith((*PURE_PREFIXES, "companion.errors",
+                                                                       "companion.config"))
+                    and d not in ("companion",))
+    assert not impure, f"{module} imports non-pure modules {impure}"
+
+
+def test_companion_never_imports_the_simulator_or_the_lab_except_from_the_entry_point():
+    offenders = {m: sorted(d for d in deps if d.split(".")[0] in ("sim_bridge", "lab"))
+                 for m, deps in GRAPH.items() if m.startswith("companion") and m != "companion.cli.main"}
+    assert {m: d for m, d in offenders.items() if d} == {}
+
+
+def test_the_simulator_uses_only_the_shared_model_and_mavlink_helpers():
+    used = {d for m, deps in GRAPH.items() if m.startswith("sim_bridge") for d in deps if d.startswith("companion")}
+    bad = sorted(d for d in used if not (d in SIM_MAY_IMPORT or d.startswith(tuple(p + "." for p in SIM_MAY_IMPORT
+                                                                                      if p != "companion"))))
+    assert bad == []
+
+
+def test_pyproject_lists_every_package():
+    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    listed = set(cfg["packages"])
+    on_disk = {_module_name(f.parent / "__init__.py") for pkg in (*PACKAGES, "config")
+               for f in (ROOT / pkg).rglob("__init__.py")}
+    assert listed == on_disk
+    assert cfg["package-dir"] == {"companion.configs": "config"}
