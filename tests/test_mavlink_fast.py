@@ -200,7 +200,10 @@ def test_companion_link_fast_path_gives_what_pymavlink_gives(tmp_path) -> None:
     for g, r in zip(got, ref, strict=True):
         assert g.to_dict() == r.to_dict() and g.get_srcSystem() == r.get_srcSystem() == 1
     assert got[2].name == "SWING" and got[2].data[:5] == [_f32(x) for x in (0.1, -0.1, 0.0, 0.0, 1.0)]
-    assert link.received == 5 and not link.rejected and done == [5] and link.connected
+    assert link.received == 5 and not link.rejected and done == [5]
+    assert not link.connected  # nothing is sent before the app has locked onto the vehicle
+    link.lock_to_last_sender()
+    assert link.connected
     link.close()
     from pymavlink import mavutil
 

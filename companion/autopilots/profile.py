@@ -68,9 +68,26 @@ class VehicleProfile:
 
     def is_offboard(self, custom_mode: int) -> bool:
         """Whether a HEARTBEAT custom_mode means the companion is in control."""
+        return self.mode_class(custom_mode) == "offboard"
+
+    def mode_class(self, custom_mode: int) -> str:
+        """A HEARTBEAT custom_mode in the flight sequence's words: ``offboard`` (the companion flies),
+        ``hold``, ``land``, ``takeoff`` or ``other``."""
         if self.autopilot == "ardupilot":
-            return custom_mode in (4, 20)  # GUIDED, GUIDED_NOGPS
-        return (custom_mode >> 16) & 0xFF == 6
+            return _ARDUPILOT_CLASS.get(int(custom_mode), "other")
+        main = (int(custom_mode) >> 16) & 0xFF
+        sub = (int(custom_mode) >> 24) & 0xFF if main == 4 else 0
+        return _PX4_CLASS.get((main, sub), "other")
+
+    @property
+    def hover_param(self) -> str:
+        """The autopilot parameter that holds the normalized hover thrust."""
+        return "MOT_THST_HOVER" if self.autopilot == "ardupilot" else "MPC_THR_HOVER"
+
+    @property
+    def takeover_before_arm(self) -> bool:
+        """ArduPilot arms in its guided mode; PX4 arms first and then accepts OFFBOARD."""
+        return self.autopilot == "ardupilot"
 
     def norm_to_thrust(self, thrust_norm: float, hover_thrust_n: float) -> float:
         """Inverse of :meth:`thrust_to_norm` (newtons), for logging what a normalized value meant."""
@@ -84,6 +101,9 @@ _MODES = {
     "px4": {"offboard": (6, 0), "hold": (4, 3), "land": (4, 6)},
     "ardupilot": {"offboard": (20, 0), "hold": (17, 0), "land": (9, 0)},
 }
+
+_PX4_CLASS = {(6, 0): "offboard", (4, 3): "hold", (4, 6): "land", (4, 2): "takeoff"}
+_ARDUPILOT_CLASS = {20: "offboard", 4: "offboard", 17: "hold", 5: "hold", 9: "land"}
 
 _PROFILES = {
     # bundled SITL vehicle: thrust-to-weight 2.5, so hover at 1/2.5 of full thrust

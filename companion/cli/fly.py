@@ -14,6 +14,7 @@ import contextlib
 import dataclasses
 import logging
 import signal
+import sys
 import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -67,7 +68,11 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     p.add_argument("--no-land", action="store_true", help="hold at the goal instead of landing")
     p.add_argument("--no-land-on-abort", action="store_true", help="on Ctrl-C hold instead of landing")
-    p.add_argument("--heartbeat-timeout", type=float, default=20.0, help="seconds to wait for the autopilot")
+    p.add_argument("--heartbeat-timeout", type=float, default=60.0,
+                   help="seconds to wait for the autopilot's first HEARTBEAT (default 60)")
+    p.add_argument("--ready-timeout", type=float, default=90.0,
+                   help="seconds to wait for telemetry and the autopilot's ready-to-arm (default 90: PX4 SITL "
+                        "can take ~40 s after boot)")
     add_zenoh_arguments(p, "companion")
 
 
@@ -120,9 +125,9 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
     opts = FlyOptions(
         connect=args.connect, rate_hz=args.rate_hz, lockstep=args.lockstep or (args.sitl and not args.realtime),
         profile=profile, hover_thrust_norm=args.hover_thrust, gains=gains, payload_sysid=args.payload_sysid,
-        swing_input=args.swing_input,
-        heartbeat_timeout_s=args.heartbeat_timeout,
-        land_on_abort=not args.no_land_on_abort, tlog_path=run_dir / "flight.tlog",
+        swing_input=args.swing_input, heartbeat_timeout_s=args.heartbeat_timeout,
+        ready_timeout_s=args.ready_timeout, land_on_abort=not args.no_land_on_abort,
+        tlog_path=run_dir / "flight.tlog", run_dir=run_dir,
     )
     if opts.rate_hz <= 0 or opts.rate_hz > 2000:
         raise ConfigError(f"--rate-hz: must be in (0, 2000], got {opts.rate_hz}")
@@ -155,6 +160,7 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
             )
             opts.connect = sitl.companion_url
             opts.sock = sitl.companion_sock
+        opts.provisional = lambda a: run_options(a, args, mission, run_dir, zt_holder)
         app = FlightApp(mission, opts)
         loop = asyncio.get_running_loop()
         with contextlib.suppress(NotImplementedError, RuntimeError):
@@ -169,38 +175,42 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
                 loop.remove_signal_handler(signal.SIGINT)
                 loop.remove_signal_handler(signal.SIGTERM)
     wall = time.monotonic() - wall0
-    extra = {
-        "outcome": app.outcome if error is None else f"error: {error}",
-        "final_phase": app.phase,
-        "abort_reason": app.abort_reason,
-        "wall_time_s": wall,
-        "loop": app.stats.summary(),
-        "link": {"received": app.link.received, "sent": app.link.sent, "rejected": dict(app.link.rejected)},
-        "vehicle_statustext": app.state.statustext[-20:],
-        "swing_input": opts.swing_input,
-        "swing_sources": app.swing_sources,
+    extra = app.run_facts()
+    if error is not None:
+        extra["outcome"] = "error"
+        extra["outcome_detail"] = str(error)
+    extra.update(run_options(app, args, mission, run_dir, zt_holder))
+    extra["wall_time_s"] = wall
+    app.log.wall_time_s = wall
+    seen = app.obstacles_seen
+    if seen:
+        app.log.obstacles = seen  # live obstacles count for clearance and collisions too
+    report = write_run(app.log, mission, extra, run_dir, args.report, plots=not args.no_plots)
+    if error is not None:
+        raise error
+    return FlyResult(app.outcome, report, run_dir)
+
+
+def run_options(app: FlightApp, args: argparse.Namespace, mission: Mission, run_dir: Path,
+                zt_holder: list[ZenohTelemetry]) -> dict[str, Any]:
+    """The run's settings for the report (and the journal's provisional report)."""
+    out: dict[str, Any] = {
+        "swing_input": app.opts.swing_input,
         "profile": app.profile.name,
         "hover_thrust_norm": app.profile.hover_thrust_norm,
-        "lockstep": opts.lockstep,
-        "connect": opts.connect,
+        "lockstep": app.opts.lockstep,
+        "connect": app.opts.connect,
         "run_dir": str(run_dir),
         "tlog": str(run_dir / "flight.tlog"),
         "wind": {"model": mission.wind.model, "scale": mission.wind.scale},
         "vehicle": mission.vehicle.as_dict(),
     }
-    app.log.wall_time_s = wall
-    seen = app.obstacles_seen
-    if seen:
-        app.log.obstacles = seen  # live obstacles count for clearance and collisions too
     if zt_holder:
         zt = zt_holder[0]
-        extra["zenoh"] = {"keys_prefix": f"{args.zenoh_prefix}/{zt.options.vehicle_id}", "published": dict(zt.seq),
-                          "obstacles_in_accepted": zt.store.accepted_count,
-                          "obstacles_in_rejected": zt.store.rejected_count}
-    report = write_run(app.log, mission, extra, run_dir, args.report, plots=not args.no_plots)
-    if error is not None:
-        raise error
-    return FlyResult(app.outcome, report, run_dir)
+        out["zenoh"] = {"keys_prefix": f"{args.zenoh_prefix}/{zt.options.vehicle_id}", "published": dict(zt.seq),
+                        "obstacles_in_accepted": zt.store.accepted_count,
+                        "obstacles_in_rejected": zt.store.rejected_count}
+    return out
 
 
 def status_of(app: FlightApp) -> dict[str, Any]:
@@ -239,13 +249,37 @@ def effective_config(app: FlightApp, args: argparse.Namespace) -> dict[str, Any]
     }
 
 
+#: ``slungpilot fly`` exit codes by outcome (also in --help and the README); 2 is a broken file or flag.
+EXIT_CODES = {
+    "completed": 0,
+    "timeout": 1, "no_route": 1,
+    "no_vehicle": 3, "link_lost": 3,
+    "not_ready": 4, "refused": 4,
+    "preempted": 5,
+    "stale_telemetry": 6, "invalid_estimate": 6, "tick_errors": 6,
+    "aborted": 130,
+}
+EXIT_HELP = ("exit codes: 0 goal reached; 1 mission not completed (timeout, no route); 2 broken mission file or "
+             "flag; 3 no vehicle or link lost; 4 the autopilot was not ready or refused to arm / give control; "
+             "5 preempted (someone else took the vehicle); 6 failsafe (stale telemetry, invalid estimate, failing "
+             "control ticks); 130 interrupted (Ctrl-C/SIGTERM: held and landed); 1 for anything else")
+
+
+def exit_code(outcome: str, reached_goal: bool) -> int:
+    """The process exit code for a flight's outcome (see :data:`EXIT_CODES`)."""
+    code = EXIT_CODES.get(outcome, 1)
+    return 1 if code == 0 and not reached_goal else code
+
+
 def run_fly(args: argparse.Namespace) -> int:
-    """CLI entry: exit 0 when the mission completed (goal reached), 1 otherwise, 2 on config errors."""
+    """CLI entry: the flight's outcome as an exit code (:data:`EXIT_CODES`); 2 on config errors."""
     from companion.report.run_folder import summary_text
 
     mission = mission_from_args(args)
     result = asyncio.run(fly_async(args, mission))
     print(summary_text(result.report))
-    if result.outcome == "aborted":
-        return 130
-    return 0 if result.outcome == "completed" and result.report.get("reached_goal") else 1
+    if result.outcome != "completed":
+        detail = result.report.get("outcome_detail") or ""
+        where = f" on {result.report.get('connect')}" if result.outcome in ("no_vehicle", "link_lost") else ""
+        print(f"slungpilot fly: {result.outcome}{where}: {detail}", file=sys.stderr)
+    return exit_code(result.outcome, bool(result.report.get("reached_goal")))

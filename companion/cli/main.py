@@ -91,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"slungpilot {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    from companion.cli.fly import add_fly_arguments
+    from companion.cli.fly import EXIT_HELP, add_fly_arguments
 
     fly = sub.add_parser(
         "fly",
@@ -101,8 +101,11 @@ def build_parser() -> argparse.ArgumentParser:
             "the bundled vehicle started on free local ports (lockstep: as fast as possible, deterministic). "
             "Waits for the heartbeat, streams setpoints, arms, switches to OFFBOARD, climbs, flies to the goal, "
             "holds, lands, and writes a run folder: report.json, plots, flight.tlog. Ctrl-C holds, lands and "
-            "still writes the report. Exit 0 when the goal was reached, 1 when not, 2 on a broken mission file."
+            "still writes the report. Any failure (vehicle lost, someone else takes it, stale telemetry, failing "
+            "ticks) ends in a hold, a landing or letting go as docs/companion.md describes, never a fall. "
+            + EXIT_HELP
         ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_fly_arguments(fly)
     fly.set_defaults(func=_cmd_fly)

@@ -1,7 +1,22 @@
-"""What the companion knows about the vehicle, folded from incoming MAVLink messages.
+"""What the companion knows about the vehicle, folded from incoming MAVLink messages, and how much to trust it.
 
-``VehicleState.ingest(msg)`` takes decoded pymavlink messages (any object with ``get_type()`` and the
-message's fields); ``estimate()`` turns the latest ones into a :class:`~companion.estimation.estimate.Estimate`.
+``VehicleState.ingest(msg, wall_s)`` takes decoded pymavlink messages (any object with ``get_type()``,
+``get_srcSystem()`` and the message's fields) with the wall time they arrived; ``estimate()`` turns the
+latest ones into a :class:`~companion.estimation.estimate.Estimate`. Pure: no sockets, no clocks.
+
+Trust. The vehicle is the system of the first autopilot HEARTBEAT (``autopilot`` not INVALID); only its
+messages update the state (the link also drops datagrams from any other address). Every value is checked
+before it is believed, and what fails is counted in ``rejected`` by kind:
+
+* ``nonfinite``: NaN or ±inf in a position, velocity, attitude or swing field;
+* ``time_backwards`` / ``time_jump``: a ``time_boot_ms`` more than 0.5 s behind the vehicle clock, or ahead
+  of it by more than 1 s plus what the wall clock allows (``max_time_rate`` vehicle seconds per wall second:
+  ~1 in real time, large in lockstep where the simulator runs ahead of the wall clock);
+* ``position_jump``: a position farther from the last than ``max_speed_mps`` allows in the time between;
+* ``attitude_range``: roll or yaw outside ±π, pitch outside ±π/2.
+
+A rejected sample leaves the state as it was, so a spoofed or broken sample can make telemetry stale (the
+flight sequence then holds) but never becomes a setpoint.
 
 Swing input, in order of preference:
 
@@ -19,7 +34,9 @@ or ``"none"`` (ignore both, e.g. to fly as a vehicle without any swing measureme
 from __future__ import annotations
 
 import logging
+import math
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from math import isfinite
 
@@ -33,10 +50,15 @@ log = logging.getLogger(__name__)
 
 MAV_STATE_NAMES = {0: "UNINIT", 1: "BOOT", 2: "CALIBRATING", 3: "STANDBY", 4: "ACTIVE", 5: "CRITICAL",
                    6: "EMERGENCY", 7: "POWEROFF", 8: "FLIGHT_TERMINATION"}
+MAV_AUTOPILOT_INVALID = 8
+MAV_LANDED_STATE_UNDEFINED = 0
 MAV_LANDED_STATE_ON_GROUND = 1
 MAV_MODE_FLAG_SAFETY_ARMED = 128
+MAV_SYS_STATUS_PREARM_CHECK = 0x10000000
 PX4_MAIN_MODE_NAMES = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD", 7: "STABILIZED"}
 PX4_AUTO_SUB_MODE_NAMES = {1: "READY", 2: "TAKEOFF", 3: "LOITER", 4: "MISSION", 5: "RTL", 6: "LAND"}
+BACKWARDS_TOL_S = 0.5
+FORWARD_TOL_S = 1.0
 
 
 def px4_mode_name(custom_mode: int) -> str:
@@ -51,34 +73,53 @@ def px4_mode_name(custom_mode: int) -> str:
 
 @dataclass
 class VehicleState:
-    """Latest vehicle telemetry. ``vehicle_sysid`` is learned from the first autopilot HEARTBEAT."""
+    """Latest trusted vehicle telemetry. ``vehicle_sysid`` is learned from the first autopilot HEARTBEAT.
+
+    ``mode_class(custom_mode)`` names the mode in the flight sequence's words (``offboard``, ``hold``,
+    ``land``, ``takeoff``, ``other``); the app sets it from the autopilot family once the vehicle is known.
+    """
 
     cable_length_m: float
     payload_sysid: int | None = None
     swing_input: str = "auto"
     swing_max_age_s: float = 0.05
     payload_max_age_s: float = 0.3
+    max_time_rate: float = 2.0  # vehicle seconds per wall second the clock may advance (lockstep: large)
+    max_speed_mps: float = 30.0  # faster than this between two positions is a jump, not flight
     vehicle_sysid: int | None = None
     vehicle_compid: int = 1
     autopilot: int = 0  # MAV_AUTOPILOT of the vehicle's HEARTBEAT
+    vehicle_type: int = 0
     armed: bool = False
     custom_mode: int = 0
+    base_mode: int = 0
     system_status: int = 0
-    landed_state: int = 0
+    landed_state: int = MAV_LANDED_STATE_UNDEFINED
     t_s: float = 0.0
     pos_ned_m: np.ndarray | None = None
     vel_ned_mps: np.ndarray | None = None
+    pos_t_s: float = -1e9
     euler_rad: np.ndarray | None = None
     rates_frd_rad_s: np.ndarray | None = None
+    att_t_s: float = -1e9
     swing_sensor: np.ndarray | None = None
     swing_sensor_t_s: float = -1e9
     payload_pos_ned_m: np.ndarray | None = None
     payload_vel_ned_mps: np.ndarray | None = None
     payload_t_s: float = -1e9
     heartbeats: int = 0
+    heartbeat_wall_s: float | None = None
+    pos_wall_s: float | None = None
+    att_wall_s: float | None = None
+    sensors_present: int = 0
+    sensors_health: int = 0
+    sys_status_seen: bool = False
     step_markers: int = 0
     counts: Counter = field(default_factory=Counter)
+    rejected: Counter = field(default_factory=Counter)
     statustext: list[str] = field(default_factory=list)
+    mode_class: Callable[[int], str] = field(default=lambda custom_mode: "other", repr=False)
+    _clock_wall_s: float | None = None
 
     @property
     def mode_name(self) -> str:
@@ -88,45 +129,121 @@ class VehicleState:
         return px4_mode_name(self.custom_mode)
 
     @property
+    def mode(self) -> str:
+        """The mode in the flight sequence's words (``offboard``, ``hold``, ``land``, ``takeoff``, ``other``)."""
+        return self.mode_class(self.custom_mode)
+
+    @property
     def on_ground(self) -> bool:
-        """EXTENDED_SYS_STATE says landed."""
+        """EXTENDED_SYS_STATE says landed; without it, disarmed counts as on the ground."""
+        if self.landed_state == MAV_LANDED_STATE_UNDEFINED:
+            return not self.armed
         return self.landed_state == MAV_LANDED_STATE_ON_GROUND
 
-    def ingest(self, msg) -> str:
-        """Fold one message in; returns its type name. Messages from unknown systems are ignored."""
+    @property
+    def telemetry_wall_s(self) -> float | None:
+        """Wall time of the older of the last position and the last attitude (None until both arrived)."""
+        if self.pos_wall_s is None or self.att_wall_s is None:
+            return None
+        return min(self.pos_wall_s, self.att_wall_s)
+
+    @property
+    def last_words(self) -> str:
+        """The vehicle's last STATUSTEXT ("" if it said nothing)."""
+        return self.statustext[-1] if self.statustext else ""
+
+    def ready_to_arm(self) -> bool:
+        """The autopilot's own readiness: SYS_STATUS's pre-arm check bit where the autopilot reports it (PX4,
+        ArduPilot), else its HEARTBEAT state (STANDBY or ACTIVE)."""
+        if self.sys_status_seen and self.sensors_present & MAV_SYS_STATUS_PREARM_CHECK:
+            return bool(self.sensors_health & MAV_SYS_STATUS_PREARM_CHECK)
+        return self.system_status in (3, 4)
+
+    # ------------------------------------------------------------------------------------------ ingest
+    def _reject(self, kind: str) -> str:
+        self.rejected[kind] += 1
+        return "REJECTED"
+
+    def _time_ok(self, t_s: float, wall_s: float | None) -> bool:
+        """Check a vehicle time stamp against the vehicle clock; advances the clock when good."""
+        if t_s < self.t_s - BACKWARDS_TOL_S:
+            self._reject("time_backwards")
+            return False
+        if self._clock_wall_s is not None and wall_s is not None and self.t_s > 0.0:
+            allowed = FORWARD_TOL_S + max(0.0, wall_s - self._clock_wall_s) * self.max_time_rate
+            if t_s > self.t_s + allowed:
+                self._reject("time_jump")
+                return False
+        if t_s >= self.t_s:
+            self.t_s = t_s
+            self._clock_wall_s = wall_s
+        return True
+
+    def ingest(self, msg, wall_s: float | None = None) -> str:
+        """Fold one message in (``wall_s``: monotonic arrival time); returns its type name, or ``"REJECTED"``
+        when a check refused it. Messages from systems other than the vehicle (and its payload) are ignored."""
         mtype = msg.get_type()
         src = msg.get_srcSystem()
         self.counts[mtype] += 1
         if mtype == "HEARTBEAT":
-            if msg.autopilot == 8:  # MAV_AUTOPILOT_INVALID: a GCS, a companion or the payload system
+            if msg.autopilot == MAV_AUTOPILOT_INVALID:  # a GCS, a companion or the payload system
                 return mtype
             if self.vehicle_sysid is None:
                 self.vehicle_sysid = src
                 self.vehicle_compid = msg.get_srcComponent()
                 self.autopilot = int(msg.autopilot)
+                self.vehicle_type = int(msg.type)
                 log.info("vehicle found: system %d component %d", src, self.vehicle_compid)
-            if src == self.vehicle_sysid:
+            if src == self.vehicle_sysid and msg.get_srcComponent() == self.vehicle_compid:
                 self.heartbeats += 1
+                self.heartbeat_wall_s = wall_s
+                self.base_mode = int(msg.base_mode)
                 self.armed = bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
                 self.custom_mode = int(msg.custom_mode)
                 self.system_status = int(msg.system_status)
             return mtype
         if self.payload_sysid is not None and src == self.payload_sysid:
             if mtype == "LOCAL_POSITION_NED":
-                self.payload_pos_ned_m = np.array([msg.x, msg.y, msg.z])
-                self.payload_vel_ned_mps = np.array([msg.vx, msg.vy, msg.vz])
+                p = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
+                if not all(isfinite(v) for v in p):
+                    return self._reject("nonfinite")
+                self.payload_pos_ned_m = np.array(p[:3])
+                self.payload_vel_ned_mps = np.array(p[3:])
                 self.payload_t_s = msg.time_boot_ms * 1e-3
             return mtype
         if self.vehicle_sysid is None or src != self.vehicle_sysid:
             return mtype
         if mtype == "ATTITUDE":
-            self.euler_rad = np.array([msg.roll, msg.pitch, msg.yaw])
-            self.rates_frd_rad_s = np.array([msg.rollspeed, msg.pitchspeed, msg.yawspeed])
-            self.t_s = max(self.t_s, msg.time_boot_ms * 1e-3)
+            a = (msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed)
+            if not (isfinite(a[0]) and isfinite(a[1]) and isfinite(a[2]) and isfinite(a[3]) and isfinite(a[4])
+                    and isfinite(a[5])):
+                return self._reject("nonfinite")
+            if abs(a[0]) > math.pi + 1e-6 or abs(a[1]) > math.pi / 2 + 1e-6 or abs(a[2]) > math.pi + 1e-6:
+                return self._reject("attitude_range")
+            t = msg.time_boot_ms * 1e-3
+            if not self._time_ok(t, wall_s):
+                return "REJECTED"
+            self.euler_rad = np.array(a[:3])
+            self.rates_frd_rad_s = np.array(a[3:])
+            self.att_t_s = t
+            self.att_wall_s = wall_s
         elif mtype == "LOCAL_POSITION_NED":
-            self.pos_ned_m = np.array([msg.x, msg.y, msg.z])
-            self.vel_ned_mps = np.array([msg.vx, msg.vy, msg.vz])
-            self.t_s = max(self.t_s, msg.time_boot_ms * 1e-3)
+            p = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
+            if not (isfinite(p[0]) and isfinite(p[1]) and isfinite(p[2]) and isfinite(p[3]) and isfinite(p[4])
+                    and isfinite(p[5])):
+                return self._reject("nonfinite")
+            t = msg.time_boot_ms * 1e-3
+            if self.pos_ned_m is not None:
+                dt = abs(t - self.pos_t_s)
+                q = self.pos_ned_m
+                if math.dist((p[0], p[1], p[2]), (q[0], q[1], q[2])) > self.max_speed_mps * dt + 1.0:
+                    return self._reject("position_jump")
+            if not self._time_ok(t, wall_s):
+                return "REJECTED"
+            self.pos_ned_m = np.array(p[:3])
+            self.vel_ned_mps = np.array(p[3:])
+            self.pos_t_s = t
+            self.pos_wall_s = wall_s
         elif mtype == "DEBUG_FLOAT_ARRAY":
             name = msg.name.rstrip("\x00") if isinstance(msg.name, str) else msg.name
             if name == "SWING" and len(msg.data) >= 4:
@@ -136,14 +253,22 @@ class VehicleState:
                     self.swing_sensor_t_s = msg.time_usec * 1e-6
                 else:
                     self.counts["SWING_nonfinite"] += 1
+                    self.rejected["nonfinite"] += 1
         elif mtype == "EXTENDED_SYS_STATE":
             self.landed_state = int(msg.landed_state)
+        elif mtype == "SYS_STATUS":
+            self.sys_status_seen = True
+            self.sensors_present = int(msg.onboard_control_sensors_present)
+            self.sensors_health = int(msg.onboard_control_sensors_health)
         elif mtype == "SYSTEM_TIME":
+            if not self._time_ok(msg.time_boot_ms * 1e-3, wall_s):
+                return "REJECTED"
             self.step_markers += 1
-            self.t_s = max(self.t_s, msg.time_boot_ms * 1e-3)
         elif mtype == "STATUSTEXT":
             text = msg.text.rstrip("\x00") if isinstance(msg.text, str) else str(msg.text)
             self.statustext.append(text)
+            if len(self.statustext) > 200:
+                del self.statustext[:100]
             log.info("vehicle says: %s", text)
         return mtype
 
@@ -206,4 +331,3 @@ class VehicleState:
             swing=swing,
             swing_source=source,
         )
-

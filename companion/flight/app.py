@@ -1,23 +1,27 @@
-"""The companion's flight application: asyncio around the pure flight core.
+"""The companion's flight application: asyncio around the pure flight core and the flight sequence.
 
 Data flows one way, once per control tick::
 
-    MAVLink telemetry ─▶ VehicleState ─▶ Estimate ─▶ FlightCore (plan ▶ control) ─▶ SET_ATTITUDE_TARGET
+    MAVLink telemetry ─▶ VehicleState ─▶ Estimate ─▶ FlightSequence (what to stream, what to ask)
+                                                 └─▶ FlightCore (plan ▶ control) ─▶ SET_ATTITUDE_TARGET
 
-Two coroutines share the work inside a ``TaskGroup``:
+Every decision — when to arm, when our mode counts as ours, when to hold, land or let go — is made by the
+pure :class:`~companion.flight.sequence.FlightSequence` (read that file for the rules); this module only
+measures, carries out and records. Three coroutines share the work inside a ``TaskGroup``:
 
-* the **tick loop** answers every control period with a setpoint. In real time it runs on a monotonic
-  schedule (deadlines ``t0 + k·period``, no drift; a tick that starts more than one period late is counted
-  as late and skipped deadlines are not made up). In lockstep it is driven by the vehicle's end-of-step
-  marker (``SYSTEM_TIME``): every new marker is answered by exactly one setpoint, which is what advances
-  simulated time.
-* the **sequencer** does what a pilot would, PX4's way: wait for the autopilot's HEARTBEAT, request the
-  message rates it needs, let setpoints stream for a second, arm, switch to OFFBOARD, fly the mission
-  (the flight core climbs, cruises and holds at the goal), then command AUTO.LAND and wait for landed and
-  disarmed. Ctrl-C (or :meth:`FlightApp.request_abort`) switches the vehicle to AUTO.LOITER (hold), lands
-  if asked, and ends the run; the caller then writes the report.
+* the **tick loop** answers every control period. In real time it runs on a monotonic schedule (deadlines
+  ``t0 + k·period``; a tick more than one period late is counted, missed deadlines are skipped). In lockstep
+  it runs inside the datagram handler of each new end-of-step marker (``SYSTEM_TIME``): every marker is
+  answered by exactly one SET_ATTITUDE_TARGET (a "tick only" frame when nothing may be streamed), which is
+  what advances simulated time. Requests the sequence makes go out in the same tick, before the setpoint,
+  so the vehicle handles them at the same simulated time in every run.
+* the **watchdog** steps the sequence from the wall clock when ticks stop (a lockstep vehicle that died
+  sends no more markers), so a lost vehicle is noticed within the sequence's timeouts.
+* the **housekeeping** loop sends our HEARTBEAT at 1 Hz and flushes the journal (per-tick log and
+  provisional report) once a second.
 
-Our own HEARTBEAT (MAV_TYPE_ONBOARD_CONTROLLER, component 191) goes out at 1 Hz.
+An exception inside a tick is caught at the tick's boundary, counted and logged at most once a second; the
+sequence holds and lands after three in a row. Nothing received from the link can raise into the loop.
 """
 
 from __future__ import annotations
@@ -25,7 +29,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import math
 import socket
 import time
 from collections.abc import Awaitable, Callable, Sequence
@@ -41,13 +44,15 @@ from companion.core.mission import Mission
 from companion.core.model import payload_offset_ned_m
 from companion.core.obstacles import Obstacle
 from companion.core.rotations import quat_from_euler
-from companion.errors import LinkError
 from companion.estimation.estimate import Estimate
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
+from companion.flight.health import LinkHealth
+from companion.flight.sequence import FlightSequence, Observation, SequenceConfig, Stream
 from companion.mavlink_io.codec import send_set_attitude_target
-from companion.mavlink_io.commands import MavCommander
+from companion.mavlink_io.commands import RequestLink
 from companion.mavlink_io.link import MavlinkLink
+from companion.report.journal import Journal
 from companion.report.metrics import FlightLog
 
 log = logging.getLogger(__name__)
@@ -58,6 +63,10 @@ ATT_TYPE_MASK = (
     | mavlink2.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
     | mavlink2.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE
 )
+# everything ignored: a lockstep "tick" that carries no setpoint (does not count as an offboard stream)
+TICK_ONLY_MASK = ATT_TYPE_MASK | mavlink2.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE | \
+    mavlink2.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE
+_LEVEL_Q = np.array([1.0, 0.0, 0.0, 0.0])
 
 
 class TelemetrySink(Protocol):
@@ -78,18 +87,22 @@ class FlyOptions:
     gains: Any = None
     payload_sysid: int | None = 2
     swing_input: str = "auto"
-    heartbeat_timeout_s: float = 20.0
+    heartbeat_timeout_s: float = 60.0
+    ready_timeout_s: float = 90.0
     prestream_s: float = 1.0
     land_on_abort: bool = True
-    land_timeout_s: float = 30.0
+    land_timeout_s: float = 45.0
     tlog_path: Path | None = None
+    run_dir: Path | None = None  # where the journal (per-tick log, provisional report) is flushed each second
     wall_timeout_s: float | None = None
     obstacle_source: Callable[[float], Sequence[Obstacle]] | None = None
     telemetry: TelemetrySink | None = None
-    # Awaited once the autopilot is known, before arming (its system id decides e.g. the Zenoh vehicle id);
+    # Awaited once the autopilot is known, outside the tick (its system id decides e.g. the Zenoh vehicle id);
     # may set ``app.telemetry`` and ``app.obstacle_source``.
     on_connected: Callable[[FlightApp], Awaitable[None]] | None = None
     sock: socket.socket | None = None  # an already bound UDP socket for the link (fly --sitl reserves one)
+    sequence: SequenceConfig | None = None  # timeouts of the flight sequence (defaults otherwise)
+    provisional: Callable[[FlightApp], dict[str, Any]] | None = None  # the journal's provisional report
 
 
 @dataclass
@@ -98,13 +111,15 @@ class LoopStats:
 
     ticks: int = 0
     late_ticks: int = 0
+    tick_errors: int = 0
+    watchdog_steps: int = 0
     tick_s: list[float] = field(default_factory=list)
     send_s: list[float] = field(default_factory=list)
     jitter_s: list[float] = field(default_factory=list)
     first: tuple[float, float] | None = None  # (wall monotonic s, vehicle time s) of the first tick with telemetry
     last: tuple[float, float] | None = None
 
-    def summary(self) -> dict[str, float | int]:
+    def summary(self) -> dict[str, float | int | None]:
         """ticks; tick (compute) and send time p50/p99/max (ms); late ticks; jitter p99 (ms, real time only)."""
         t = np.array(self.tick_s) if self.tick_s else np.zeros(1)
         snd = np.array(self.send_s) if self.send_s else np.zeros(1)
@@ -117,6 +132,8 @@ class LoopStats:
             "send_ms_p50": float(np.percentile(snd, 50) * 1e3),
             "send_ms_p99": float(np.percentile(snd, 99) * 1e3),
             "late_ticks": self.late_ticks,
+            "tick_errors": self.tick_errors,
+            "watchdog_steps": self.watchdog_steps,
             "jitter_ms_p99": float(np.percentile(np.abs(j), 99) * 1e3),
             "realtime_factor": self.realtime_factor(),
         }
@@ -135,7 +152,8 @@ class FlightApp:
         self.mission = mission
         self.opts = opts
         self.state = VehicleState(
-            cable_length_m=mission.vehicle.l, payload_sysid=opts.payload_sysid, swing_input=opts.swing_input
+            cable_length_m=mission.vehicle.l, payload_sysid=opts.payload_sysid, swing_input=opts.swing_input,
+            max_time_rate=1e4 if opts.lockstep else 2.0,
         )
         self.swing_sources: dict[str, int] = {}
         self._last_swing_source = ""
@@ -143,163 +161,285 @@ class FlightApp:
         self.link.on_datagram_done = self._on_datagram_done
         self.profile = opts.profile or profile_by_name("px4", opts.hover_thrust_norm)
         self.core = FlightCore(mission, gains=opts.gains, profile=self.profile)
+        self.period_s = 1.0 / opts.rate_hz
+        base = opts.sequence or SequenceConfig()
+        self.seq = FlightSequence(replace(
+            base, connect_timeout_s=opts.heartbeat_timeout_s, ready_timeout_s=opts.ready_timeout_s,
+            prestream_s=opts.prestream_s, land_on_abort=opts.land_on_abort, land_at_end=mission.land,
+            land_timeout_s=opts.land_timeout_s, mission_wall_timeout_s=opts.wall_timeout_s,
+        ))
+        self.requests = RequestLink(self.link.mav, lambda: (self.state.vehicle_sysid, self.state.vehicle_compid),
+                                    lambda what: self.profile.mode_params(what))
+        self.health = LinkHealth(period_s=self.period_s)
         self.log = FlightLog(
             planner=mission.planner, controller=mission.controller, mission=mission.name, obstacles=mission.obstacles
         )
+        self.journal = Journal(opts.run_dir, self.log, mission) if opts.run_dir is not None else None
         self.stats = LoopStats()
-        self.phase = "connect"
-        self.outcome = "running"
         self.abort_reason: str | None = None
         self.last_cmd: Command | None = None
         self.telemetry: TelemetrySink | None = opts.telemetry
         self.obstacle_source: Callable[[float], Sequence[Obstacle]] | None = opts.obstacle_source
+        self.params: dict[str, float] = {}  # autopilot parameters read or set during the flight
         self._last_obstacles: Sequence[Obstacle] | None = None
         self._obstacles_seen: dict[tuple, Obstacle] = {}
-        self._marker = asyncio.Event()
-        self._marker_pending = False  # a new lockstep marker arrived in the datagram being handled
-        self._woke_sequencer = False  # ... and so did an answer (COMMAND_ACK, PARAM_VALUE) someone awaits
-        self._tick_error: Exception | None = None
+        self._marker_pending = False
         self._last_marker_ms = -1
         self._marker_seen_wall = 0.0
-        self.commander = MavCommander(self.link, lambda: (self.state.vehicle_sysid, self.state.vehicle_compid))
-        self._abort = asyncio.Event()
-        self._waiting: tuple[Callable[[], bool], asyncio.Future] | None = None  # lockstep: sequencer's condition
-        self._held: tuple[float, np.ndarray, float] | None = None  # lockstep: setpoint held for the sequencer
-        self._held_since = 0.0
+        self._last_tick_wall = 0.0
+        self._last_answer_wall = 0.0  # lockstep: when we last answered a marker (the vehicle waits on us after)
+        self._tick_errors_in_row = 0
+        self._last_error_log = -1e9
+        self._last_valid: tuple[float, np.ndarray, float, float] | None = None  # (t_s, q, thrust, wall) sent last
+        self._connected_hook_started = False
         self._done = asyncio.Event()
-        self._core_active = False
+        self._transitions_logged = 0
+
+    # ------------------------------------------------------------------ views
+    @property
+    def phase(self) -> str:
+        """Where the flight is: the sequence state, refined by the flight core's phase during the mission."""
+        if self.seq.finished:
+            return self.seq.final_phase
+        if self.seq.state.value == "mission":
+            return self.core.phase
+        return self.seq.state.value
+
+    @property
+    def outcome(self) -> str:
+        """The flight's outcome so far (see :data:`companion.flight.sequence.OUTCOMES`)."""
+        return self.seq.outcome
+
+    @property
+    def obstacles_seen(self) -> tuple[Obstacle, ...]:
+        """Every obstacle the planner has been given during the flight (mission and live ones)."""
+        return tuple(self._obstacles_seen.values())
 
     # ------------------------------------------------------------------ input
     def _on_message(self, msg: Any) -> None:
-        mtype = self.state.ingest(msg)
-        if self.commander.on_message(msg):
-            self._woke_sequencer = True
-        if mtype == "SYSTEM_TIME" and msg.get_srcSystem() == self.state.vehicle_sysid:
-            now = time.monotonic()
-            # A repeated marker (same time) is the vehicle re-asking after a lost answer: answer again only
-            # if we have not answered for 0.5 s, so duplicates never double-step a lockstep simulation.
-            if msg.time_boot_ms != self._last_marker_ms or now - self._marker_seen_wall > 0.5:
+        wall = time.monotonic()
+        known = self.state.vehicle_sysid is not None
+        mtype = self.state.ingest(msg, wall)
+        if not known and self.state.vehicle_sysid is not None:
+            self._vehicle_found()
+        src = msg.get_srcSystem()
+        if src == self.state.vehicle_sysid:
+            self.health.on_frame(src, msg.get_srcComponent(), msg.get_seq())
+            if mtype == "LOCAL_POSITION_NED":
+                self.health.on_sample("position", self.state.pos_t_s)
+            elif mtype == "ATTITUDE":
+                self.health.on_sample("attitude", self.state.att_t_s)
+            elif mtype == "SYSTEM_TIME" and (
+                    msg.time_boot_ms != self._last_marker_ms or wall - self._marker_seen_wall > 0.5):
+                # A repeated marker (same time) is the vehicle re-asking after a lost answer: answer again only if
+                # we have not answered for 0.5 s, so duplicates never double-step a lockstep simulation.
                 self._last_marker_ms = msg.time_boot_ms
-                self._marker_seen_wall = now
+                self._marker_seen_wall = wall
                 self._marker_pending = True
+        ans = self.requests.answer_of(msg)
+        if ans is not None:
+            key, value = ans
+            if key.startswith("param:"):
+                name = key[6:]
+                self.params[name] = float(value)
+                self.seq.answer(f"param_read:{name}", value) or self.seq.answer(f"param_set:{name}", value)
+            else:
+                self.seq.answer(key, value)
+
+    def _vehicle_found(self) -> None:
+        """The first autopilot HEARTBEAT: lock the link onto its sender, pick the profile, plan the set-up."""
+        self.link.lock_to_last_sender()
+        if self.opts.profile is None:
+            self.profile = profile_for_autopilot(self.state.autopilot, self.opts.hover_thrust_norm)
+            self.core.profile = self.profile
+        self.state.mode_class = self.profile.mode_class
+        interval_us = 1e6 / self.opts.rate_hz
+        configure: list[tuple[str, float]] = [
+            ("message_interval:ATTITUDE", interval_us),
+            ("message_interval:LOCAL_POSITION_NED", interval_us),
+            ("message_interval:EXTENDED_SYS_STATE", 1e5),
+            ("message_interval:SYS_STATUS", 1e6),
+        ]
+        if self.opts.swing_input in ("auto", "cable_sensor"):
+            configure.append(("message_interval:DEBUG_FLOAT_ARRAY", interval_us))
+        if self.opts.hover_thrust_norm is None:
+            configure.append((f"param_read:{self.profile.hover_param}", float("nan")))
+        self.seq.plan(configure=tuple(configure), takeover_before_arm=self.profile.takeover_before_arm)
+        log.info("vehicle: system %s component %s, %s autopilot, mode %s", self.state.vehicle_sysid,
+                 self.state.vehicle_compid, self.profile.autopilot, self.state.mode_name)
 
     def _on_datagram_done(self) -> None:
-        """Lockstep: answer a new marker right after its datagram, without a trip through the event loop —
-        unless the same datagram woke the sequencer (an awaited COMMAND_ACK or PARAM_VALUE), which then runs
-        first, as before."""
-        woke, self._woke_sequencer = self._woke_sequencer, False
+        """Lockstep: answer a new marker right after its datagram (telemetry of that step folded in)."""
         if not self._marker_pending:
             return
         self._marker_pending = False
-        if woke or not self.opts.lockstep or self._done.is_set():
-            self._marker.set()
-            return
-        try:
+        if self.opts.lockstep and not self._done.is_set():
             self._tick()
-        except Exception as exc:  # raised in the tick loop, so a failing tick still ends the run as before
-            self._tick_error = exc
-            self._marker.set()
 
     # ------------------------------------------------------------------ public
     def request_abort(self, reason: str = "operator abort (Ctrl-C)") -> None:
         """Stop the mission: hold, land if configured, finish. Safe to call from a signal handler."""
-        if not self._abort.is_set():
+        if self.abort_reason is None:
             log.warning("abort requested: %s", reason)
             self.abort_reason = reason
-            self._abort.set()
 
     async def run(self) -> str:
-        """Fly the mission; returns the outcome ("completed", "aborted", "timeout", "link_lost", ...)."""
-        async with self.link:
-            try:
-                async with asyncio.TaskGroup() as tg:
+        """Fly the mission; returns the outcome (see :data:`companion.flight.sequence.OUTCOMES`)."""
+        try:
+            async with self.link, asyncio.TaskGroup() as tg:
+                if not self.opts.lockstep:
                     tg.create_task(self._tick_loop())
-                    tg.create_task(self._heartbeat_loop())
-                    tg.create_task(self._sequencer())
-            except* LinkError as eg:
-                self.outcome = "link_error"
-                raise eg.exceptions[0] from None
+                tg.create_task(self._watchdog_loop())
+                tg.create_task(self._housekeeping_loop())
+                tg.create_task(self._connected_hook())
+        finally:
+            if self.journal is not None:
+                self.journal.close(self._provisional())
         return self.outcome
 
     # ------------------------------------------------------------------ loops
-    async def _heartbeat_loop(self) -> None:
+    async def _connected_hook(self) -> None:
+        """Run ``opts.on_connected`` once the vehicle is known (outside the tick: it may open sessions)."""
+        if self.opts.on_connected is None:
+            return
+        while self.state.vehicle_sysid is None and not self._done.is_set():
+            await asyncio.sleep(0.02)
+        if not self._done.is_set():
+            try:
+                await self.opts.on_connected(self)
+            except Exception:
+                log.exception("on_connected hook failed; flying without it")
+
+    async def _housekeeping_loop(self) -> None:
         while not self._done.is_set():
-            if self._held is not None and time.monotonic() - self._held_since > 0.5:
-                log.warning("lockstep: a setpoint was held 0.5 s for the sequencer; releasing it")
-                self._release_setpoint()
             if self.link.connected:
                 self.link.mav.heartbeat_send(
                     mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0,
                     mavlink2.MAV_STATE_ACTIVE,
                 )
+            if self.journal is not None:
+                try:
+                    self.journal.flush(self._provisional())
+                except OSError as exc:
+                    log.error("cannot write the journal: %s", exc)
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(1.0):
                     await self._done.wait()
 
+    async def _watchdog_loop(self) -> None:
+        """Step the sequence from the wall clock whenever ticks stop for 0.1 s (nothing is streamed)."""
+        while not self._done.is_set():
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(0.1):
+                    await self._done.wait()
+            if not self._done.is_set() and time.monotonic() - self._last_tick_wall > 0.1:
+                self.stats.watchdog_steps += 1
+                self._tick(watchdog=True)
+
     async def _tick_loop(self) -> None:
-        period = 1.0 / self.opts.rate_hz
         loop = asyncio.get_running_loop()
         t0 = loop.time()
         k = 0
         while not self._done.is_set():
-            if self.opts.lockstep:
-                await self._marker.wait()  # the sequencer also sets it when the run is done
-                if self._tick_error is not None:
-                    raise self._tick_error
-                if self._done.is_set():
-                    break
-                self._marker.clear()
-            else:
-                k += 1
-                deadline = t0 + k * period
-                delay = deadline - loop.time()
-                if delay > 0:
-                    await asyncio.sleep(delay)
-                lateness = loop.time() - deadline
-                self.stats.jitter_s.append(lateness)
-                if lateness > period:
-                    self.stats.late_ticks += 1
-                    k += int(lateness // period)  # skip the missed deadlines, no catch-up burst
+            k += 1
+            deadline = t0 + k * self.period_s
+            delay = deadline - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+            lateness = loop.time() - deadline
+            self.stats.jitter_s.append(lateness)
+            if lateness > self.period_s:
+                self.stats.late_ticks += 1
+                k += int(lateness // self.period_s)  # skip the missed deadlines, no catch-up burst
             self._tick()
 
-    def _tick(self) -> None:
-        """One control tick: estimate → (plan → control) → setpoint out; then log and publish.
+    # ------------------------------------------------------------------ the tick
+    def _observe(self, est: Estimate | None, wall: float) -> Observation:
+        st = self.state
+        tel_wall = st.telemetry_wall_s
+        if self.opts.lockstep and tel_wall is not None and self._last_answer_wall <= tel_wall:
+            tel_wall = wall  # the vehicle has not had our answer yet: it waits on us, its telemetry is current
+        return Observation(
+            now_s=st.t_s if self.opts.lockstep else wall, wall_s=wall, heartbeat_wall_s=st.heartbeat_wall_s,
+            telemetry_wall_s=tel_wall, telemetry_ready=st.ready(), vehicle_ready=st.ready_to_arm(),
+            armed=st.armed, mode=st.mode, on_ground=st.on_ground, heartbeats=st.heartbeats,
+            estimate_ok=est is not None, core_result=self.core.result, tick_errors_in_row=self._tick_errors_in_row,
+            abort=self.abort_reason, mission_timeout_s=self.mission.timeout_s, last_words=st.last_words,
+        )
+
+    def _tick(self, watchdog: bool = False) -> None:
+        """One control tick: observe → sequence → (flight core) → setpoint; then log and publish.
 
         ``tick`` time is the companion's own work (telemetry folded in → setpoint packed); the send is timed
         apart, because on a busy machine the kernel may run the receiving simulator inside our sendto().
         """
         start = time.perf_counter()
-        est = self.state.estimate()
+        wall = time.monotonic()
+        self._last_tick_wall = wall
+        est: Estimate | None = None
         cmd: Command | None = None
-        if est is not None and self._core_active:
-            obstacles = self.obstacle_source(est.t_s) if self.obstacle_source else self.mission.obstacles
-            if obstacles is not self._last_obstacles:
-                self._last_obstacles = obstacles
-                for o in obstacles:
-                    self._obstacles_seen.setdefault((o.x_m, o.y_m, o.radius_m, o.height_m), o)
-            cmd = self.core.update(est, obstacles)
-            self.last_cmd = cmd
-            t_s, q, thrust = est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm
-        else:
-            # Idle stream (before OFFBOARD, or while the vehicle flies an internal mode): level, zero thrust.
-            yaw = float(est.euler_rad[2]) if est is not None else 0.0
-            t_s, q, thrust = (est.t_s if est is not None else 0.0), quat_from_euler(0.0, 0.0, yaw), 0.0
+        setpoint: tuple[float, np.ndarray, float] | None = None
+        stream = Stream.NONE
+        try:
+            est = self.state.estimate()
+            step = self.seq.step(self._observe(est, wall))
+            stream = step.stream
+            for req in step.send:
+                self.requests.send(req)
+            while self.requests.instant_answers:
+                self.seq.answer(*self.requests.instant_answers.pop())
+            if step.configured is not None:
+                self._apply_configured(step.configured)
+            if step.core == "hold_here":
+                self.core.hold_here()
+            elif step.core == "descend":
+                self.core.descend()
+            if stream in (Stream.CORE, Stream.DESCENT):
+                if est is not None:
+                    obstacles = self._obstacles(est.t_s)
+                    cmd = self.core.update(est, obstacles)
+                    self.last_cmd = cmd
+                    setpoint = (est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm)
+                else:
+                    setpoint = self._recent_valid(wall)
+            elif stream == Stream.IDLE:
+                yaw = float(est.euler_rad[2]) if est is not None else 0.0
+                setpoint = (self.state.t_s, quat_from_euler(0.0, 0.0, yaw), 0.0)
+            self._tick_errors_in_row = 0
+        except Exception as exc:  # the loop boundary: count, log once a second, keep the vehicle safe
+            self._tick_errors_in_row += 1
+            self.stats.tick_errors += 1
+            if wall - self._last_error_log >= 1.0:
+                self._last_error_log = wall
+                log.error("control tick failed (%d in a row, %d in all): %r", self._tick_errors_in_row,
+                          self.stats.tick_errors, exc, exc_info=self.stats.tick_errors == 1)
+            setpoint = self._recent_valid(wall) if stream in (Stream.CORE, Stream.DESCENT) else None
+            cmd = None
         computed = time.perf_counter()
-        if self.opts.lockstep and self._check_waiting():
-            self._held = (t_s, q, thrust)  # the sequencer acts first; it releases this when it waits again
-            self._held_since = time.monotonic()
-        else:
-            self._send_setpoint(t_s, q, thrust)
+        if not watchdog:
+            if setpoint is not None:
+                self._send_setpoint(*setpoint)
+                if stream != Stream.IDLE:
+                    self._last_valid = (*setpoint, wall) if cmd is not None else self._last_valid
+            elif self.opts.lockstep:
+                self._send_tick_only()
+            self._last_answer_wall = time.monotonic()
         sent = time.perf_counter()
+        self._log_transitions()
+        if self.seq.finished:
+            self._done.set()
+        if watchdog:
+            return
         self.stats.ticks += 1
         self.stats.tick_s.append(computed - start)
         self.stats.send_s.append(sent - computed)
         if est is None:
             return
+        self.health.on_tick(est.t_s, wall - (self.state.telemetry_wall_s or wall))
         self.stats.last = (sent, est.t_s)
         if self.stats.first is None:
             self.stats.first = self.stats.last
-        if cmd is not None or self.phase in ("land", "abort"):
+        if self.seq.streaming_ours or cmd is not None:
             self._record(est, cmd)
         if self.telemetry is not None:
             try:
@@ -307,10 +447,47 @@ class FlightApp:
             except Exception:
                 log.exception("telemetry sink failed; continuing")
 
-    @property
-    def obstacles_seen(self) -> tuple[Obstacle, ...]:
-        """Every obstacle the planner has been given during the flight (mission and live ones)."""
-        return tuple(self._obstacles_seen.values())
+    def _recent_valid(self, wall: float) -> tuple[float, np.ndarray, float] | None:
+        """The last valid setpoint if it is at most one telemetry timeout old, else None (stream nothing)."""
+        lv = self._last_valid
+        if lv is None or wall - lv[3] > self.seq.cfg.invalid_estimate_s:
+            return None
+        return lv[0], lv[1], lv[2]
+
+    def _obstacles(self, t_s: float) -> Sequence[Obstacle]:
+        obstacles = self.obstacle_source(t_s) if self.obstacle_source else self.mission.obstacles
+        if obstacles is not self._last_obstacles:
+            self._last_obstacles = obstacles
+            for o in obstacles:
+                self._obstacles_seen.setdefault((o.x_m, o.y_m, o.radius_m, o.height_m), o)
+        return obstacles
+
+    def _apply_configured(self, answers: dict[str, float | int]) -> None:
+        """Use what the set-up learned: the hover thrust parameter; say which streams were refused."""
+        for key, value in answers.items():
+            if key.startswith("message_interval:") and (value != value or int(value) != mavlink2.MAV_RESULT_ACCEPTED):
+                log.warning("the vehicle refused or ignored %s (answer %s); flying with the rates it sends", key,
+                            value)
+        if self.opts.hover_thrust_norm is None:
+            value = answers.get(f"param_read:{self.profile.hover_param}")
+            if value is not None and 0.05 <= float(value) <= 0.95:  # NaN (never answered) fails this too
+                self.profile = replace(self.profile, hover_thrust_norm=float(value))
+                self.core.profile = self.profile
+            else:
+                log.warning("could not read %s from the autopilot; assuming hover thrust %.2f (--hover-thrust)",
+                            self.profile.hover_param, self.profile.hover_thrust_norm)
+        log.info("thrust and modes as profile %r (hover %.2f)", self.profile.name, self.profile.hover_thrust_norm)
+
+    def _log_transitions(self) -> None:
+        tr = self.seq.transitions
+        while self._transitions_logged < len(tr):
+            t = tr[self._transitions_logged]
+            self._transitions_logged += 1
+            level = logging.INFO if t.to_state not in ("hold", "descend") else logging.WARNING
+            log.log(level, "%s → %s: %s", t.from_state, t.to_state, t.reason)
+            if t.to_state == "done":
+                log.log(logging.INFO if self.outcome == "completed" else logging.WARNING,
+                        "flight ended: %s (%s)", self.outcome, self.seq.detail)
 
     def _record(self, est: Estimate, cmd: Command | None) -> None:
         """One log row; the payload point from the cable angles when known, else the payload's own stream."""
@@ -339,155 +516,37 @@ class FlightApp:
             ATT_TYPE_MASK, q, 0.0, 0.0, 0.0, float(thrust_norm),
         )
 
-    # ------------------------------------------------------------------ sequencer
-    async def _set_mode(self, what: str) -> int:
-        """Switch to the profile's ``offboard``, ``hold`` or ``land`` mode; returns MAV_RESULT."""
-        return await self.commander.command(mavlink2.MAV_CMD_DO_SET_MODE, self.profile.mode_params(what))
-
-    async def _wait_until(self, cond: Callable[[], bool], timeout_s: float, what: str) -> bool:
-        """Wait (at most ``timeout_s`` wall seconds) until ``cond()``; False on timeout or abort.
-
-        Lockstep: the condition is checked by the tick itself, after it has folded in the step's telemetry and
-        before its setpoint goes out; when it holds, the setpoint is held back until the sequencer has acted
-        (sent its commands, had them acknowledged) and waits again. So every command lands at the same
-        simulated time in every run — the flight is repeatable, not subject to wall-clock polling.
-        """
-        if cond():
-            return True
-        if self._abort.is_set():
-            return False
-        try:
-            async with asyncio.timeout(timeout_s):
-                if self.opts.lockstep:
-                    fut: asyncio.Future = asyncio.get_running_loop().create_future()
-                    self._waiting = (cond, fut)
-                    self._release_setpoint()  # the sequencer is idle now: let simulated time go on
-                    await fut
-                    return not self._abort.is_set()
-                while not cond():
-                    if self._abort.is_set():
-                        return False
-                    await asyncio.sleep(0.01)
-        except TimeoutError:
-            log.warning("timed out waiting for %s", what)
-            return False
-        finally:
-            self._waiting = None
-        return True
-
-    def _check_waiting(self) -> bool:
-        """Lockstep tick hook: resolve the sequencer's condition if it now holds; True if the setpoint
-        must be held back for the sequencer's turn."""
-        w = self._waiting
-        if w is None or w[1].done():
-            return False
-        cond, fut = w
-        if cond() or self._abort.is_set():
-            fut.set_result(True)
-            return True
-        return False
-
-    def _release_setpoint(self) -> None:
-        """Send a setpoint held back for the sequencer (lockstep), which advances simulated time."""
-        held, self._held = self._held, None
-        if held is not None:
-            self._held_since = 0.0
-            self._send_setpoint(*held)
-
-    def _sim_time(self) -> float:
-        return self.state.t_s
-
-    async def _sequencer(self) -> None:
-        try:
-            await self._fly_sequence()
-        finally:
-            self._release_setpoint()
-            self._done.set()
-            self._marker.set()  # release a lockstep tick loop waiting for the next step
-
-    async def _fly_sequence(self) -> None:
-        o = self.opts
-        self.phase = "connect"
-        if not await self._wait_until(lambda: self.state.heartbeats > 0 and self.state.ready(), o.heartbeat_timeout_s,
-                                      "the autopilot's heartbeat and telemetry"):
-            if self._abort.is_set():
-                self.outcome = "aborted"
-                return
-            raise LinkError(f"no autopilot heartbeat/telemetry on {o.connect} within {o.heartbeat_timeout_s:.0f} s")
-        if self.opts.profile is None:
-            self.profile = profile_for_autopilot(self.state.autopilot, self.opts.hover_thrust_norm)
-        if self.opts.hover_thrust_norm is None:
-            # The autopilot knows its hover thrust (PX4 MPC_THR_HOVER, ArduPilot MOT_THST_HOVER): ask for it.
-            name = "MOT_THST_HOVER" if self.profile.autopilot == "ardupilot" else "MPC_THR_HOVER"
-            value = await self.commander.read_param(name)
-            if value is not None and 0.05 <= value <= 0.95:
-                self.profile = replace(self.profile, hover_thrust_norm=float(value))
-            else:
-                log.warning("could not read %s from the autopilot; assuming hover thrust %.2f (--hover-thrust)",
-                            name, self.profile.hover_thrust_norm)
-        self.core.profile = self.profile
-        if self.opts.on_connected is not None:
-            await self.opts.on_connected(self)
-        log.info("connected to system %s (%s autopilot) in mode %s; thrust and modes as profile %r (hover %.2f)",
-                 self.state.vehicle_sysid, self.profile.autopilot, self.state.mode_name, self.profile.name,
-                 self.profile.hover_thrust_norm)
-        interval_us = 1e6 / o.rate_hz
-        for msg_id, us in ((mavlink2.MAVLINK_MSG_ID_ATTITUDE, interval_us),
-                           (mavlink2.MAVLINK_MSG_ID_LOCAL_POSITION_NED, interval_us),
-                           (mavlink2.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY, interval_us),
-                           (mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, 1e5)):
-            res = await self.commander.command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, [msg_id, us])
-            if res != mavlink2.MAV_RESULT_ACCEPTED:
-                log.warning("vehicle refused message interval for id %d (result %d)", msg_id, res)
-        self.phase = "prestream"
-        t_start = self._sim_time()
-        await self._wait_until(lambda: self._sim_time() - t_start >= o.prestream_s, 30.0, "setpoint pre-stream")
-        if self._abort.is_set():
-            return await self._abort_sequence()
-        self.phase = "arm"
-        res = await self.commander.command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, [1.0])
-        if res != mavlink2.MAV_RESULT_ACCEPTED:
-            raise LinkError(f"arming refused (MAV_RESULT {res}); vehicle said: {self.state.statustext[-3:]}")
-        self.phase = "offboard"
-        self._core_active = True
-        res = await self._set_mode("offboard")
-        if res != mavlink2.MAV_RESULT_ACCEPTED:
-            self._core_active = False
-            raise LinkError(f"OFFBOARD refused (MAV_RESULT {res}); vehicle said: {self.state.statustext[-3:]}")
-        self.phase = "mission"
-        t_mission0 = self._sim_time()
-        finished = await self._wait_until(
-            lambda: self.core.phase == "done" or self._sim_time() - t_mission0 > self.mission.timeout_s,
-            self.opts.wall_timeout_s or 1e9, "the mission",
+    def _send_tick_only(self) -> None:
+        if not self.link.connected:
+            return
+        send_set_attitude_target(
+            self.link.mav, int(self.state.t_s * 1e3) & 0xFFFFFFFF, self.state.vehicle_sysid or 1,
+            self.state.vehicle_compid, TICK_ONLY_MASK, _LEVEL_Q, 0.0, 0.0, 0.0, 0.0,
         )
-        if self._abort.is_set():
-            return await self._abort_sequence()
-        completed = finished and self.core.phase == "done" and not self.core.timed_out
-        self.outcome = "completed" if completed else "timeout"
-        if self.mission.land:
-            await self._land()
 
-    async def _land(self) -> None:
-        self.phase = "land"
-        self._core_active = False
-        res = await self.commander.command(mavlink2.MAV_CMD_NAV_LAND, [0, 0, 0, math.nan, math.nan, math.nan, math.nan])
-        if res != mavlink2.MAV_RESULT_ACCEPTED:
-            log.warning("NAV_LAND refused (result %d); trying AUTO.LAND mode", res)
-            await self._set_mode("land")
-        t0 = self._sim_time()
-        await self._wait_until(
-            lambda: (self.state.on_ground and not self.state.armed) or self._sim_time() - t0 > self.opts.land_timeout_s,
-            120.0, "landing",
-        )
-        self.phase = "landed" if self.state.on_ground else "land_timeout"
+    # ------------------------------------------------------------------ the report's view
+    def run_facts(self) -> dict[str, Any]:
+        """What happened, for the report (and the journal's provisional report)."""
+        return {
+            "outcome": self.outcome,
+            "outcome_detail": self.seq.detail,
+            "final_phase": self.phase,
+            "abort_reason": self.abort_reason,
+            "transitions": [
+                {"t_s": t.now_s, "wall_s": t.wall_s, "from": t.from_state, "to": t.to_state, "reason": t.reason}
+                for t in self.seq.transitions
+            ],
+            "loop": self.stats.summary(),
+            "link": {"received": self.link.received, "sent": self.link.sent, "rejected": dict(self.link.rejected),
+                     **self.health.summary()},
+            "rejected_telemetry": dict(self.state.rejected),
+            "vehicle_statustext": self.state.statustext[-20:],
+            "swing_sources": self.swing_sources,
+            "autopilot_params": self.params,
+        }
 
-    async def _abort_sequence(self) -> None:
-        self.outcome = "aborted"
-        self.phase = "abort"
-        self._core_active = False
-        with contextlib.suppress(LinkError):
-            await self._set_mode("hold")
-            if self.opts.land_on_abort and self.state.armed:
-                self._abort.clear()  # let the landing wait run
-                await self._land()
-                self.outcome = "aborted"
+    def _provisional(self) -> dict[str, Any]:
+        facts = self.run_facts()
+        if self.opts.provisional is not None:
+            facts.update(self.opts.provisional(self))
+        return facts

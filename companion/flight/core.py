@@ -42,7 +42,8 @@ from companion.planning import PlanInput, ReferenceGenerator, make_planner
 
 log = logging.getLogger(__name__)
 
-PHASES = ("climb", "cruise", "hold", "done")
+PHASES = ("climb", "cruise", "hold", "done", "hold_here", "descend")
+DESCENT_MPS = 0.5  # the companion's own landing descent (when the autopilot's land mode is not confirmed)
 ARRIVE_HORIZ_M = 0.1
 ARRIVE_VERT_M = 0.25
 
@@ -101,6 +102,28 @@ class FlightCore:
         self._full_cable_r_max = full_cable_r_max_m(self.params)
         self._airframe_r = self.params.r_uav + self.params.L_uav
         self._goal_xy = np.array(mission.goal_ned_m[:2], dtype=np.float64)
+        self._hold_ned_m = np.array(mission.goal_ned_m, dtype=np.float64)  # where hold / done / hold_here hover
+
+    # ------------------------------------------------------------------------------------------------
+    @property
+    def result(self) -> str | None:
+        """The mission's verdict once the core is done (``"completed"`` or ``"timeout"``), else None."""
+        if self.phase != "done":
+            return None
+        return "timeout" if self.timed_out else "completed"
+
+    def hold_here(self) -> None:
+        """Stop the mission and hover where the reference is now (a hold the flight sequence asked for)."""
+        if self.ref is not None:
+            self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)
+        self.phase = "hold_here"
+
+    def descend(self) -> None:
+        """Stop the mission and descend at :data:`DESCENT_MPS` over where the reference is now (the
+        companion's own landing, when the autopilot's land mode was not confirmed)."""
+        if self.ref is not None:
+            self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)
+        self.phase = "descend"
 
     # ------------------------------------------------------------------------------------------------
     def _vertical_speed(self, z_target: float) -> float:
@@ -114,10 +137,10 @@ class FlightCore:
     def _advance_phase(self, est: Estimate) -> None:
         m = self.mission
         t = est.t_s
-        if self.t0_s is not None and t - self.t0_s > m.timeout_s and self.phase != "done":
+        if self.t0_s is not None and t - self.t0_s > m.timeout_s and self.phase in ("climb", "cruise", "hold"):
+            log.warning("mission %s: timeout after %.1f s in phase %s", m.name, m.timeout_s, self.phase)
             self.timed_out = True
             self.phase = "done"
-            log.warning("mission %s: timeout after %.1f s in phase %s", m.name, m.timeout_s, self.phase)
         if self.phase == "climb":
             assert self.ref is not None
             if abs(float(est.pos_ned_m[2]) - m.start_ned_m[2]) < ARRIVE_VERT_M and abs(
@@ -184,11 +207,12 @@ class FlightCore:
             vdx, vdy = float(out.v_des_mps[0]), float(out.v_des_mps[1])
             vdz = self._vertical_speed(float(m.goal_ned_m[2]))
             f_att, f_rep, plan_mode = out.force_att, out.force_rep, out.mode
-        else:  # hold / done: hover at the goal
+        else:  # hold / done: hover at the goal; hold_here / descend: at the point where they were asked for
             ka = self.cfg.planner.ka
-            vdx = ka * (float(m.goal_ned_m[0]) - ref.p[0])
-            vdy = ka * (float(m.goal_ned_m[1]) - ref.p[1])
-            vdz = self._vertical_speed(float(m.goal_ned_m[2]))
+            hold = self._hold_ned_m
+            vdx = ka * (float(hold[0]) - ref.p[0])
+            vdy = ka * (float(hold[1]) - ref.p[1])
+            vdz = DESCENT_MPS if self.phase == "descend" else self._vertical_speed(float(hold[2]))
         if dt > 0.0:
             ref.step((vdx, vdy, vdz), dt)
 

@@ -1,78 +1,111 @@
-"""Request/answer exchanges with the autopilot: COMMAND_LONG → COMMAND_ACK and PARAM_REQUEST_READ →
-PARAM_VALUE, with retries and timeouts, over a :class:`~companion.mavlink_io.link.MavlinkLink`.
+"""The flight sequence's requests (:class:`companion.flight.requests.Request`) as MAVLink, and the autopilot's
+answers back as (request key, result) pairs. Sending never waits: the sequence tracks answers and retries.
 
-The link's message handler calls :meth:`MavCommander.on_message` for every message; it resolves the
-waiting request and tells the caller whether it did (the app then lets the waiting coroutine run before the
-next lockstep tick).
+=========================  ==========================================  ==============================
+request key                sent as                                     answered by
+=========================  ==========================================  ==============================
+``arm`` / ``disarm``       COMMAND_LONG MAV_CMD_COMPONENT_ARM_DISARM   COMMAND_ACK (result)
+``mode:land``              COMMAND_LONG MAV_CMD_NAV_LAND               COMMAND_ACK
+``mode:<what>``            COMMAND_LONG MAV_CMD_DO_SET_MODE with the   COMMAND_ACK
+                           autopilot family's mode numbers
+``takeoff``                COMMAND_LONG MAV_CMD_NAV_TAKEOFF (value:    COMMAND_ACK
+                           altitude above home, m)
+``message_interval:NAME``  COMMAND_LONG MAV_CMD_SET_MESSAGE_INTERVAL   COMMAND_ACK
+                           (value: interval, µs)
+``data_stream:ID``         REQUEST_DATA_STREAM (value: rate, Hz)       nothing: answered at once
+``param_read:NAME``        PARAM_REQUEST_READ                          PARAM_VALUE (the value)
+``param_set:NAME``         PARAM_SET (value)                           PARAM_VALUE (the new value)
+=========================  ==========================================  ==============================
+
+The COMMAND_LONG ``confirmation`` field counts the attempt (0 for the first), as MAVLink asks.
 """
 
 from __future__ import annotations
 
-import asyncio
 import logging
-from collections.abc import Callable, Sequence
+import math
+from collections.abc import Callable
 from typing import Any
 
-from companion.errors import LinkError
-from companion.mavlink_io.link import MavlinkLink
+from pymavlink.dialects.v20 import common as mavlink2
+
+from companion.flight.requests import Request
 
 log = logging.getLogger(__name__)
+M = mavlink2
 
 
-class MavCommander:
-    """Commands and parameter reads addressed to the autopilot ``target()`` returns (system, component)."""
+def message_id(name: str) -> int:
+    """MAVLink message id of a common-dialect message name (``"ATTITUDE"`` → 30); ValueError if unknown."""
+    try:
+        return int(getattr(M, f"MAVLINK_MSG_ID_{name}"))
+    except AttributeError:
+        raise ValueError(f"unknown MAVLink message {name!r}") from None
 
-    def __init__(self, link: MavlinkLink, target: Callable[[], tuple[int | None, int]]) -> None:
-        self.link = link
+
+class RequestLink:
+    """Sends requests through ``mav`` (a pymavlink ``MAVLink`` encoder) to the autopilot ``target()`` returns.
+
+    ``mode_params(what)`` gives DO_SET_MODE's [base_mode, custom_mode, custom_sub_mode] for the sequence's mode
+    words (``offboard``, ``hold``, ``land``) in the autopilot family's numbers.
+    """
+
+    def __init__(self, mav: Any, target: Callable[[], tuple[int | None, int]],
+                 mode_params: Callable[[str], list[float]]) -> None:
+        self.mav = mav
         self.target = target
-        self._acks: dict[int, asyncio.Future] = {}
-        self._params: dict[str, asyncio.Future] = {}
+        self.mode_params = mode_params
+        self._by_command: dict[int, str] = {}  # command id in flight → request key
+        self.instant_answers: list[tuple[str, int]] = []  # requests MAVLink never answers: answered on sending
 
-    def on_message(self, msg: Any) -> bool:
-        """Resolve a waiting request from COMMAND_ACK / PARAM_VALUE of the target; True if one was resolved."""
-        mtype = msg.get_type()
-        if mtype not in ("COMMAND_ACK", "PARAM_VALUE") or msg.get_srcSystem() != self.target()[0]:
-            return False
-        if mtype == "COMMAND_ACK":
-            fut = self._acks.get(int(msg.command))
-            value: Any = int(msg.result)
+    def send(self, req: Request) -> None:
+        """Send one request (unknown keys are logged and answered as FAILED at once)."""
+        kind, _, arg = req.key.partition(":")
+        sysid, compid = self.target()
+        sysid = sysid or 1
+        if kind in ("arm", "disarm"):
+            self._command(req, M.MAV_CMD_COMPONENT_ARM_DISARM, [1.0 if kind == "arm" else 0.0])
+        elif kind == "mode" and arg == "land":
+            self._command(req, M.MAV_CMD_NAV_LAND, [0, 0, 0, math.nan, math.nan, math.nan, math.nan])
+        elif kind == "mode":
+            self._command(req, M.MAV_CMD_DO_SET_MODE, self.mode_params(arg))
+        elif kind == "takeoff":
+            self._command(req, M.MAV_CMD_NAV_TAKEOFF, [0, 0, 0, math.nan, math.nan, math.nan, req.value])
+        elif kind == "message_interval":
+            self._command(req, M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(message_id(arg)), req.value])
+        elif kind == "data_stream":
+            self.mav.request_data_stream_send(sysid, compid, int(arg), max(1, round(req.value)), 1)
+            self.instant_answers.append((req.key, M.MAV_RESULT_ACCEPTED))
+        elif kind == "param_read":
+            self.mav.param_request_read_send(sysid, compid, arg.encode(), -1)
+        elif kind == "param_set":
+            self.mav.param_set_send(sysid, compid, arg.encode(), float(req.value), M.MAV_PARAM_TYPE_REAL32)
         else:
-            pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else str(msg.param_id)
-            fut = self._params.pop(pid, None)
-            value = float(msg.param_value)
-        if fut is None or fut.done():
-            return False
-        fut.set_result(value)
-        return True
+            log.error("unknown request %r", req.key)
+            self.instant_answers.append((req.key, M.MAV_RESULT_FAILED))
+        if req.attempt > 1:
+            log.warning("no answer to %s yet: asking again (attempt %d)", req.key, req.attempt)
 
-    async def command(self, command: int, params: Sequence[float], retries: int = 3, timeout_s: float = 1.0) -> int:
-        """COMMAND_LONG with retries (confirmation counts up); returns MAV_RESULT. LinkError if never ACKed."""
+    def _command(self, req: Request, command: int, params: list[float]) -> None:
         p = list(params) + [0.0] * (7 - len(params))
-        for attempt in range(retries):
-            fut: asyncio.Future = asyncio.get_running_loop().create_future()
-            self._acks[command] = fut
-            sysid, compid = self.target()
-            self.link.mav.command_long_send(sysid or 1, compid, command, attempt, *p)
-            try:
-                async with asyncio.timeout(timeout_s):
-                    return await fut
-            except TimeoutError:
-                log.warning("no COMMAND_ACK for command %d (attempt %d)", command, attempt + 1)
-            finally:
-                self._acks.pop(command, None)
-        raise LinkError(f"vehicle never acknowledged MAVLink command {command}")
+        sysid, compid = self.target()
+        self._by_command[command] = req.key
+        self.mav.command_long_send(sysid or 1, compid, command, req.attempt - 1, *p)
 
-    async def read_param(self, name: str, timeout_s: float = 1.0) -> float | None:
-        """PARAM_REQUEST_READ by name (asked twice); the value, or None when the autopilot does not answer."""
-        fut: asyncio.Future = asyncio.get_running_loop().create_future()
-        self._params[name] = fut
-        for _ in range(2):
-            sysid, compid = self.target()
-            self.link.mav.param_request_read_send(sysid or 1, compid, name.encode(), -1)
-            try:
-                async with asyncio.timeout(timeout_s):
-                    return float(await asyncio.shield(fut))
-            except TimeoutError:
-                continue
-        self._params.pop(name, None)
+    def answer_of(self, msg: Any) -> tuple[str, int | float] | None:
+        """The (request key, result) a COMMAND_ACK or PARAM_VALUE from the target answers, else None."""
+        mtype = msg.get_type()
+        if mtype == "COMMAND_ACK":
+            if msg.get_srcSystem() != self.target()[0]:
+                return None
+            key = self._by_command.get(int(msg.command))
+            return None if key is None else (key, int(msg.result))
+        if mtype == "PARAM_VALUE":
+            if msg.get_srcSystem() != self.target()[0]:
+                return None
+            pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else str(msg.param_id)
+            value = float(msg.param_value)
+            if not math.isfinite(value):
+                return None
+            return (f"param:{pid}", value)
         return None

@@ -2,9 +2,15 @@
 
 Connection URLs as MAVSDK and mavutil users know them:
 
-* ``udpin://0.0.0.0:14540`` — bind that port and talk to whoever sends to it (the default; PX4's SITL
-  sends its onboard link to 127.0.0.1:14540);
+* ``udpin://0.0.0.0:14540`` — bind that port and talk to the vehicle that sends to it (the default; PX4's
+  SITL sends its onboard link to 127.0.0.1:14540);
 * ``udpout://127.0.0.1:14580`` — send to that address from an ephemeral local port.
+
+Lock-on (as MAVSDK and MAVProxy do): once the app has found the vehicle (its first autopilot HEARTBEAT) it
+calls :meth:`MavlinkLink.lock_to_last_sender`; from then on only datagrams from that address are read, and
+setpoints go only there. Datagrams from any other address are counted (``foreign_sender``) and dropped
+before decoding: they can neither steer the companion nor re-target its setpoints. Before the lock, a udpin
+link reads everyone but sends nothing.
 
 Every datagram in and out is also written to a ``.tlog`` (8-byte big-endian microsecond UNIX time stamp +
 raw frame, the format ground stations write and ``mavlogdump.py`` reads). Undecodable input is counted and
@@ -126,6 +132,8 @@ class MavlinkLink:
         self._last_log: dict[str, float] = {}
         self._transport: asyncio.DatagramTransport | None = None
         self._remote: tuple[str, int] | None = None if self.url.mode == "udpin" else (self.url.host, self.url.port)
+        self._locked: tuple[str, int] | None = None
+        self.last_sender: tuple[str, int] | None = None  # address of the datagram being handled
         self._tlog = TlogWriter(tlog) if tlog else None
         self.on_datagram_done: Callable[[], None] | None = None  # called after each datagram's messages
 
@@ -162,9 +170,24 @@ class MavlinkLink:
     async def __aexit__(self, *exc: object) -> None:
         self.close()
 
+    def lock_to_last_sender(self) -> None:
+        """Accept datagrams only from the sender of the datagram being handled (the vehicle), and send there
+        (udpin; a udpout link keeps sending to its URL)."""
+        if self.last_sender is None:
+            return
+        self._locked = self.last_sender
+        if self.url.mode == "udpin":
+            self._remote = self.last_sender
+        log.info("locked onto the vehicle at %s:%d", *self._locked)
+
+    @property
+    def locked(self) -> tuple[str, int] | None:
+        """The vehicle's address once locked on."""
+        return self._locked
+
     @property
     def connected(self) -> bool:
-        """True once we know where to send (udpout always; udpin after the first valid frame)."""
+        """True once we know where to send (udpout always; udpin once locked onto the vehicle)."""
         return self._remote is not None
 
     # pymavlink calls this to send a packed frame
@@ -186,6 +209,10 @@ class MavlinkLink:
             log.warning("MAVLink input rejected (%s, %d so far) %s", kind, self.rejected[kind], detail)
 
     def _on_datagram(self, data: bytes, addr: tuple[str, int]) -> None:
+        if self._locked is not None and addr != self._locked:
+            self._count("foreign_sender", f"from {addr[0]}:{addr[1]}")
+            return
+        self.last_sender = addr
         msgs = self._split_fast(data)
         if msgs is None:  # anything unusual: pymavlink's own parser, exactly as it always did
             self._on_datagram_pymavlink(data, addr)
@@ -198,8 +225,6 @@ class MavlinkLink:
                 self.handler(msg)
             except Exception:  # a bug in a handler must not kill the socket; log it loudly
                 log.exception("handler failed on %s", msg.get_type())
-        if self.url.mode == "udpin":
-            self._remote = addr
         if self.on_datagram_done is not None:
             self.on_datagram_done()
 
@@ -249,7 +274,5 @@ class MavlinkLink:
                 self.handler(msg)
             except Exception:  # a bug in a handler must not kill the socket; log it loudly
                 log.exception("handler failed on %s", msg.get_type())
-        if good and self.url.mode == "udpin":
-            self._remote = addr
-        if self.on_datagram_done is not None:
+        if good and self.on_datagram_done is not None:
             self.on_datagram_done()

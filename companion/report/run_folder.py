@@ -64,6 +64,11 @@ def build_report(flog: FlightLog, mission: Mission, extra: dict[str, Any]) -> di
     swing_modes = [m for m in flog.envelope_mode if m]
     rep["envelope_modes"] = {m: swing_modes.count(m) for m in sorted(set(swing_modes))}
     rep.update(extra)
+    # One meaning for ``reached_goal``: the flight's outcome is ``completed`` (goal reached and held). Being near
+    # the goal at some moment is ``goal_visited``; a failed flight never claims the goal.
+    rep["goal_visited"] = bool(rep.get("reached_goal"))
+    if "outcome" in extra:
+        rep["reached_goal"] = rep["goal_visited"] and extra["outcome"] == "completed"
     return _clean(rep)
 
 

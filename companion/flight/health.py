@@ -1,0 +1,98 @@
+"""Link health, measured without I/O: frame loss and reordering from MAVLink sequence numbers, telemetry age
+and staleness per control tick. The app feeds it; the status stream and the report read :meth:`summary`.
+
+Loss: MAVLink numbers every frame per (system, component) modulo 256. A jump of 1..127 ahead counts the
+frames in between as lost; a step back (or a repeat) counts as reordered/duplicated.
+Staleness: a tick is *stale* when the older of position and attitude is more than three control periods
+older than its usual interval (learned from the stream itself, so an autopilot that sends 50 Hz instead
+of the 250 Hz asked for is not stale for it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+_AGE_RING = 4096  # recent telemetry ages kept for the percentiles
+
+
+@dataclass
+class _Stream:
+    last_t_s: float | None = None
+    interval_s: float | None = None  # exponential average of the sample interval (vehicle time)
+
+    def sample(self, t_s: float) -> None:
+        if self.last_t_s is not None and t_s > self.last_t_s:
+            dt = t_s - self.last_t_s
+            self.interval_s = dt if self.interval_s is None else 0.95 * self.interval_s + 0.05 * dt
+        self.last_t_s = t_s
+
+
+@dataclass
+class LinkHealth:
+    """Counters and recent ages; ``period_s`` is the control period."""
+
+    period_s: float = 0.004
+    frames: int = 0
+    lost: int = 0
+    reordered: int = 0
+    stale_ticks: int = 0
+    _next_seq: dict[tuple[int, int], int] = field(default_factory=dict)
+    _ages: np.ndarray = field(default_factory=lambda: np.full(_AGE_RING, np.nan))
+    _n_ages: int = 0
+    _streams: dict[str, _Stream] = field(default_factory=dict)
+
+    def on_frame(self, sysid: int, compid: int, seq: int) -> None:
+        """One frame from (sysid, compid) with sequence number ``seq`` (0..255)."""
+        self.frames += 1
+        key = (sysid, compid)
+        expected = self._next_seq.get(key)
+        self._next_seq[key] = (seq + 1) & 0xFF
+        if expected is None:
+            return
+        gap = (seq - expected) & 0xFF
+        if gap == 0:
+            return
+        if gap < 128:
+            self.lost += gap
+        else:
+            self.reordered += 1
+            self._next_seq[key] = expected  # keep waiting for the frame we expected
+
+    def on_sample(self, kind: str, t_s: float) -> None:
+        """A telemetry sample of ``kind`` (``position``, ``attitude``) stamped ``t_s`` (vehicle time)."""
+        st = self._streams.get(kind)
+        if st is None:
+            st = self._streams[kind] = _Stream()
+        st.sample(t_s)
+
+    def on_tick(self, now_vehicle_s: float, age_wall_s: float | None) -> bool:
+        """Record one tick's telemetry age (wall, s); returns True when the tick counts as stale."""
+        if age_wall_s is not None and math.isfinite(age_wall_s):
+            self._ages[self._n_ages % _AGE_RING] = age_wall_s
+            self._n_ages += 1
+        stale = False
+        for st in self._streams.values():
+            if st.last_t_s is None or st.interval_s is None:
+                continue
+            if now_vehicle_s - st.last_t_s > st.interval_s + 3.0 * self.period_s:
+                stale = True
+        if stale:
+            self.stale_ticks += 1
+        return stale
+
+    def summary(self) -> dict[str, float | int | None]:
+        """frames, lost, loss fraction, reordered, stale ticks, telemetry age p50/p99 (ms, wall)."""
+        ages = self._ages[np.isfinite(self._ages)]
+        expected = self.frames + self.lost
+        return {
+            "frames": self.frames,
+            "lost": self.lost,
+            "loss": (self.lost / expected) if expected else 0.0,
+            "reordered": self.reordered,
+            "stale_ticks": self.stale_ticks,
+            "telemetry_age_ms_p50": float(np.percentile(ages, 50) * 1e3) if ages.size else None,
+            "telemetry_age_ms_p99": float(np.percentile(ages, 99) * 1e3) if ages.size else None,
+        }
