@@ -158,3 +158,33 @@ def test_number_of_live_publishers_is_bounded() -> None:
     assert st.ingest("p/extra", sample([]), now_s=0.0)  # clearing nothing is fine
     assert st.ingest("p/0", sample([{**TRUNK, "x_m": 1.0}]), now_s=0.0)  # known source may update
     assert len(st.current(0.0, ())) == MAX_SOURCES
+
+
+def test_sample_parser_spreads_a_long_list_over_several_budgets_and_agrees_with_the_one_shot_parse():
+    import json as _json
+
+    from companion.zenoh_io.obstacle_store import SampleParser, parse_obstacles_in
+
+    raw = _json.dumps({"obstacles": [{"x_m": 10.0 + i, "y_m": -3.0, "radius_m": 0.2 + 0.001 * i}
+                                     for i in range(200)], "expires_s": 2.0}).encode()
+    ticks = [0.0]
+
+    def clock() -> float:  # every look at the clock costs 10 µs of "time"
+        ticks[0] += 10e-6
+        return ticks[0]
+
+    p = SampleParser("k", raw)
+    calls = 0
+    while True:
+        calls += 1
+        if p.work(ticks[0] + 30e-6, clock):
+            break
+    assert calls > 5  # it stopped at the deadline and went on
+    assert p.error is None and (p.obstacles, p.expires_s) == parse_obstacles_in(raw, "k")
+
+
+def test_sample_parser_refuses_a_bad_item_with_its_index():
+    from companion.zenoh_io.obstacle_store import SampleParser
+
+    p = SampleParser("k", b'{"obstacles": [{"x_m": 1, "y_m": 0, "radius_m": 0.3}, {"x_m": 1, "y_m": 0}]}')
+    assert p.work(1e9) and p.error == "obstacles[1].radius_m: missing required key"

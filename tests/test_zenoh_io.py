@@ -172,10 +172,12 @@ def test_live_obstacles_are_used_bad_ones_counted_and_ignored() -> None:
         d.wait_event("ready")
         cam = s.declare_publisher("slungpilot/7/obstacles/in/cam")
         lidar = s.declare_publisher("slungpilot/world/obstacles/lidar")
-        wait_matching(cam)
-        wait_matching(lidar)
-        for raw in bad:
-            cam.put(raw)
+        # one bad sample per publisher: only a publisher's newest unread sample is parsed (a flood sheds the rest)
+        broken = [s.declare_publisher(f"slungpilot/7/obstacles/in/broken{i}") for i in range(len(bad))]
+        for pub in (cam, lidar, *broken):
+            wait_matching(pub)
+        for pub, raw in zip(broken, bad, strict=True):
+            pub.put(raw)
         lidar.put(json.dumps({"obstacles": [trunk]}))
 
         def latest() -> dict:

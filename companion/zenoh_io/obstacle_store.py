@@ -52,11 +52,8 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool)
 
 
-def parse_obstacles_in(raw: bytes | str, source: str) -> tuple[tuple[Obstacle, ...], float | None]:
-    """Parse and validate one input sample; returns (obstacles with ``source`` set, expires_s or None).
-
-    Raises ``ValueError("<key>: message")`` on any problem (the whole sample is refused).
-    """
+def _decode_sample(raw: bytes | str) -> tuple[list, float | None]:
+    """The sample's JSON object checked at its top level: (the raw obstacle items, expires_s or None)."""
     if len(raw) > MAX_SAMPLE_BYTES:
         raise ValueError(f"sample: {len(raw)} bytes is above {MAX_SAMPLE_BYTES}")
     try:
@@ -82,26 +79,76 @@ def parse_obstacles_in(raw: bytes | str, source: str) -> tuple[tuple[Obstacle, .
     expires = d.get("expires_s")
     if expires is not None and (not _is_number(expires) or not 0.0 < expires <= MAX_EXPIRES_S):
         raise ValueError(f"expires_s: must be a number in (0, {MAX_EXPIRES_S}] s or null, got {expires!r}")
-    out = []
-    for i, it in enumerate(items):
-        if not isinstance(it, dict):
-            raise ValueError(f"obstacles[{i}]: expected an object, got {type(it).__name__}")
-        bad = sorted(set(it) - set(_OBSTACLE_KEYS))
-        if bad:
-            raise ValueError(f"obstacles[{i}].{bad[0]}: unknown key (known: {', '.join(_OBSTACLE_KEYS)})")
-        for k in _REQUIRED_KEYS:
-            if k not in it:
-                raise ValueError(f"obstacles[{i}].{k}: missing required key")
-        for k, v in it.items():
-            if not _is_number(v):
-                raise ValueError(f"obstacles[{i}].{k}: expected a number, got {v!r}")
-        ob = Obstacle(**{k: float(v) for k, v in it.items()}, source=source)
+    return items, (None if expires is None else float(expires))
+
+
+def _obstacle_of(i: int, it: Any, source: str) -> Obstacle:
+    """Item ``i`` of a sample's obstacle list as a validated :class:`Obstacle`."""
+    if not isinstance(it, dict):
+        raise ValueError(f"obstacles[{i}]: expected an object, got {type(it).__name__}")
+    bad = sorted(set(it) - set(_OBSTACLE_KEYS))
+    if bad:
+        raise ValueError(f"obstacles[{i}].{bad[0]}: unknown key (known: {', '.join(_OBSTACLE_KEYS)})")
+    for k in _REQUIRED_KEYS:
+        if k not in it:
+            raise ValueError(f"obstacles[{i}].{k}: missing required key")
+    for k, v in it.items():
+        if not _is_number(v):
+            raise ValueError(f"obstacles[{i}].{k}: expected a number, got {v!r}")
+    ob = Obstacle(**{k: float(v) for k, v in it.items()}, source=source)
+    try:
+        ob.validate()
+    except ValueError as exc:
+        raise ValueError(f"obstacles[{i}].{exc}") from None
+    return ob
+
+
+def parse_obstacles_in(raw: bytes | str, source: str) -> tuple[tuple[Obstacle, ...], float | None]:
+    """Parse and validate one input sample; returns (obstacles with ``source`` set, expires_s or None).
+
+    Raises ``ValueError("<key>: message")`` on any problem (the whole sample is refused).
+    """
+    items, expires = _decode_sample(raw)
+    return tuple(_obstacle_of(i, it, source) for i, it in enumerate(items)), expires
+
+
+class SampleParser:
+    """One sample parsed a slice at a time: :meth:`work` stops at a deadline and goes on at the next call, so a
+    list of hundreds of obstacles never costs one control tick more than its budget.
+
+    After :meth:`work` returned True, ``error`` is None and ``obstacles``/``expires_s`` hold the result, or
+    ``error`` says why the sample was refused as a whole.
+    """
+
+    def __init__(self, key: str, raw: bytes | str) -> None:
+        self.key = key
+        self._raw: bytes | str | None = raw
+        self._items: list | None = None
+        self._out: list[Obstacle] = []
+        self.obstacles: tuple[Obstacle, ...] = ()
+        self.expires_s: float | None = None
+        self.error: str | None = None
+
+    def work(self, deadline_s: float, clock: Callable[[], float] = time.perf_counter) -> bool:
+        """Parse until done (True) or until ``clock()`` passes ``deadline_s`` (False: call again)."""
         try:
-            ob.validate()
+            if self._items is None:
+                assert self._raw is not None
+                self._items, self.expires_s = _decode_sample(self._raw)
+                self._raw = None
+            items, out, key = self._items, self._out, self.key
+            while len(out) < len(items):
+                out.append(_obstacle_of(len(out), items[len(out)], key))
+                if len(out) % 8 == 0 and clock() > deadline_s:
+                    return len(out) == len(items) and self._finish()
         except ValueError as exc:
-            raise ValueError(f"obstacles[{i}].{exc}") from None
-        out.append(ob)
-    return tuple(out), (None if expires is None else float(expires))
+            self.error = str(exc)
+            return True
+        return self._finish()
+
+    def _finish(self) -> bool:
+        self.obstacles = tuple(self._out)
+        return True
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,9 +184,21 @@ class ObstacleStore:
     def ingest(self, source_key: str, raw_bytes: bytes | str, now_s: float) -> bool:
         """Take one sample from publisher ``source_key`` at app time ``now_s``; False if rejected."""
         try:
+            obstacles, expires_s = parse_obstacles_in(raw_bytes, source_key)
+        except ValueError as exc:
+            self._reject(source_key, str(exc))
+            return False
+        return self.adopt(source_key, obstacles, expires_s, now_s)
+
+    def reject(self, source_key: str, why: str) -> None:
+        """Count a sample that failed parsing elsewhere (e.g. in a :class:`SampleParser`)."""
+        self._reject(source_key, why)
+
+    def adopt(self, source_key: str, obstacles: tuple[Obstacle, ...], expires_s: float | None, now_s: float) -> bool:
+        """Take publisher ``source_key``'s parsed list at app time ``now_s``; False if refused."""
+        try:
             if not math.isfinite(now_s):
                 raise ValueError(f"now_s: must be finite, got {now_s!r}")
-            obstacles, expires_s = parse_obstacles_in(raw_bytes, source_key)
             if source_key not in self._entries and obstacles and len(self._entries) >= MAX_SOURCES:
                 raise ValueError(f"source: {MAX_SOURCES} live publishers already, refusing {source_key!r}")
         except ValueError as exc:

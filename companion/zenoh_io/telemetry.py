@@ -5,17 +5,18 @@ Streams (``<prefix>/<id>/...``, prefix default ``slungpilot``, id the vehicle id
 (1 Hz), ``obstacles`` (on change, at most 20 Hz, at least 1 Hz), liveliness token ``alive``, queryable
 ``config``. Input: ``<prefix>/<id>/obstacles/in/**`` and ``<prefix>/world/obstacles/**``.
 
-Threading: Zenoh callbacks run on Zenoh's threads. They never block and never touch app state: obstacle
-samples and config queries are handed to the asyncio loop with ``loop.call_soon_threadsafe`` (when the
-object was entered with ``async with``; in plain ``with`` use they are queued directly on a thread-safe
-deque). Obstacle samples are ingested into the :class:`ObstacleStore` by :meth:`obstacles_now`, with the
-app's clock, so expiry counts in sim time and a new obstacle is used at the next control tick.
+Threading: Zenoh callbacks run on Zenoh's threads. They never block and never touch app state: an obstacle
+sample only replaces its publisher's previous unread sample in a small locked table (newest wins; the
+superseded ones are counted, never parsed), and config queries are handed to the asyncio loop with
+``loop.call_soon_threadsafe``. Obstacle samples are parsed by :meth:`obstacles_now` inside the control tick,
+within a time budget (``ingest_budget_s``, 0.3 ms): a list too long for one tick is parsed over several
+(:class:`~companion.zenoh_io.obstacle_store.SampleParser`). So a flood — any rate, any size — costs each tick at
+most the budget, and the newest list of every publisher still gets through.
 """
 
 from __future__ import annotations
 
 import asyncio
-import collections
 import contextlib
 import dataclasses
 import logging
@@ -33,13 +34,13 @@ import zenoh
 from companion.core.obstacles import Obstacle
 from companion.errors import ConfigError
 from companion.zenoh_io import schema as ts
-from companion.zenoh_io.obstacle_store import ObstacleStore
+from companion.zenoh_io.obstacle_store import ObstacleStore, SampleParser
 from companion.zenoh_io.session import DEFAULT_PREFIX, check_key_part, open_session
 
 log = logging.getLogger(__name__)
 
-MAX_INBOX = 1000
-MAX_INGEST_PER_TICK = 8  # bounds the parsing done in one control tick; the rest waits a tick
+MAX_PUBLISHERS_WAITING = 256  # distinct publishers with an unread sample; beyond this samples are dropped
+INGEST_BUDGET_S = 0.3e-3  # parsing time one control tick may spend on live obstacle input
 MAX_QUEUE = 2000
 Vec = Sequence[float] | np.ndarray
 
@@ -142,7 +143,9 @@ class ZenohTelemetry:
         self.keys["obstacles_in"] = f"{base}/obstacles/in/**"
         self.keys["world_obstacles"] = f"{self.options.prefix}/world/obstacles/**"
         self.seq = dict.fromkeys(ts.STREAMS, 0)
-        self.inbox_dropped = 0
+        self.inbox_dropped = 0  # samples dropped: too many publishers waiting
+        self.superseded = 0  # samples replaced by a newer one from the same publisher before they were parsed
+        self.ingest_budget_s = INGEST_BUDGET_S
         self.dropped_local = 0
         self.worker_errors = 0
         self._queue: queue.SimpleQueue | None = None
@@ -151,7 +154,10 @@ class ZenohTelemetry:
         self._session: zenoh.Session | None = None
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._inbox: collections.deque[tuple[str, bytes]] = collections.deque()
+        self._latest: dict[str, bytes] = {}  # publisher key → newest unread sample (Zenoh threads write)
+        self._latest_lock = threading.Lock()
+        self._waiting: dict[str, bytes] = {}  # taken from _latest, not yet parsed (the loop's own)
+        self._parser: SampleParser | None = None
         self._provider: Callable[[], Mapping[str, Any]] | None = None
         self._state_every = _Every(self.options.state_hz)
         self._setpoint_every = _Every(self.options.setpoint_hz)
@@ -291,7 +297,8 @@ class ZenohTelemetry:
         body = _body(payload)
         body.setdefault("obstacles_in", {
             "accepted": self.store.accepted_count, "rejected": self.store.rejected_count,
-            "inbox_dropped": self.inbox_dropped, "pending": len(self._inbox),
+            "inbox_dropped": self.inbox_dropped, "superseded": self.superseded,
+            "pending": len(self._waiting) + len(self._latest) + (self._parser is not None),
             "sources": list(self.store.sources()),
         })
         body.setdefault("zenoh", {"dropped_local": self.dropped_local, "worker_errors": self.worker_errors})
@@ -318,27 +325,45 @@ class ZenohTelemetry:
 
     # -- obstacles in ----------------------------------------------------------------------------------
     def _on_obstacle_sample(self, sample: zenoh.Sample) -> None:
-        """Zenoh thread: copy out key and bytes, queue them; never blocks."""
-        if len(self._inbox) >= MAX_INBOX:
-            self.inbox_dropped += 1
-            return
-        item = (str(sample.key_expr), sample.payload.to_bytes())
-        loop = self._loop
-        if loop is None:
-            self._inbox.append(item)
-            return
-        try:
-            loop.call_soon_threadsafe(self._inbox.append, item)
-        except RuntimeError:  # loop closed while the session lives on
-            self.inbox_dropped += 1
+        """Zenoh thread: keep the newest sample per publisher; never blocks, never parses."""
+        key = str(sample.key_expr)
+        raw = sample.payload.to_bytes()
+        with self._latest_lock:
+            if key in self._latest:
+                self.superseded += 1
+            elif len(self._latest) >= MAX_PUBLISHERS_WAITING:
+                self.inbox_dropped += 1
+                return
+            self._latest[key] = raw
 
     def obstacles_now(self, now_s: float, mission_obstacles: Sequence[Obstacle] = ()) -> tuple[Obstacle, ...]:
-        """Ingest queued live samples (at most ``MAX_INGEST_PER_TICK``, oldest first) at app time ``now_s``;
-        the merged set to plan with now. Parsing costs ≈ 5–15 µs per obstacle, so one tick stays bounded."""
-        inbox = self._inbox
-        for _ in range(min(len(inbox), MAX_INGEST_PER_TICK)):
-            key, raw = inbox.popleft()
-            self.store.ingest(key, raw, now_s)
+        """Parse waiting live samples for at most ``ingest_budget_s`` and adopt the finished ones at app time
+        ``now_s``; the merged set to plan with now."""
+        if self._latest:
+            with self._latest_lock:
+                latest, self._latest = self._latest, {}
+            for key in latest:
+                if key in self._waiting or (self._parser is not None and self._parser.key == key):
+                    self.superseded += 1
+            self._waiting.update(latest)
+        if self._parser is not None or self._waiting:
+            deadline = time.perf_counter() + self.ingest_budget_s
+            while True:
+                if self._parser is None:
+                    if not self._waiting:
+                        break
+                    key = next(iter(self._waiting))
+                    self._parser = SampleParser(key, self._waiting.pop(key))
+                p = self._parser
+                if not p.work(deadline):
+                    break
+                self._parser = None
+                if p.error is not None:
+                    self.store.reject(p.key, p.error)
+                else:
+                    self.store.adopt(p.key, p.obstacles, p.expires_s, now_s)
+                if time.perf_counter() > deadline:
+                    break
         self.last_obstacles = self.store.current(now_s, mission_obstacles)
         return self.last_obstacles
 
