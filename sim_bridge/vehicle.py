@@ -416,7 +416,10 @@ class SitlVehicle:
             now = time.monotonic()
             if now - self._last_marker_wall >= MARKER_RESEND_S:
                 self._send_marker()
-            if now - self._last_hb_wall >= 1.0:
+            # While a client steps the simulation, HEARTBEATs come on simulated time only (a wall-clock one
+            # would show the client a state change at a wall-time-dependent moment: lockstep runs must repeat bit
+            # for bit). Only an idle vehicle (no step for 2 s) heartbeats on the wall clock, to be discovered.
+            if now - self._last_hb_wall >= 1.0 and now - self._last_marker_wall >= 2.0:
                 self._last_hb_wall = now
                 for lk in self._links():
                     telemetry.send_vehicle_message(M.MAVLINK_MSG_ID_HEARTBEAT, lk.mav, self)

@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import dataclasses
 import logging
+import os
 import signal
 import sys
 import time
@@ -105,6 +106,17 @@ def mission_from_args(args: argparse.Namespace) -> Mission:
     return mission.with_(**changes) if changes else mission
 
 
+def _env_float(name: str) -> float | None:
+    """A float from the environment (fault-injection hooks of the fault suite); None when unset."""
+    raw = os.environ.get(name)
+    if raw is None or raw == "":
+        return None
+    try:
+        return float(raw)
+    except ValueError:
+        raise ConfigError(f"{name}: expected a number, got {raw!r}") from None
+
+
 def default_run_dir(mission: Mission) -> Path:
     stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
     return Path("runs") / f"{stamp}-{mission.name}-{mission.planner}-{mission.controller}"
@@ -128,6 +140,7 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
         swing_input=args.swing_input, heartbeat_timeout_s=args.heartbeat_timeout,
         ready_timeout_s=args.ready_timeout, land_on_abort=not args.no_land_on_abort,
         tlog_path=run_dir / "flight.tlog", run_dir=run_dir,
+        inject_tick_error_at_s=_env_float("SLUNGPILOT_INJECT_TICK_ERROR_AT_S"),
     )
     if opts.rate_hz <= 0 or opts.rate_hz > 2000:
         raise ConfigError(f"--rate-hz: must be in (0, 2000], got {opts.rate_hz}")

@@ -9,10 +9,11 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
 
 from companion import __version__
 from companion.cli.dispatch import dispatch
-from companion.errors import SlungpilotError
+from companion.errors import ConfigError, SlungpilotError
 
 log = logging.getLogger(__name__)
 
@@ -53,6 +54,17 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         return cmd_bench_zenoh(args.seconds)
     raise SlungpilotError(f"bench target {args.target!r} is not available in this build")
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from companion.report.journal import rebuild_run
+    from companion.report.run_folder import summary_text
+
+    if not (args.run_dir / "flight_log.journal").exists():
+        raise ConfigError(f"{args.run_dir}: no flight_log.journal here (not a run folder of slungpilot fly?)")
+    rep = rebuild_run(args.run_dir, plots=not args.no_plots)
+    print(summary_text(rep))
+    return 0
 
 
 def _cmd_missions(args: argparse.Namespace) -> int:
@@ -134,6 +146,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_experiments_parser(sub)
     add_evaluate_parser(sub)
+
+    report = sub.add_parser(
+        "report", help="rebuild a run folder's report, summary and plots from its journal (e.g. after kill -9)",
+        description="While flying, `fly` flushes the per-tick log (flight_log.journal) and a provisional report "
+                    "(report.partial.json) to the run folder once a second. This rebuilds report.json, summary.txt, "
+                    "flight_log.npz and the plots from them: a companion killed at any moment loses at most a "
+                    "second. A run that never finished gets the outcome 'interrupted'.")
+    report.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="the run folder")
+    report.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    report.set_defaults(func=_cmd_report)
 
     missions = sub.add_parser("missions", help="list the shipped missions (use their names with fly --mission)",
                               description="The missions that ship with slungpilot, by name, with where they fly.")

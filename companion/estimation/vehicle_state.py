@@ -13,7 +13,9 @@ before it is believed, and what fails is counted in ``rejected`` by kind:
   of it by more than 1 s plus what the wall clock allows (``max_time_rate`` vehicle seconds per wall second:
   ~1 in real time, large in lockstep where the simulator runs ahead of the wall clock);
 * ``position_jump``: a position farther from the last than ``max_speed_mps`` allows in the time between;
-* ``attitude_range``: roll or yaw outside ±π, pitch outside ±π/2.
+* ``attitude_range``: roll or yaw outside ±π, pitch outside ±π/2;
+* ``out_of_order``: a position or attitude older than the one already held (a reordered datagram): the newer
+  one stays.
 
 A rejected sample leaves the state as it was, so a spoofed or broken sample can make telemetry stale (the
 flight sequence then holds) but never becomes a setpoint.
@@ -221,6 +223,8 @@ class VehicleState:
             if abs(a[0]) > math.pi + 1e-6 or abs(a[1]) > math.pi / 2 + 1e-6 or abs(a[2]) > math.pi + 1e-6:
                 return self._reject("attitude_range")
             t = msg.time_boot_ms * 1e-3
+            if t < self.att_t_s:
+                return self._reject("out_of_order")
             if not self._time_ok(t, wall_s):
                 return "REJECTED"
             self.euler_rad = np.array(a[:3])
@@ -233,6 +237,8 @@ class VehicleState:
                     and isfinite(p[5])):
                 return self._reject("nonfinite")
             t = msg.time_boot_ms * 1e-3
+            if t < self.pos_t_s:
+                return self._reject("out_of_order")
             if self.pos_ned_m is not None:
                 dt = abs(t - self.pos_t_s)
                 q = self.pos_ned_m

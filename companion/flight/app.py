@@ -67,6 +67,8 @@ ATT_TYPE_MASK = (
 TICK_ONLY_MASK = ATT_TYPE_MASK | mavlink2.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE | \
     mavlink2.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE
 _LEVEL_Q = np.array([1.0, 0.0, 0.0, 0.0])
+RELEVANT_RADIUS_M = 20.0  # obstacles farther than this from the vehicle are not given to the planner
+MAX_OBSTACLES_SEEN = 4096  # the report's record of obstacles met is bounded too
 
 
 class TelemetrySink(Protocol):
@@ -103,6 +105,9 @@ class FlyOptions:
     sock: socket.socket | None = None  # an already bound UDP socket for the link (fly --sitl reserves one)
     sequence: SequenceConfig | None = None  # timeouts of the flight sequence (defaults otherwise)
     provisional: Callable[[FlightApp], dict[str, Any]] | None = None  # the journal's provisional report
+    # Fault injection for the fault suite: from this vehicle time (s) on, every tick that would compute a setpoint
+    # raises (``SLUNGPILOT_INJECT_TICK_ERROR_AT_S`` sets it for ``slungpilot fly``). None in normal use.
+    inject_tick_error_at_s: float | None = None
 
 
 @dataclass
@@ -163,6 +168,11 @@ class FlightApp:
         self.core = FlightCore(mission, gains=opts.gains, profile=self.profile)
         self.period_s = 1.0 / opts.rate_hz
         base = opts.sequence or SequenceConfig()
+        if opts.lockstep:
+            # Simulated time waits for both processes: a stall of either is not staleness (the vehicle's
+            # telemetry is measured from our last answer), and a loaded machine can pause a process for longer
+            # than 0.5 s; the vehicle's own wall-clock HEARTBEAT (1 Hz) still tells a dead vehicle in 1.5 s.
+            base = replace(base, stale_s=float("inf"), telemetry_loss_s=max(base.telemetry_loss_s, 1.0))
         self.seq = FlightSequence(replace(
             base, connect_timeout_s=opts.heartbeat_timeout_s, ready_timeout_s=opts.ready_timeout_s,
             prestream_s=opts.prestream_s, land_on_abort=opts.land_on_abort, land_at_end=mission.land,
@@ -183,6 +193,8 @@ class FlightApp:
         self.params: dict[str, float] = {}  # autopilot parameters read or set during the flight
         self._last_obstacles: Sequence[Obstacle] | None = None
         self._obstacles_seen: dict[tuple, Obstacle] = {}
+        self._culled: Sequence[Obstacle] = ()
+        self._cull_xy = (float("inf"), float("inf"))
         self._marker_pending = False
         self._last_marker_ms = -1
         self._marker_seen_wall = 0.0
@@ -357,10 +369,16 @@ class FlightApp:
     def _observe(self, est: Estimate | None, wall: float) -> Observation:
         st = self.state
         tel_wall = st.telemetry_wall_s
-        if self.opts.lockstep and tel_wall is not None and self._last_answer_wall <= tel_wall:
-            tel_wall = wall  # the vehicle has not had our answer yet: it waits on us, its telemetry is current
+        hb_wall = st.heartbeat_wall_s
+        if self.opts.lockstep:
+            if tel_wall is not None and self._last_answer_wall <= tel_wall:
+                tel_wall = wall  # the vehicle has not had our answer yet: it waits on us, its telemetry is current
+            if hb_wall is not None:
+                # its HEARTBEAT runs on simulated time, which may run slower than the wall clock on a loaded
+                # machine: in lockstep any datagram from the vehicle shows it is alive
+                hb_wall = max(hb_wall, self.link.last_rx_wall)
         return Observation(
-            now_s=st.t_s if self.opts.lockstep else wall, wall_s=wall, heartbeat_wall_s=st.heartbeat_wall_s,
+            now_s=st.t_s if self.opts.lockstep else wall, wall_s=wall, heartbeat_wall_s=hb_wall,
             telemetry_wall_s=tel_wall, telemetry_ready=st.ready(), vehicle_ready=st.ready_to_arm(),
             armed=st.armed, mode=st.mode, on_ground=st.on_ground, heartbeats=st.heartbeats,
             estimate_ok=est is not None, core_result=self.core.result, tick_errors_in_row=self._tick_errors_in_row,
@@ -396,7 +414,9 @@ class FlightApp:
                 self.core.descend()
             if stream in (Stream.CORE, Stream.DESCENT):
                 if est is not None:
-                    obstacles = self._obstacles(est.t_s)
+                    if self.opts.inject_tick_error_at_s is not None and est.t_s >= self.opts.inject_tick_error_at_s:
+                        raise RuntimeError("injected tick fault (SLUNGPILOT_INJECT_TICK_ERROR_AT_S)")
+                    obstacles = self._obstacles(est)
                     cmd = self.core.update(est, obstacles)
                     self.last_cmd = cmd
                     setpoint = (est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm)
@@ -454,13 +474,29 @@ class FlightApp:
             return None
         return lv[0], lv[1], lv[2]
 
-    def _obstacles(self, t_s: float) -> Sequence[Obstacle]:
-        obstacles = self.obstacle_source(t_s) if self.obstacle_source else self.mission.obstacles
+    def _obstacles(self, est: Estimate) -> Sequence[Obstacle]:
+        """The obstacles the planner gets this tick: those within :data:`RELEVANT_RADIUS_M` of the vehicle.
+
+        Culling keeps the tick's cost bounded when a perception node publishes hundreds of far-away trunks
+        (the planner's cost grows with every obstacle it is given); it is redone when the set changes or the
+        vehicle has moved 2 m since the last time.
+        """
+        obstacles = self.obstacle_source(est.t_s) if self.obstacle_source else self.mission.obstacles
+        x, y = float(est.pos_ned_m[0]), float(est.pos_ned_m[1])
         if obstacles is not self._last_obstacles:
             self._last_obstacles = obstacles
-            for o in obstacles:
-                self._obstacles_seen.setdefault((o.x_m, o.y_m, o.radius_m, o.height_m), o)
-        return obstacles
+            if len(self._obstacles_seen) < MAX_OBSTACLES_SEEN:
+                for o in obstacles:
+                    self._obstacles_seen.setdefault((o.x_m, o.y_m, o.radius_m, o.height_m), o)
+        elif (x - self._cull_xy[0]) ** 2 + (y - self._cull_xy[1]) ** 2 < 4.0:
+            return self._culled
+        self._cull_xy = (x, y)
+        if len(obstacles) <= 16:
+            self._culled = obstacles
+        else:
+            r = RELEVANT_RADIUS_M
+            self._culled = tuple(o for o in obstacles if (o.x_m - x) ** 2 + (o.y_m - y) ** 2 < (r + o.radius_m) ** 2)
+        return self._culled
 
     def _apply_configured(self, answers: dict[str, float | int]) -> None:
         """Use what the set-up learned: the hover thrust parameter; say which streams were refused."""

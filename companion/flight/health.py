@@ -1,8 +1,9 @@
 """Link health, measured without I/O: frame loss and reordering from MAVLink sequence numbers, telemetry age
 and staleness per control tick. The app feeds it; the status stream and the report read :meth:`summary`.
 
-Loss: MAVLink numbers every frame per (system, component) modulo 256. A jump of 1..127 ahead counts the
-frames in between as lost; a step back (or a repeat) counts as reordered/duplicated.
+Loss: MAVLink numbers every frame per (system, component) modulo 256. The numbers a source went through
+(every step of 1..127 ahead of the highest seen) minus the frames that arrived is the loss; a frame behind the
+highest seen arrived out of order (counted as reordered, and no longer as lost).
 Staleness: a tick is *stale* when the older of position and attitude is more than three control periods
 older than its usual interval (learned from the stream itself, so an autopilot that sends 50 Hz instead
 of the 250 Hz asked for is not stale for it).
@@ -36,10 +37,10 @@ class LinkHealth:
 
     period_s: float = 0.004
     frames: int = 0
-    lost: int = 0
     reordered: int = 0
     stale_ticks: int = 0
-    _next_seq: dict[tuple[int, int], int] = field(default_factory=dict)
+    _span: int = 0  # sequence numbers gone through, all sources
+    _last_seq: dict[tuple[int, int], int] = field(default_factory=dict)
     _ages: np.ndarray = field(default_factory=lambda: np.full(_AGE_RING, np.nan))
     _n_ages: int = 0
     _streams: dict[str, _Stream] = field(default_factory=dict)
@@ -48,18 +49,22 @@ class LinkHealth:
         """One frame from (sysid, compid) with sequence number ``seq`` (0..255)."""
         self.frames += 1
         key = (sysid, compid)
-        expected = self._next_seq.get(key)
-        self._next_seq[key] = (seq + 1) & 0xFF
-        if expected is None:
+        last = self._last_seq.get(key)
+        if last is None:
+            self._last_seq[key] = seq
+            self._span += 1
             return
-        gap = (seq - expected) & 0xFF
-        if gap == 0:
-            return
-        if gap < 128:
-            self.lost += gap
+        ahead = (seq - last) & 0xFF
+        if 0 < ahead < 128:
+            self._span += ahead
+            self._last_seq[key] = seq
         else:
             self.reordered += 1
-            self._next_seq[key] = expected  # keep waiting for the frame we expected
+
+    @property
+    def lost(self) -> int:
+        """Frames the sources numbered that never arrived (so far)."""
+        return max(0, self._span - self.frames)
 
     def on_sample(self, kind: str, t_s: float) -> None:
         """A telemetry sample of ``kind`` (``position``, ``attitude``) stamped ``t_s`` (vehicle time)."""
@@ -86,11 +91,10 @@ class LinkHealth:
     def summary(self) -> dict[str, float | int | None]:
         """frames, lost, loss fraction, reordered, stale ticks, telemetry age p50/p99 (ms, wall)."""
         ages = self._ages[np.isfinite(self._ages)]
-        expected = self.frames + self.lost
         return {
             "frames": self.frames,
             "lost": self.lost,
-            "loss": (self.lost / expected) if expected else 0.0,
+            "loss": (self.lost / self._span) if self._span else 0.0,
             "reordered": self.reordered,
             "stale_ticks": self.stale_ticks,
             "telemetry_age_ms_p50": float(np.percentile(ages, 50) * 1e3) if ages.size else None,

@@ -24,6 +24,7 @@ decoded by :func:`companion.mavlink_io.codec.decode_lite`; anything else goes th
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import socket
 import struct
@@ -93,15 +94,8 @@ class TlogWriter:
             self._fh.close()
 
 
-class _Protocol(asyncio.DatagramProtocol):
-    def __init__(self, link: MavlinkLink) -> None:
-        self.link = link
-
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.link._on_datagram(data, addr)
-
-    def error_received(self, exc: Exception) -> None:  # e.g. ICMP port unreachable on loopback
-        self.link._count("socket_error", str(exc))
+RCVBUF_BYTES = 4 << 20  # asked of the kernel (it grants up to net.core.rmem_max)
+DRAIN_MAX = 512  # datagrams read per wake-up at most, so a flood cannot starve the event loop either
 
 
 class MavlinkLink:
@@ -130,38 +124,62 @@ class MavlinkLink:
         self.received = 0
         self.sent = 0
         self._last_log: dict[str, float] = {}
-        self._transport: asyncio.DatagramTransport | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
         self._remote: tuple[str, int] | None = None if self.url.mode == "udpin" else (self.url.host, self.url.port)
         self._locked: tuple[str, int] | None = None
         self.last_sender: tuple[str, int] | None = None  # address of the datagram being handled
+        self.last_rx_wall = 0.0  # monotonic time of the last datagram accepted from the vehicle's address
         self._tlog = TlogWriter(tlog) if tlog else None
         self.on_datagram_done: Callable[[], None] | None = None  # called after each datagram's messages
 
     async def open(self) -> None:
-        """Bind the socket (udpin) or create the sending socket (udpout)."""
-        loop = asyncio.get_running_loop()
+        """Bind the socket (udpin) or create the sending socket (udpout), and read it on the running loop.
+
+        The socket is read with ``loop.add_reader``, draining up to :data:`DRAIN_MAX` datagrams per wake-up:
+        asyncio's datagram transport reads one datagram per loop iteration, and under a flood into our port the
+        kernel buffer then overflows and drops the vehicle's own datagrams along with the attacker's.
+        """
+        sock = self._sock
         try:
-            if self._sock is not None:
-                self._transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self), sock=self._sock)
-            elif self.url.mode == "udpin":
-                self._transport, _ = await loop.create_datagram_endpoint(
-                    lambda: _Protocol(self), local_addr=(self.url.host, self.url.port)
-                )
-            else:
-                local_host = "127.0.0.1" if self.url.host.startswith("127.") else "0.0.0.0"
-                self._transport, _ = await loop.create_datagram_endpoint(
-                    lambda: _Protocol(self), local_addr=(local_host, 0)
-                )
+            if sock is None:
+                sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                if self.url.mode == "udpin":
+                    sock.bind((self.url.host, self.url.port))
+                else:
+                    sock.bind(("127.0.0.1" if self.url.host.startswith("127.") else "0.0.0.0", 0))
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+            sock.setblocking(False)
         except OSError as exc:
+            if sock is not None and sock is not self._sock:
+                sock.close()
             raise LinkError(f"cannot open {self.url.mode}://{self.url.host}:{self.url.port}: {exc}") from None
+        self._sock = sock
+        self._loop = asyncio.get_running_loop()
+        self._loop.add_reader(sock.fileno(), self._drain)
 
     def close(self) -> None:
         """Close the socket and the tlog."""
-        if self._transport is not None:
-            self._transport.close()
-            self._transport = None
+        if self._sock is not None and self._loop is not None:
+            with contextlib.suppress(Exception):
+                self._loop.remove_reader(self._sock.fileno())
+            self._sock.close()
+            self._loop = None
         if self._tlog is not None:
             self._tlog.close()
+
+    def _drain(self) -> None:
+        """Read what the socket holds (at most :data:`DRAIN_MAX` datagrams) and handle each."""
+        sock = self._sock
+        for _ in range(DRAIN_MAX):
+            try:
+                data, addr = sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:  # e.g. ICMP port unreachable on loopback
+                self._count("socket_error", str(exc))
+                return
+            self._on_datagram(data, addr)
 
     async def __aenter__(self) -> MavlinkLink:
         await self.open()
@@ -193,10 +211,17 @@ class MavlinkLink:
     # pymavlink calls this to send a packed frame
     def write(self, frame: bytes) -> None:
         """File-like hook for pymavlink: send one frame to the remote (dropped before we know it)."""
-        if self._transport is None or self._remote is None:
+        if self._loop is None or self._remote is None:
             return
         frame = bytes(frame)
-        self._transport.sendto(frame, self._remote)
+        try:
+            self._sock.sendto(frame, self._remote)
+        except (BlockingIOError, InterruptedError):
+            self._count("send_dropped", "socket buffer full")
+            return
+        except OSError as exc:  # e.g. ICMP port unreachable from an earlier datagram
+            self._count("socket_error", str(exc))
+            return
         self.sent += 1
         if self._tlog is not None:
             self._tlog.write(frame)
@@ -213,6 +238,7 @@ class MavlinkLink:
             self._count("foreign_sender", f"from {addr[0]}:{addr[1]}")
             return
         self.last_sender = addr
+        self.last_rx_wall = time.monotonic()
         msgs = self._split_fast(data)
         if msgs is None:  # anything unusual: pymavlink's own parser, exactly as it always did
             self._on_datagram_pymavlink(data, addr)

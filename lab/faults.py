@@ -1,0 +1,421 @@
+"""Fault scenarios against real processes: each starts the companion (``slungpilot fly``), the bundled vehicle
+and whatever fault it needs (a kill signal, a fuzzer, a Zenoh flood, a lossy proxy), and returns the figures
+the fault suite bounds (``tests/test_faults.py``) and ``slungpilot bench faults`` prints.
+
+Everything runs on loopback with free ports. Scenarios write their run folders under the ``workdir`` given.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import random
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def free_tcp_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Proc:
+    """A subprocess whose stderr lines are collected by a thread (with the monotonic time each arrived)."""
+
+    proc: subprocess.Popen
+    lines: list[tuple[float, str]] = field(default_factory=list)
+
+    @classmethod
+    def start(cls, argv: list[str], env: dict[str, str] | None = None, cwd: Path = ROOT) -> Proc:
+        p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd,
+                             env={**os.environ, **(env or {})})
+        me = cls(p)
+        threading.Thread(target=me._pump, daemon=True).start()
+        return me
+
+    def _pump(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self.lines.append((time.monotonic(), line.rstrip("\n")))
+
+    def wait_for(self, text: str, timeout_s: float = 120.0) -> float:
+        """Monotonic time of the first stderr line containing ``text``; raises TimeoutError."""
+        end = time.monotonic() + timeout_s
+        i = 0
+        while time.monotonic() < end:
+            while i < len(self.lines):
+                t, line = self.lines[i]
+                i += 1
+                if text in line:
+                    return t
+            if self.proc.poll() is not None and i >= len(self.lines):
+                time.sleep(0.2)
+                if i >= len(self.lines):
+                    break
+            time.sleep(0.01)
+        tail = "\n".join(line for _, line in self.lines[-30:])
+        raise TimeoutError(f"never saw {text!r} (exit {self.proc.poll()}); last lines:\n{tail}")
+
+    def children(self) -> list[int]:
+        """Process ids of the direct children (the bundled vehicle of ``fly --sitl``)."""
+        pid = self.proc.pid
+        try:
+            return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+        except OSError:
+            return []
+
+    def finish(self, timeout_s: float = 120.0) -> int:
+        """Wait for the exit code (kill after ``timeout_s``)."""
+        try:
+            return self.proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            return self.proc.wait(10)
+
+    def kill_all(self) -> None:
+        """SIGKILL the process and its children (cleanup)."""
+        for pid in [*self.children(), self.proc.pid]:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+
+    @property
+    def stderr(self) -> str:
+        return "\n".join(line for _, line in self.lines)
+
+
+def fly_argv(run_dir: Path, *args: str) -> list[str]:
+    """``slungpilot -v fly`` with a run folder, no plots (faster), plus ``args``."""
+    return [sys.executable, "-m", "companion.cli", "-v", "fly", "--no-plots", "--run-dir", str(run_dir), *args]
+
+
+def read_report(run_dir: Path) -> dict[str, Any]:
+    return json.loads((run_dir / "report.json").read_text())
+
+
+def _done_wall(rep: dict[str, Any]) -> float | None:
+    for t in rep.get("transitions", []):
+        if t["to"] == "done":
+            return float(t["wall_s"])
+    return None
+
+
+# ------------------------------------------------------------------------------------------------ scenarios
+def vehicle_killed(workdir: Path, *, realtime: bool = False, after_s: float = 0.5) -> dict[str, Any]:
+    """kill -9 the bundled vehicle mid-mission: the companion must end with ``link_lost`` within 2 s."""
+    run_dir = workdir / f"vehicle-killed-{'rt' if realtime else 'ls'}"
+    fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh", *(["--realtime"] if realtime else [])))
+    try:
+        fly.wait_for("takeover → mission")
+        time.sleep(after_s)
+        (sim,) = fly.children()
+        t_kill = time.monotonic()
+        os.kill(sim, signal.SIGKILL)
+        code = fly.finish(60)
+        t_exit = time.monotonic()
+    finally:
+        fly.kill_all()
+    rep = read_report(run_dir)
+    done = _done_wall(rep)
+    return {"exit_code": code, "outcome": rep["outcome"], "final_phase": rep["final_phase"],
+            "detect_s": None if done is None else done - t_kill, "exit_s": t_exit - t_kill,
+            "detail": rep.get("outcome_detail")}
+
+
+def _mutations(rng: random.Random) -> list[bytes]:
+    """Frames a local attacker would send: valid-CRC spoofs claiming to be the vehicle, and their mutations."""
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    class _Buf:
+        def __init__(self) -> None:
+            self.frames: list[bytes] = []
+
+        def write(self, b: bytes) -> None:
+            self.frames.append(bytes(b))
+
+    buf = _Buf()
+    mav = mavlink2.MAVLink(buf, srcSystem=1, srcComponent=1)
+    inf = float("inf")
+    mav.heartbeat_send(2, 12, 129, (4 << 16) | (6 << 24), 4)  # "I am the vehicle, in AUTO.LAND"
+    mav.attitude_send(10_000, 0.1, 0.0, inf, 0.0, 0.0, 0.0)  # yaw = inf (crashed the companion once)
+    mav.attitude_send(10_000, float("nan"), 0.0, 0.0, 0.0, 0.0, 0.0)
+    mav.local_position_ned_send(10_000, 1e6, 0.0, -5.0, 0.0, 0.0, 0.0)
+    mav.system_time_send(0, 3_000_000_000)  # a clock jump
+    mav.command_ack_send(176, 0)
+    mav.statustext_send(2, b"spoofed")
+    base = buf.frames
+    out = list(base)
+    for _ in range(200):
+        f = bytearray(rng.choice(base))
+        for _ in range(rng.randint(1, 4)):
+            f[rng.randrange(len(f))] = rng.randrange(256)
+        out.append(bytes(f))
+    out += [bytes(rng.randrange(256) for _ in range(rng.randint(1, 80))) for _ in range(50)]
+    return out
+
+
+def _companion_port(fly: Proc) -> int:
+    """The companion's UDP port, from the vehicle's command line in the ``-v`` log of ``fly --sitl``."""
+    fly.wait_for("starting the bundled vehicle")
+    for _, line in fly.lines:
+        if "--onboard-remote" in line:
+            return int(line.split("--onboard-remote")[1].split()[0].rsplit(":", 1)[1])
+    raise RuntimeError("no --onboard-remote in the log")
+
+
+def fuzz(workdir: Path, *, n: int = 100_000, seed: int = 7) -> dict[str, Any]:
+    """The forest in lockstep twice, the second time with ``n`` spoofed/mutated frames sent to the companion's
+    port mid-flight from another socket: the flight must be bit-identical and the companion must not crash."""
+    ref_dir, fz_dir = workdir / "fuzz-reference", workdir / "fuzz-attacked"
+    ref = Proc.start(fly_argv(ref_dir, "--sitl", "--no-zenoh"))
+    ref_code = ref.finish(180)
+    fly = Proc.start(fly_argv(fz_dir, "--sitl", "--no-zenoh"))
+    sent = 0
+    try:
+        port = _companion_port(fly)
+        fly.wait_for("takeover → mission")
+        frames = _mutations(random.Random(seed))
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
+            rng = random.Random(seed)
+            t0 = time.monotonic()
+            while sent < n and fly.proc.poll() is None:
+                try:
+                    s.sendto(rng.choice(frames), ("127.0.0.1", port))
+                    sent += 1
+                except OSError:  # the companion's socket is gone (flight over)
+                    break
+                if sent % 2000 == 0:
+                    time.sleep(0.005)  # spread over the flight rather than one burst the kernel drops
+            fuzz_s = time.monotonic() - t0
+        code = fly.finish(180)
+    finally:
+        fly.kill_all()
+    a = np.load(ref_dir / "flight_log.npz")
+    b = np.load(fz_dir / "flight_log.npz")
+    same = all(np.array_equal(a[k], b[k], equal_nan=True) for k in a.files) and set(a.files) == set(b.files)
+    rep = read_report(fz_dir)
+    ref_rep = read_report(ref_dir)
+    keys = ("time_to_goal_s", "max_swing_rad", "min_clearance_m", "collisions", "outcome")
+    return {"sent": sent, "fuzz_s": fuzz_s, "exit_code": code, "reference_exit_code": ref_code,
+            "identical_log": bool(same), "rejected": rep["link"]["rejected"],
+            "metrics": {k: rep.get(k) for k in keys}, "reference_metrics": {k: ref_rep.get(k) for k in keys},
+            "traceback": "Traceback" in fly.stderr}
+
+
+def tick_exception(workdir: Path, *, at_s: float = 6.0) -> dict[str, Any]:
+    """Every tick raises from ``at_s`` (vehicle time) on: hold, then land; never a fall."""
+    run_dir = workdir / "tick-exception"
+    fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh"), env={"SLUNGPILOT_INJECT_TICK_ERROR_AT_S": str(at_s)})
+    code = fly.finish(180)
+    rep = read_report(run_dir)
+    vz_max, z_max = _descent_from_tlog(run_dir / "flight.tlog")
+    return {"exit_code": code, "outcome": rep["outcome"], "final_phase": rep["final_phase"],
+            "tick_errors": rep["loop"]["tick_errors"], "states": [t["to"] for t in rep["transitions"]],
+            "max_descent_mps": vz_max, "max_altitude_m": z_max}
+
+
+def _descent_from_tlog(tlog: Path) -> tuple[float, float]:
+    """Fastest downward speed (m/s) and highest altitude (m above home) the vehicle reported."""
+    from pymavlink import mavutil
+
+    mlog = mavutil.mavlink_connection(str(tlog))
+    vz, z = 0.0, 0.0
+    while (m := mlog.recv_match(type="LOCAL_POSITION_NED")) is not None:
+        if m.get_srcSystem() == 1:
+            vz, z = max(vz, m.vz), max(z, -m.z)
+    return vz, z
+
+
+def companion_killed_report(workdir: Path, *, after_s: float = 3.0) -> dict[str, Any]:
+    """kill -9 the companion mid-flight (real time), then ``slungpilot report RUN_DIR`` rebuilds the report
+    from the journal: at most a second of flight may be missing."""
+    run_dir = workdir / "companion-killed"
+    fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh", "--realtime"))
+    try:
+        t_mission = fly.wait_for("takeover → mission")
+        time.sleep(after_s)
+        kids = fly.children()
+        t_kill = time.monotonic()
+        fly.proc.kill()
+        fly.proc.wait(10)
+        for k in kids:  # the orphaned vehicle: its own failsafe is tested elsewhere
+            os.kill(k, signal.SIGKILL)
+    finally:
+        fly.kill_all()
+    had_report = (run_dir / "report.json").exists()
+    rb = subprocess.run([sys.executable, "-m", "companion.cli", "report", str(run_dir), "--no-plots"],
+                        capture_output=True, text=True, timeout=120, cwd=ROOT)
+    rep = read_report(run_dir)
+    flown_s = t_kill - t_mission
+    rows = rep.get("journal_rows", 0)
+    return {"report_before_rebuild": had_report, "rebuild_exit_code": rb.returncode, "outcome": rep["outcome"],
+            "reached_goal": rep["reached_goal"], "journal_rows": rows, "flown_s": flown_s,
+            "lost_s": max(0.0, flown_s - rows / 250.0), "stderr": rb.stderr[-500:]}
+
+
+def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256) -> dict[str, Any]:
+    """A local Zenoh peer floods valid obstacle lists (far-away trunks) at ``rate_hz`` during a real-time
+    forest flight: the mission must complete with the tick's p99 under 1 ms."""
+    run_dir = workdir / "zenoh-flood"
+    port = free_tcp_port()
+    ep = f"tcp/127.0.0.1:{port}"
+    fly = Proc.start(fly_argv(run_dir, "--sitl", "--realtime", "--zenoh-listen", ep))
+    flood = None
+    try:
+        fly.wait_for("zenoh: publishing under")
+        flood = subprocess.Popen([sys.executable, "-m", "lab.faults", "flood", "--connect", ep, "--rate-hz",
+                                  str(rate_hz), "--trunks", str(trunks)], cwd=ROOT, stdout=subprocess.PIPE,
+                                 stderr=subprocess.PIPE, text=True)
+        code = fly.finish(180)
+    finally:
+        if flood is not None:
+            flood.send_signal(signal.SIGINT)
+            try:
+                out, _ = flood.communicate(timeout=20)
+            except subprocess.TimeoutExpired:
+                flood.kill()
+                out, _ = flood.communicate()
+        fly.kill_all()
+    sent = json.loads(out.strip().splitlines()[-1]).get("sent", 0) if out.strip() else 0
+    rep = read_report(run_dir)
+    return {"exit_code": code, "outcome": rep["outcome"], "reached_goal": rep["reached_goal"], "flood_sent": sent,
+            "tick_ms_p99": rep["loop"]["tick_ms_p99"], "tick_ms_max": rep["loop"]["tick_ms_max"],
+            "late_ticks": rep["loop"]["late_ticks"], "max_swing_rad": rep["max_swing_rad"],
+            "collisions": rep["collisions"], "zenoh": rep.get("zenoh", {}),
+            "telemetry_age_ms_p99": rep["link"]["telemetry_age_ms_p99"]}
+
+
+def flood_main(argv: list[str]) -> int:
+    """``python -m lab.faults flood``: put obstacle lists as fast as asked until SIGINT; prints the count."""
+    import argparse
+
+    import zenoh
+
+    p = argparse.ArgumentParser(prog="python -m lab.faults flood")
+    p.add_argument("--connect", required=True)
+    p.add_argument("--rate-hz", type=float, default=1000.0)
+    p.add_argument("--trunks", type=int, default=256)
+    p.add_argument("--key", default="slungpilot/1/obstacles/in/flood")
+    a = p.parse_args(argv)
+    payload = json.dumps({"obstacles": [{"x_m": 200.0 + 2.0 * i, "y_m": 150.0, "radius_m": 0.3}
+                                        for i in range(a.trunks)]}).encode()
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("connect/endpoints", json.dumps([a.connect]))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    stop = []
+    signal.signal(signal.SIGINT, lambda *_: stop.append(1))
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+    sent = 0
+    with zenoh.open(cfg) as s:
+        pub = s.declare_publisher(a.key)
+        period = 1.0 / a.rate_hz
+        t_next = time.monotonic()
+        while not stop:
+            pub.put(payload)
+            sent += 1
+            t_next += period
+            delay = t_next - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+    print(json.dumps({"sent": sent}), flush=True)
+    return 0
+
+
+def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, drop: float = 0.0) -> dict[str, Any]:
+    """The forest in real time through a proxy that delays each datagram by ``delay ± jitter`` (reordering
+    them): the altitude must stay within 0.5 m of the mission's and the outcome must be honest."""
+    from lab.udp_proxy import _addr  # noqa: F401  (the proxy runs as its own process; imported to fail early)
+
+    run_dir = workdir / f"jitter-{delay_ms:g}-{jitter_ms:g}"
+    veh_port, vside, comp_port, gcs = free_udp_port(), free_udp_port(), free_udp_port(), free_udp_port()
+    sim = subprocess.Popen([sys.executable, "-m", "sim_bridge", "--onboard-port", str(veh_port), "--onboard-remote",
+                            f"127.0.0.1:{vside}", "--gcs-port", str(gcs), "--gcs-remote",
+                            f"127.0.0.1:{free_udp_port()}"], cwd=ROOT, stdout=subprocess.PIPE,
+                           stderr=subprocess.DEVNULL, text=True)
+    proxy = subprocess.Popen([sys.executable, "-m", "lab.udp_proxy", "--vehicle", f"127.0.0.1:{veh_port}",
+                              "--companion", f"127.0.0.1:{comp_port}", "--listen-vehicle-side", str(vside),
+                              "--delay-ms", str(delay_ms), "--jitter-ms", str(jitter_ms), "--drop", str(drop)],
+                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    fly = None
+    try:
+        assert sim.stdout is not None and proxy.stdout is not None
+        if not sim.stdout.readline().startswith("SITL READY") or not proxy.stdout.readline().startswith("PROXY"):
+            raise RuntimeError("vehicle or proxy did not start")
+        fly = Proc.start(fly_argv(run_dir, "--connect", f"udpin://127.0.0.1:{comp_port}", "--profile", "bundled",
+                                  "--no-zenoh"))
+        code = fly.finish(240)
+    finally:
+        for p in (sim, proxy):
+            p.send_signal(signal.SIGTERM)
+        counts = {}
+        try:
+            out, _ = proxy.communicate(timeout=10)
+            counts = json.loads(out.strip().splitlines()[-1])
+        except (subprocess.TimeoutExpired, ValueError, IndexError):
+            proxy.kill()
+        sim.wait(10)
+        if fly is not None:
+            fly.kill_all()
+    rep = read_report(run_dir)
+    log = np.load(run_dir / "flight_log.npz")
+    z = log["pos_ned_m"][:, 2]
+    ref_z = log["ref_pos_ned_m"][:, 2]
+    goal_z = -2.0
+    reached = np.flatnonzero(z <= goal_z + 0.1)  # from the moment the climb reached the mission altitude ...
+    cruise = np.zeros(len(z), dtype=bool)
+    if reached.size:
+        cruise[reached[0]:] = True
+    cruise &= np.isfinite(ref_z)  # ... while the companion flew it (not the autopilot's landing)
+    return {"exit_code": code, "outcome": rep["outcome"], "reached_goal": rep["reached_goal"],
+            "goal_visited": rep.get("goal_visited"), "time_to_goal_s": rep["time_to_goal_s"],
+            "max_alt_error_m": float(np.max(np.abs(z[cruise] - goal_z))) if cruise.any() else None,
+            "max_swing_rad": rep["max_swing_rad"], "collisions": rep["collisions"], "proxy": counts,
+            "link": rep["link"]}
+
+
+SCENARIOS = {
+    "vehicle_killed": vehicle_killed,
+    "fuzz": fuzz,
+    "tick_exception": tick_exception,
+    "companion_killed_report": companion_killed_report,
+    "zenoh_flood": zenoh_flood,
+    "jitter": jitter,
+}
+
+
+def run_fault_bench(workdir: Path, names: list[str] | None = None) -> dict[str, dict[str, Any]]:
+    """Run the scenarios (all by default) and return their figures by name."""
+    out = {}
+    for name in names or list(SCENARIOS):
+        out[name] = SCENARIOS[name](workdir)
+    return out
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "flood":
+        sys.exit(flood_main(sys.argv[2:]))
+    print("usage: python -m lab.faults flood --connect ENDPOINT [--rate-hz R] [--trunks N]", file=sys.stderr)
+    sys.exit(2)

@@ -1,0 +1,24 @@
+"""Link health from MAVLink sequence numbers and telemetry ages (pure)."""
+
+from companion.flight.health import LinkHealth
+
+
+def test_loss_and_reordering_from_sequence_numbers():
+    h = LinkHealth()
+    for s in (250, 251, 252, 254, 255, 0, 3, 2, 4):  # 253 lost; 1 lost; 2 late (reordered, then not lost)
+        h.on_frame(1, 1, s)
+    assert h.frames == 9 and h.reordered == 1 and h.lost == 2
+    h.on_frame(1, 1, 1)  # the other late one
+    assert h.lost == 1 and h.reordered == 2
+    h.on_frame(2, 1, 77)  # another source starts its own count
+    assert h.lost == 1
+
+
+def test_stale_ticks_are_judged_against_the_streams_own_rate():
+    h = LinkHealth(period_s=0.004)
+    for k in range(50):  # a 50 Hz position stream, asked for at 250 Hz: its own rate is what counts
+        h.on_sample("position", 0.02 * k)
+    assert not h.on_tick(0.98 + 0.02 + 0.004, 0.001)  # one interval plus a period: fine
+    assert h.on_tick(0.98 + 0.02 + 0.02, 0.001)  # 3 periods beyond the interval: stale
+    s = h.summary()
+    assert s["stale_ticks"] == 1 and s["telemetry_age_ms_p50"] == 1.0
