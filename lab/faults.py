@@ -316,20 +316,34 @@ def flood_main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog="python -m lab.faults flood")
     p.add_argument("--connect", required=True)
     p.add_argument("--rate-hz", type=float, default=1000.0)
-    p.add_argument("--trunks", type=int, default=256)
+    p.add_argument("--trunks", type=int, default=256, help="far-away trunks per list (without --payload)")
+    p.add_argument("--payload", default=None, help="the JSON to put instead of far-away trunks")
     p.add_argument("--key", default="slungpilot/1/obstacles/in/flood")
+    p.add_argument("--user", default=None, help="log in with this user (Zenoh usrpwd authentication) ...")
+    p.add_argument("--password", default=None, help="... and password; client mode")
     a = p.parse_args(argv)
-    payload = json.dumps({"obstacles": [{"x_m": 200.0 + 2.0 * i, "y_m": 150.0, "radius_m": 0.3}
-                                        for i in range(a.trunks)]}).encode()
+    payload = (a.payload.encode() if a.payload is not None else
+               json.dumps({"obstacles": [{"x_m": 200.0 + 2.0 * i, "y_m": 150.0, "radius_m": 0.3}
+                                         for i in range(a.trunks)]}).encode())
     cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"peer"')
+    cfg.insert_json5("mode", '"client"' if a.user else '"peer"')
     cfg.insert_json5("connect/endpoints", json.dumps([a.connect]))
     cfg.insert_json5("scouting/multicast/enabled", "false")
+    if a.user:
+        cfg.insert_json5("transport/auth/usrpwd", json.dumps({"user": a.user, "password": a.password or ""}))
+        cfg.insert_json5("connect/timeout_ms", "5000")  # a router still starting: keep trying for 5 s
+        cfg.insert_json5("connect/retry", json.dumps({"period_init_ms": 250, "period_max_ms": 1000}))
     stop = []
     signal.signal(signal.SIGINT, lambda *_: stop.append(1))
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     sent = 0
-    with zenoh.open(cfg) as s:
+    try:
+        session = zenoh.open(cfg)
+    except Exception as exc:  # e.g. the router refused our credentials
+        print(json.dumps({"sent": 0, "error": str(exc)}), flush=True)
+        return 3
+    print("flooding", file=sys.stderr, flush=True)
+    with session as s:
         pub = s.declare_publisher(a.key)
         period = 1.0 / a.rate_hz
         t_next = time.monotonic()

@@ -53,6 +53,19 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from companion.cli.zenoh_cmds import cmd_bench_zenoh
 
         return cmd_bench_zenoh(args.seconds)
+    if args.target == "faults":
+        import json
+        import tempfile
+
+        from lab.faults import SCENARIOS, run_fault_bench
+
+        print("slungpilot bench faults: each fault against real processes on loopback (see tests/test_faults.py)")
+        names = args.only.split(",") if args.only else list(SCENARIOS)
+        with tempfile.TemporaryDirectory(prefix="slungpilot-faults-") as tmp:
+            for name in names:
+                r = run_fault_bench(Path(tmp), [name])[name]
+                print(f"  {name}: " + json.dumps(r, default=str))
+        return 0
     raise SlungpilotError(f"bench target {args.target!r} is not available in this build")
 
 
@@ -167,11 +180,13 @@ def build_parser() -> argparse.ArgumentParser:
         description="Benchmarks that print numbers; nothing is asserted. Run on an idle machine.",
     )
     bench.add_argument(
-        "target", choices=["model", "sitl", "fly", "zenoh"],
+        "target", choices=["model", "sitl", "fly", "zenoh", "faults"],
         help="model: RK4 steps/s of the dynamics kernel; sitl: lockstep real-time factor of the bundled vehicle; "
              "fly: the forest mission end to end (real-time factor, tick p50/p99); zenoh: 250 Hz swing stream "
-             "latency/loss between two processes and the cost per publish",
+             "latency/loss between two processes and the cost per publish; faults: the fault suite's scenarios "
+             "(vehicle killed, fuzz, tick exceptions, companion killed, Zenoh flood, jitter) with their figures",
     )
+    bench.add_argument("--only", default="", help="faults: comma-separated scenario names (default: all)")
     bench.add_argument("--seconds", type=float, default=3.0, help="measuring time per benchmark (s)")
     bench.add_argument("--repeats", type=int, default=2, help="fly: how many flights")
     bench.set_defaults(func=_cmd_bench)

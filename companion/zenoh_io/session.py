@@ -32,8 +32,8 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, role: str) -> None:
         raise ValueError(f"role: must be one of {ROLES}, got {role!r}")
     g = parser.add_argument_group("zenoh")
     default_mode = "router" if role == "router" else "peer"
-    g.add_argument("--zenoh-mode", choices=["peer", "client", "router"], default=default_mode,
-                   help=f"Zenoh session mode (default {default_mode})")
+    g.add_argument("--zenoh-mode", choices=["peer", "client", "router"], default=None,
+                   help=f"Zenoh session mode (default {default_mode}, or the --zenoh-config file's)")
     g.add_argument("--zenoh-connect", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to connect to, e.g. tcp/192.168.1.5:7447 (repeatable)"
                    + (f"; default {DEFAULT_ENDPOINT} unless --zenoh-listen is given" if role == "listener" else ""))
@@ -89,6 +89,8 @@ def zenoh_config(
             _insert(cfg, "listen/endpoints", list(listen), "--zenoh-listen")
         if connect:
             _insert(cfg, "connect/endpoints", list(connect), "--zenoh-connect")
+    if mode is None and config_file is None:
+        mode = "router" if role == "router" else "peer"
     if mode is not None:
         _insert(cfg, "mode", mode, "--zenoh-mode")
     return cfg
