@@ -40,6 +40,19 @@ def shipped_missions() -> dict[str, Path]:
             if e.name.endswith(".toml")}
 
 
+def resolve_obstacles(arg: str | Path) -> Path:
+    """An obstacle file argument: an existing path wins, else a shipped one by name (``trunk`` →
+    ``config/obstacles/trunk.json``); :class:`ConfigError` naming the shipped ones otherwise."""
+    p = Path(arg)
+    if p.exists():
+        return p
+    folder = importlib.resources.files(CONFIG_PACKAGE).joinpath("obstacles")
+    shipped = {Path(e.name).stem: Path(str(e)) for e in folder.iterdir() if e.name.endswith(".json")}
+    if p.stem in shipped and p.parent == Path("."):
+        return shipped[p.stem]
+    raise ConfigError(f"{arg}: no such obstacle file, and no shipped one of that name (shipped: {', '.join(shipped)})")
+
+
 def resolve_mission(arg: str | Path) -> Path:
     """A mission argument as a file: an existing path wins, else a shipped mission by name (``forest``,
     ``group1.toml``); :class:`ConfigError` naming the known missions otherwise."""

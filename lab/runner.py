@@ -35,7 +35,7 @@ def fly_args(run_dir: Path, plots: bool, gains: Path | None = None) -> argparse.
     """The parsed arguments of ``slungpilot fly --sitl --no-zenoh --run-dir RUN_DIR [--no-plots]`` (lockstep).
 
     No Zenoh: batch flights run side by side and would all want the default listen port."""
-    from companion.cli.fly import add_fly_arguments
+    from companion.cli.fly_args import add_fly_arguments
 
     p = argparse.ArgumentParser()
     add_fly_arguments(p)
@@ -90,7 +90,8 @@ def _fly_mavlink(job: Job) -> dict[str, Any]:
 
 
 def _fly_inprocess(job: Job) -> dict[str, Any]:
-    from companion.cli.fly import DEFAULT_GAINS, load_gains
+    from companion.cli.fly import load_gains
+    from companion.cli.fly_args import DEFAULT_GAINS
     from companion.report.run_folder import write_run
     from lab.inprocess import fly_inprocess
 

@@ -8,7 +8,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from companion.cli.fly import DEFAULT_MISSION, add_fly_arguments, fly_async, mission_from_args
+from companion.cli.fly import fly_async, mission_from_args
+from companion.cli.fly_args import DEFAULT_MISSION, add_fly_arguments
 
 
 def run(mission_path: Path = DEFAULT_MISSION, repeats: int = 1) -> list[dict[str, float]]:

@@ -15,6 +15,7 @@ import dataclasses
 import logging
 import os
 import signal
+import socket
 import sys
 import time
 from dataclasses import dataclass
@@ -22,59 +23,20 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from companion.autopilots.profile import PROFILE_NAMES, profile_by_name
-from companion.config import resolve_mission, shipped_config
+from companion.autopilots.profile import profile_by_name
+from companion.cli.fly_args import DEFAULT_GAINS, EXIT_CODES
+from companion.cli.narrate import Narrator
+from companion.config import resolve_mission
 from companion.control.params import ControllerConfig, load_controller_config
 from companion.core.mission import Mission, load_mission
-from companion.errors import ConfigError
-from companion.estimation.vehicle_state import SWING_INPUTS
+from companion.errors import ConfigError, LinkError
 from companion.flight.app import FlightApp, FlyOptions
 from companion.report.run_folder import write_run
-from companion.zenoh_io.session import add_zenoh_arguments, zenoh_config_from_args
+from companion.zenoh_io.session import zenoh_config_from_args
 from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry, ZenohTelemetrySink
 
 log = logging.getLogger(__name__)
 
-DEFAULT_MISSION = shipped_config("missions/forest.toml")
-DEFAULT_GAINS = shipped_config("controller.toml")
-
-
-def add_fly_arguments(p: argparse.ArgumentParser) -> None:
-    """The ``fly`` options."""
-    p.add_argument("--mission", default=str(DEFAULT_MISSION), metavar="FILE|NAME",
-                   help="mission TOML file, or the name of a shipped mission (`slungpilot missions` lists them; "
-                        "default: forest, the paper's Table 2 forest)")
-    p.add_argument("--connect", default="udpin://0.0.0.0:14540",
-                   help="autopilot link: udpin://HOST:PORT (listen, default) or udpout://HOST:PORT")
-    p.add_argument("--sitl", action="store_true",
-                   help="start the bundled SITL vehicle on free local ports (lockstep unless --realtime)")
-    p.add_argument("--realtime", action="store_true", help="with --sitl: fly in real time to watch it live")
-    p.add_argument("--lockstep", action="store_true",
-                   help="the vehicle is a lockstep simulator (driven by its SYSTEM_TIME step markers)")
-    p.add_argument("--planner", choices=["traditional", "improved", "safe", "none"], help="override the mission's")
-    p.add_argument("--controller", choices=["smc_ff", "smc", "pid"], help="override the mission's")
-    p.add_argument("--gains", type=Path, default=DEFAULT_GAINS, help="controller/planner gains TOML")
-    p.add_argument("--profile", choices=PROFILE_NAMES, default=None,
-                   help="vehicle profile: thrust mapping (newtons → 0..1) and flight-mode family (default: "
-                        "bundled with --sitl, else chosen from the autopilot's HEARTBEAT: px4 or ardupilot)")
-    p.add_argument("--hover-thrust", type=float, default=None,
-                   help="normalized hover thrust of your vehicle (PX4 MPC_THR_HOVER); overrides the profile's")
-    p.add_argument("--rate-hz", type=float, default=250.0, help="outer-loop rate (Hz)")
-    p.add_argument("--payload-sysid", type=int, default=2, help="MAVLink system id of the payload's own stream")
-    p.add_argument("--swing-input", choices=SWING_INPUTS, default="auto",
-                   help="swing measurement to use: auto = cable-angle sensor (DEBUG_FLOAT_ARRAY 'SWING'), else the "
-                        "payload's position stream, else none (no feed-forward, full-cable envelope)")
-    p.add_argument("--run-dir", type=Path, default=None, help="where to write the run folder")
-    p.add_argument("--report", type=Path, default=None, help="also write the JSON report to this file")
-    p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
-    p.add_argument("--no-land", action="store_true", help="hold at the goal instead of landing")
-    p.add_argument("--no-land-on-abort", action="store_true", help="on Ctrl-C hold instead of landing")
-    p.add_argument("--heartbeat-timeout", type=float, default=60.0,
-                   help="seconds to wait for the autopilot's first HEARTBEAT (default 60)")
-    p.add_argument("--ready-timeout", type=float, default=90.0,
-                   help="seconds to wait for telemetry and the autopilot's ready-to-arm (default 90: PX4 SITL "
-                        "can take ~40 s after boot)")
-    add_zenoh_arguments(p, "companion")
 
 
 @dataclass
@@ -117,15 +79,71 @@ def _env_float(name: str) -> float | None:
         raise ConfigError(f"{name}: expected a number, got {raw!r}") from None
 
 
-def default_run_dir(mission: Mission) -> Path:
-    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S")
-    return Path("runs") / f"{stamp}-{mission.name}-{mission.planner}-{mission.controller}"
+def new_run_dir(mission: Mission, root: Path = Path("runs")) -> Path:
+    """A fresh run folder ``runs/<UTC time to the ms>-<mission>-<planner>-<controller>[-k]``: created here,
+    exclusively, so two flights started at the same moment never share one."""
+    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S-%f")[:-3]
+    base = f"{stamp}-{mission.name}-{mission.planner}-{mission.controller}"
+    root.mkdir(parents=True, exist_ok=True)
+    for k in range(1000):
+        d = root / (base if k == 0 else f"{base}-{k + 1}")
+        try:
+            d.mkdir()
+            return d
+        except FileExistsError:
+            continue
+    raise ConfigError(f"{root}: cannot create a new run folder for {base}")
+
+
+def check_ports_free(args: argparse.Namespace) -> None:
+    """Fail before anything starts, with one line, when a port this flight must listen on is taken."""
+    from companion.mavlink_io.link import LinkUrl
+
+    checks: list[tuple[int, str, int, str]] = []
+    if not args.sitl:
+        url = LinkUrl.parse(args.connect)
+        if url.mode == "udpin":
+            checks.append((socket.SOCK_DGRAM, url.host, url.port, f"MAVLink port {url.port} ({args.connect})"))
+    if not args.no_zenoh and args.zenoh_config is None:
+        for ep in args.zenoh_listen:
+            proto, _, hostport = ep.partition("/")
+            host, _, port = hostport.rpartition(":")
+            if proto == "tcp" and port.isdigit():
+                checks.append((socket.SOCK_STREAM, host.strip("[]"), int(port), f"Zenoh port {port} ({ep})"))
+    for kind, host, port, what in checks:
+        with socket.socket(socket.AF_INET, kind) as s:
+            try:
+                s.bind((host, port))
+            except OSError as exc:
+                raise LinkError(f"{what} is in use ({exc.strerror}): another slungpilot fly or autopilot link? "
+                                "Give it --instance N (ports +N), or other --connect/--zenoh-listen ports") from None
+
+
+def apply_instance(args: argparse.Namespace) -> None:
+    """``--instance N`` and the defaults it shifts; ``--connect`` with ``--sitl`` is refused."""
+    n = args.instance
+    if not 0 <= n <= 54:
+        raise ConfigError(f"--instance: must be in 0..54, got {n}")
+    if args.sitl and args.connect is not None:
+        raise ConfigError("--connect: not with --sitl (the bundled vehicle is started on free local ports; "
+                          "to fly a vehicle you started yourself, leave out --sitl)")
+    if args.connect is None:
+        args.connect = f"udpin://0.0.0.0:{14540 + n}"
+    if args.payload_sysid is None:
+        args.payload_sysid = 200 + n if (args.sitl and n > 0) else 2
+    if not args.no_zenoh and args.zenoh_config is None and not args.zenoh_listen and not args.zenoh_connect:
+        args.zenoh_listen = [f"tcp/127.0.0.1:{7447 + n}"]
 
 
 async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
     """Fly ``mission`` as the parsed ``args`` say; always writes the run folder, even after Ctrl-C."""
-    run_dir = args.run_dir or default_run_dir(mission)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    apply_instance(args)
+    check_ports_free(args)
+    if args.run_dir is not None:
+        run_dir = args.run_dir
+        run_dir.mkdir(parents=True, exist_ok=True)
+    else:
+        run_dir = new_run_dir(mission)
     profile_name = args.profile or ("bundled" if args.sitl else None)
     try:
         profile = profile_by_name(profile_name, args.hover_thrust) if profile_name else None
@@ -157,7 +175,7 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
             await stack.enter_async_context(zt)
             zt_holder.append(zt)
             zt.set_config_provider(lambda: effective_config(app, args))
-            app.telemetry = ZenohTelemetrySink(zt, mission.vehicle.l, status_fn=status_of)
+            app.sinks.append(ZenohTelemetrySink(zt, mission.vehicle.l, status_fn=status_of))
             app.obstacle_source = zt.obstacle_source(mission.obstacles)
 
         opts.on_connected = connect_zenoh
@@ -168,12 +186,16 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
             from companion.cli.sitl_launcher import SitlProcess
 
             period_args = ["--control-period-ms", str(round(1000.0 / opts.rate_hz))]
+            if args.instance:
+                period_args += ["--instance", str(args.instance)]
             sitl = await stack.enter_async_context(
                 SitlProcess(mission, run_dir, lockstep=opts.lockstep, extra_args=period_args)
             )
             opts.connect = sitl.companion_url
             opts.sock = sitl.companion_sock
         opts.provisional = lambda a: run_options(a, args, mission, run_dir, zt_holder)
+        if not getattr(args, "quiet", False):
+            opts.sinks.append(Narrator(lockstep=opts.lockstep))
         app = FlightApp(mission, opts)
         loop = asyncio.get_running_loop()
         with contextlib.suppress(NotImplementedError, RuntimeError):
@@ -260,22 +282,6 @@ def effective_config(app: FlightApp, args: argparse.Namespace) -> dict[str, Any]
         "rate_hz": app.opts.rate_hz, "lockstep": app.opts.lockstep, "connect": app.opts.connect,
         "swing_input": app.opts.swing_input,
     }
-
-
-#: ``slungpilot fly`` exit codes by outcome (also in --help and the README); 2 is a broken file or flag.
-EXIT_CODES = {
-    "completed": 0,
-    "timeout": 1, "no_route": 1,
-    "no_vehicle": 3, "link_lost": 3,
-    "not_ready": 4, "refused": 4,
-    "preempted": 5,
-    "stale_telemetry": 6, "invalid_estimate": 6, "tick_errors": 6,
-    "aborted": 130,
-}
-EXIT_HELP = ("exit codes: 0 goal reached; 1 mission not completed (timeout, no route); 2 broken mission file or "
-             "flag; 3 no vehicle or link lost; 4 the autopilot was not ready or refused to arm / give control; "
-             "5 preempted (someone else took the vehicle); 6 failsafe (stale telemetry, invalid estimate, failing "
-             "control ticks); 130 interrupted (Ctrl-C/SIGTERM: held and landed); 1 for anything else")
 
 
 def exit_code(outcome: str, reached_goal: bool) -> int:

@@ -9,7 +9,9 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from companion import __version__
 from companion.cli.dispatch import dispatch
@@ -103,24 +105,11 @@ def _cmd_sitl(args: argparse.Namespace) -> int:
     return run_sitl(args)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser with every subcommand; ``--help`` on each explains it."""
-    parser = argparse.ArgumentParser(
-        prog="slungpilot",
-        description=(
-            "Companion-computer autopilot for a quadrotor carrying a cable-suspended payload: "
-            "swing-aware APF planning and sliding-mode control, sent as SET_ATTITUDE_TARGET over MAVLink."
-        ),
-    )
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
-    parser.add_argument("--version", action="version", version=f"slungpilot {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    from companion.cli.fly import EXIT_HELP, add_fly_arguments
+def _add_fly(sub: Any) -> None:
+    from companion.cli.fly_args import EXIT_HELP, add_fly_arguments
 
     fly = sub.add_parser(
-        "fly",
-        help="fly a mission: plan around obstacles with the live swing envelope, stream SET_ATTITUDE_TARGET",
+        "fly", help=COMMANDS["fly"],
         description=(
             "Fly a mission file against an autopilot over MAVLink/UDP (PX4, ArduPilot) or, with --sitl, against "
             "the bundled vehicle started on free local ports (lockstep: as fast as possible, deterministic). "
@@ -135,11 +124,12 @@ def build_parser() -> argparse.ArgumentParser:
     add_fly_arguments(fly)
     fly.set_defaults(func=_cmd_fly)
 
+
+def _add_sitl(sub: Any) -> None:
     from sim_bridge.cli import add_sitl_arguments
 
     sitl = sub.add_parser(
-        "sitl",
-        help="run the bundled SITL vehicle (PX4-like MAVLink on UDP 14580/18570 → 14540/14550)",
+        "sitl", help=COMMANDS["sitl"],
         description=(
             "The bundled software-in-the-loop vehicle: flies the paper's quadrotor-payload model with its own "
             "attitude loop and eq. 49 wind, and speaks MAVLink 2 like PX4's SITL (HEARTBEAT, telemetry, commands, "
@@ -149,19 +139,29 @@ def build_parser() -> argparse.ArgumentParser:
     add_sitl_arguments(sitl)
     sitl.set_defaults(func=_cmd_sitl)
 
-    from companion.cli.zenoh_cmds import add_listen_parser, add_obstacles_parser, add_router_parser
 
-    add_listen_parser(sub)
-    add_obstacles_parser(sub)
-    add_router_parser(sub)
+def _add_zenoh_tool(name: str) -> Callable[[Any], None]:
+    def add(sub: Any) -> None:
+        from companion.cli import zenoh_cmds
 
-    from lab.cli import add_evaluate_parser, add_experiments_parser
+        {"listen": zenoh_cmds.add_listen_parser, "obstacles": zenoh_cmds.add_obstacles_parser,
+         "zenoh-router": zenoh_cmds.add_router_parser}[name](sub)
 
-    add_experiments_parser(sub)
-    add_evaluate_parser(sub)
+    return add
 
+
+def _add_lab(name: str) -> Callable[[Any], None]:
+    def add(sub: Any) -> None:
+        from lab import cli as lab_cli
+
+        {"experiments": lab_cli.add_experiments_parser, "evaluate": lab_cli.add_evaluate_parser}[name](sub)
+
+    return add
+
+
+def _add_report(sub: Any) -> None:
     report = sub.add_parser(
-        "report", help="rebuild a run folder's report, summary and plots from its journal (e.g. after kill -9)",
+        "report", help=COMMANDS["report"],
         description="While flying, `fly` flushes the per-tick log (flight_log.journal) and a provisional report "
                     "(report.partial.json) to the run folder once a second. This rebuilds report.json, summary.txt, "
                     "flight_log.npz and the plots from them: a companion killed at any moment loses at most a "
@@ -170,13 +170,16 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     report.set_defaults(func=_cmd_report)
 
-    missions = sub.add_parser("missions", help="list the shipped missions (use their names with fly --mission)",
+
+def _add_missions(sub: Any) -> None:
+    missions = sub.add_parser("missions", help=COMMANDS["missions"],
                               description="The missions that ship with slungpilot, by name, with where they fly.")
     missions.set_defaults(func=_cmd_missions)
 
+
+def _add_bench(sub: Any) -> None:
     bench = sub.add_parser(
-        "bench",
-        help="print performance numbers (model, sitl, fly, zenoh)",
+        "bench", help=COMMANDS["bench"],
         description="Benchmarks that print numbers; nothing is asserted. Run on an idle machine.",
     )
     bench.add_argument(
@@ -190,12 +193,60 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--seconds", type=float, default=3.0, help="measuring time per benchmark (s)")
     bench.add_argument("--repeats", type=int, default=2, help="fly: how many flights")
     bench.set_defaults(func=_cmd_bench)
+
+
+#: Every subcommand: its one-line help (the listing of ``slungpilot --help``).
+COMMANDS = {
+    "fly": "fly a mission: plan around obstacles with the live swing envelope, stream SET_ATTITUDE_TARGET",
+    "sitl": "run the bundled SITL vehicle (PX4-like MAVLink on UDP 14580/18570 → 14540/14550)",
+    "listen": "watch the Zenoh streams (rate, loss, latest values per key)",
+    "obstacles": "feed live obstacles over Zenoh",
+    "zenoh-router": "run a Zenoh router (joins peers that cannot see each other)",
+    "experiments": "rerun the paper's two experiments over MAVLink; Markdown report with tables and figures",
+    "evaluate": "fly N random forests per planner in parallel and summarise success, collisions, times",
+    "report": "rebuild a run folder's report, summary and plots from its journal (e.g. after kill -9)",
+    "missions": "list the shipped missions (use their names with fly --mission)",
+    "bench": "print performance numbers (model, sitl, fly, zenoh, faults)",
+}
+_ADDERS: dict[str, Callable[[Any], None]] = {
+    "fly": _add_fly, "sitl": _add_sitl, "listen": _add_zenoh_tool("listen"),
+    "obstacles": _add_zenoh_tool("obstacles"), "zenoh-router": _add_zenoh_tool("zenoh-router"),
+    "experiments": _add_lab("experiments"), "evaluate": _add_lab("evaluate"), "report": _add_report,
+    "missions": _add_missions, "bench": _add_bench,
+}
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The argument parser; ``--help`` on each subcommand explains it.
+
+    Only the subcommand named in ``argv`` gets its full parser (and imports what it needs); the others appear
+    by name and help line only, so ``slungpilot --help`` answers at once. ``argv`` None builds them all.
+    """
+    parser = argparse.ArgumentParser(
+        prog="slungpilot",
+        description=(
+            "Companion-computer autopilot for a quadrotor carrying a cable-suspended payload: "
+            "swing-aware APF planning and sliding-mode control, sent as SET_ATTITUDE_TARGET over MAVLink."
+        ),
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no narration of the flight (phases and progress); the summary and errors remain")
+    parser.add_argument("--version", action="version", version=f"slungpilot {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    wanted = None if argv is None else next((a for a in argv if a in COMMANDS), "")
+    for name, help_line in COMMANDS.items():
+        if wanted is None or name == wanted:
+            _ADDERS[name](sub)
+        else:
+            sub.add_parser(name, help=help_line)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the process exit code (2 for configuration errors)."""
-    return dispatch(build_parser().parse_args(argv))
+    argv = sys.argv[1:] if argv is None else argv
+    return dispatch(build_parser(argv).parse_args(argv))
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from typing import Any
 
 import zenoh
 
-from companion.config import read_toml
+from companion.config import read_toml, resolve_obstacles
 from companion.errors import ConfigError
 from companion.zenoh_io import schema as ts
 from companion.zenoh_io.obstacle_store import parse_obstacles_in
@@ -180,7 +180,9 @@ def add_obstacles_parser(subparsers: Any) -> argparse.ArgumentParser:
         '{"obstacles": [...], "expires_s": ...} or a JSON list) to <prefix>/<id>/obstacles/in/<name> '
         "(or <prefix>/world/obstacles/<name> with --world).",
     )
-    pub.add_argument("file", type=Path, metavar="FILE", help="mission .toml or .json file")
+    pub.add_argument("file", type=Path, metavar="FILE",
+                     help="mission .toml or .json file, or a shipped obstacle file by name (trunk: one trunk on the "
+                          "open_field mission's path)")
     who = pub.add_mutually_exclusive_group()
     who.add_argument("--vehicle-id", default="1", help="the vehicle to feed (default 1)")
     who.add_argument("--world", action="store_true", help="publish to every vehicle (<prefix>/world/obstacles)")
@@ -190,7 +192,8 @@ def add_obstacles_parser(subparsers: Any) -> argparse.ArgumentParser:
     pub.add_argument("--repeat-hz", type=float, default=0.0, help="republish at this rate (default 0: once)")
     pub.add_argument("--duration", type=float, default=0.0, help="with --repeat-hz: stop after S s (0: Ctrl-C)")
     pub.add_argument("--clear", action="store_true", help="send an empty list (removes this publisher's obstacles)")
-    pub.add_argument("--wait-s", type=float, default=5.0, help="wait up to S s for a subscriber before sending")
+    pub.add_argument("--wait-s", type=float, default=5.0,
+                     help="wait up to S s for a subscriber; if none came, send nothing and exit 3 (default 5)")
     add_zenoh_arguments(pub, "listener")
     pub.set_defaults(func=run_obstacles_publish)
     return p
@@ -233,7 +236,7 @@ def load_obstacles_payload(path: Path, expires_s: float | None, clear: bool = Fa
 def run_obstacles_publish(args: argparse.Namespace) -> int:
     """Publish once (after a subscriber is seen or ``--wait-s``) or repeatedly at ``--repeat-hz``."""
     key = obstacles_key(args.zenoh_prefix, args.vehicle_id, args.name, args.world)
-    payload = load_obstacles_payload(args.file, args.expires, args.clear)
+    payload = load_obstacles_payload(resolve_obstacles(args.file), args.expires, args.clear)
     n = len(json.loads(payload)["obstacles"])
     with open_session(zenoh_config_from_args(args, "listener")) as session:
         pub = session.declare_publisher(
@@ -244,7 +247,10 @@ def run_obstacles_publish(args: argparse.Namespace) -> int:
         while not pub.matching_status.matching and time.monotonic() < deadline:
             time.sleep(0.02)
         if not pub.matching_status.matching:
-            log.warning("no companion subscribed to %s within %.1f s; publishing anyway", key, args.wait_s)
+            print(f"slungpilot obstacles publish: nobody subscribes to {key} (waited {args.wait_s:g} s): is the "
+                  f"companion flying with Zenoh on, as vehicle {args.vehicle_id}, reachable at the endpoint given? "
+                  "Nothing was sent.", file=sys.stderr)
+            return 3
         pub.put(payload)
         print(f"published {n} obstacles to {key}", flush=True)
         if args.repeat_hz > 0:

@@ -44,9 +44,8 @@ from math import isfinite
 
 import numpy as np
 
+from companion.estimation import SWING_INPUTS  # noqa: F401  (re-exported: the inputs this state chooses from)
 from companion.estimation.estimate import Estimate, swing_from_payload
-
-SWING_INPUTS = ("auto", "cable_sensor", "payload_position", "none")
 
 log = logging.getLogger(__name__)
 

@@ -72,7 +72,11 @@ MAX_OBSTACLES_SEEN = 4096  # the report's record of obstacles met is bounded too
 
 
 class TelemetrySink(Protocol):
-    """Where the app publishes per-tick data (the Zenoh streams implement this)."""
+    """Where the app publishes per-tick data (the Zenoh streams, the live view and the terminal implement this).
+
+    ``on_tick`` runs inside the control tick after the setpoint went out: it must be cheap and must not block.
+    ``on_transition`` (optional) hears every state change of the flight sequence, even before telemetry flows.
+    """
 
     def on_tick(self, est: Any, cmd: Command | None, app: FlightApp) -> None: ...
 
@@ -98,9 +102,9 @@ class FlyOptions:
     run_dir: Path | None = None  # where the journal (per-tick log, provisional report) is flushed each second
     wall_timeout_s: float | None = None
     obstacle_source: Callable[[float], Sequence[Obstacle]] | None = None
-    telemetry: TelemetrySink | None = None
+    sinks: list[TelemetrySink] = field(default_factory=list)
     # Awaited once the autopilot is known, outside the tick (its system id decides e.g. the Zenoh vehicle id);
-    # may set ``app.telemetry`` and ``app.obstacle_source``.
+    # may add to ``app.sinks`` and set ``app.obstacle_source``.
     on_connected: Callable[[FlightApp], Awaitable[None]] | None = None
     sock: socket.socket | None = None  # an already bound UDP socket for the link (fly --sitl reserves one)
     sequence: SequenceConfig | None = None  # timeouts of the flight sequence (defaults otherwise)
@@ -188,7 +192,7 @@ class FlightApp:
         self.stats = LoopStats()
         self.abort_reason: str | None = None
         self.last_cmd: Command | None = None
-        self.telemetry: TelemetrySink | None = opts.telemetry
+        self.sinks: list[TelemetrySink] = list(opts.sinks)
         self.obstacle_source: Callable[[float], Sequence[Obstacle]] | None = opts.obstacle_source
         self.params: dict[str, float] = {}  # autopilot parameters read or set during the flight
         self._last_obstacles: Sequence[Obstacle] | None = None
@@ -461,11 +465,11 @@ class FlightApp:
             self.stats.first = self.stats.last
         if self.seq.streaming_ours or cmd is not None:
             self._record(est, cmd)
-        if self.telemetry is not None:
+        for sink in self.sinks:
             try:
-                self.telemetry.on_tick(est, cmd, self)
+                sink.on_tick(est, cmd, self)
             except Exception:
-                log.exception("telemetry sink failed; continuing")
+                log.exception("telemetry sink %s failed; continuing", type(sink).__name__)
 
     def _recent_valid(self, wall: float) -> tuple[float, np.ndarray, float] | None:
         """The last valid setpoint if it is at most one telemetry timeout old, else None (stream nothing)."""
@@ -521,6 +525,13 @@ class FlightApp:
             self._transitions_logged += 1
             level = logging.INFO if t.to_state not in ("hold", "descend") else logging.WARNING
             log.log(level, "%s → %s: %s", t.from_state, t.to_state, t.reason)
+            for sink in self.sinks:
+                hear = getattr(sink, "on_transition", None)
+                if hear is not None:
+                    try:
+                        hear(t, self)
+                    except Exception:
+                        log.exception("telemetry sink %s failed; continuing", type(sink).__name__)
             if t.to_state == "done":
                 log.log(logging.INFO if self.outcome == "completed" else logging.WARNING,
                         "flight ended: %s (%s)", self.outcome, self.seq.detail)

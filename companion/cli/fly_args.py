@@ -1,0 +1,76 @@
+"""The ``fly`` command's options and exit codes, apart from the flight itself so ``--help`` answers at once."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from companion.autopilots.profile import PROFILE_NAMES
+from companion.config import shipped_config
+from companion.estimation import SWING_INPUTS
+from companion.zenoh_io.session import add_zenoh_arguments
+
+DEFAULT_MISSION = shipped_config("missions/forest.toml")
+DEFAULT_GAINS = shipped_config("controller.toml")
+PLANNERS = ("traditional", "improved", "safe", "none")
+CONTROLLERS = ("smc_ff", "smc", "pid")
+
+#: ``slungpilot fly`` exit codes by outcome (also in --help and the README); 2 is a broken file or flag.
+EXIT_CODES = {
+    "completed": 0,
+    "timeout": 1, "no_route": 1,
+    "no_vehicle": 3, "link_lost": 3,
+    "not_ready": 4, "refused": 4,
+    "preempted": 5,
+    "stale_telemetry": 6, "invalid_estimate": 6, "tick_errors": 6,
+    "aborted": 130,
+}
+EXIT_HELP = ("exit codes: 0 goal reached; 1 mission not completed (timeout, no route); 2 broken mission file or "
+             "flag; 3 no vehicle or link lost; 4 the autopilot was not ready or refused to arm / give control; "
+             "5 preempted (someone else took the vehicle); 6 failsafe (stale telemetry, invalid estimate, failing "
+             "control ticks); 130 interrupted (Ctrl-C/SIGTERM: held and landed); 1 for anything else")
+
+
+
+def add_fly_arguments(p: argparse.ArgumentParser) -> None:
+    """The ``fly`` options."""
+    p.add_argument("--mission", default=str(DEFAULT_MISSION), metavar="FILE|NAME",
+                   help="mission TOML file, or the name of a shipped mission (`slungpilot missions` lists them; "
+                        "default: forest, the paper's Table 2 forest)")
+    p.add_argument("--connect", default=None,
+                   help="autopilot link: udpin://HOST:PORT (listen; default udpin://0.0.0.0:14540, PX4's onboard "
+                        "link, +N with --instance N) or udpout://HOST:PORT; not with --sitl (it picks free ports)")
+    p.add_argument("--instance", type=int, default=0, metavar="N",
+                   help="run the N-th of several companions on one machine: the default MAVLink port 14540+N and "
+                        "Zenoh port 7447+N, and with --sitl the bundled vehicle's instance N (system id 1+N), "
+                        "as `slungpilot sitl --instance N`")
+    p.add_argument("--sitl", action="store_true",
+                   help="start the bundled SITL vehicle on free local ports (lockstep unless --realtime)")
+    p.add_argument("--realtime", action="store_true", help="with --sitl: fly in real time to watch it live")
+    p.add_argument("--lockstep", action="store_true",
+                   help="the vehicle is a lockstep simulator (driven by its SYSTEM_TIME step markers)")
+    p.add_argument("--planner", choices=PLANNERS, help="override the mission's")
+    p.add_argument("--controller", choices=CONTROLLERS, help="override the mission's")
+    p.add_argument("--gains", type=Path, default=DEFAULT_GAINS, help="controller/planner gains TOML")
+    p.add_argument("--profile", choices=PROFILE_NAMES, default=None,
+                   help="vehicle profile: thrust mapping (newtons → 0..1) and flight-mode family (default: "
+                        "bundled with --sitl, else chosen from the autopilot's HEARTBEAT: px4 or ardupilot)")
+    p.add_argument("--hover-thrust", type=float, default=None,
+                   help="normalized hover thrust of your vehicle (PX4 MPC_THR_HOVER); overrides the profile's")
+    p.add_argument("--rate-hz", type=float, default=250.0, help="outer-loop rate (Hz)")
+    p.add_argument("--payload-sysid", type=int, default=None,
+                   help="MAVLink system id of the payload's own stream (default 2; 200+N with --sitl --instance N)")
+    p.add_argument("--swing-input", choices=SWING_INPUTS, default="auto",
+                   help="swing measurement to use: auto = cable-angle sensor (DEBUG_FLOAT_ARRAY 'SWING'), else the "
+                        "payload's position stream, else none (no feed-forward, full-cable envelope)")
+    p.add_argument("--run-dir", type=Path, default=None, help="where to write the run folder")
+    p.add_argument("--report", type=Path, default=None, help="also write the JSON report to this file")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    p.add_argument("--no-land", action="store_true", help="hold at the goal instead of landing")
+    p.add_argument("--no-land-on-abort", action="store_true", help="on Ctrl-C hold instead of landing")
+    p.add_argument("--heartbeat-timeout", type=float, default=60.0,
+                   help="seconds to wait for the autopilot's first HEARTBEAT (default 60)")
+    p.add_argument("--ready-timeout", type=float, default=90.0,
+                   help="seconds to wait for telemetry and the autopilot's ready-to-arm (default 90: PX4 SITL "
+                        "can take ~40 s after boot)")
+    add_zenoh_arguments(p, "companion")
