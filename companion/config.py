@@ -50,7 +50,8 @@ def resolve_obstacles(arg: str | Path) -> Path:
     shipped = {Path(e.name).stem: Path(str(e)) for e in folder.iterdir() if e.name.endswith(".json")}
     if p.stem in shipped and p.parent == Path("."):
         return shipped[p.stem]
-    raise ConfigError(f"{arg}: no such obstacle file, and no shipped one of that name (shipped: {', '.join(shipped)})")
+    raise ConfigError(f"{arg}: file not found, and no shipped obstacle file of that name (shipped: "
+                      f"{', '.join(shipped)})")
 
 
 def resolve_mission(arg: str | Path) -> Path:

@@ -110,6 +110,7 @@ class SitlVehicle:
         self._stop: asyncio.Event | None = None
         self._last_marker_wall = 0.0
         self._last_hb_wall = 0.0
+        self._last_step_wall = 0.0  # lockstep: when a client last stepped the simulation
         self.steps = 0
 
     # ------------------------------------------------------------------ construction helpers
@@ -311,6 +312,7 @@ class SitlVehicle:
             for lk in links:
                 lk.begin_batch()
             self.advance()
+            self._last_step_wall = time.monotonic()
             self._send_marker()
             for lk in links:
                 lk.flush()
@@ -418,8 +420,8 @@ class SitlVehicle:
                 self._send_marker()
             # While a client steps the simulation, HEARTBEATs come on simulated time only (a wall-clock one
             # would show the client a state change at a wall-time-dependent moment: lockstep runs must repeat bit
-            # for bit). Only an idle vehicle (no step for 2 s) heartbeats on the wall clock, to be discovered.
-            if now - self._last_hb_wall >= 1.0 and now - self._last_marker_wall >= 2.0:
+            # for bit). Only an idle vehicle (no step for 1 s) heartbeats on the wall clock, to be discovered.
+            if now - self._last_hb_wall >= 1.0 and now - self._last_step_wall >= 1.0:
                 self._last_hb_wall = now
                 for lk in self._links():
                     telemetry.send_vehicle_message(M.MAVLINK_MSG_ID_HEARTBEAT, lk.mav, self)

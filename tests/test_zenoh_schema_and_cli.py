@@ -150,7 +150,10 @@ def test_cli_parsers_register_their_subcommands() -> None:
     a = p.parse_args(["obstacles", "publish", "f.toml", "--world", "--expires", "2", "--repeat-hz", "5"])
     assert a.world and a.expires == 2.0 and a.repeat_hz == 5.0
     a = p.parse_args(["zenoh-router"])
-    assert a.zenoh_mode == "router"
+    assert a.zenoh_mode is None  # the role's default (or the --zenoh-config file's mode) applies
+    from companion.zenoh_io.session import zenoh_config_from_args
+
+    assert zenoh_config_from_args(a, "router").get_json("mode") == '"router"'
 
 
 def _run(args: list[str], timeout: float = 40.0) -> subprocess.Popen:

@@ -50,6 +50,8 @@ with open_session(zenoh_config("listener", listen=[endpoint])) as session:
     session.declare_subscriber("slungpilot/1/**", on_sample)
     session.liveliness().declare_subscriber("slungpilot/*/alive", on_alive, history=True)
     pub = session.declare_publisher("slungpilot/1/obstacles/in/perception")
+    # one bad sample per publisher: the companion parses only each publisher's newest unread sample
+    bad_pubs = [session.declare_publisher(f"slungpilot/1/obstacles/in/broken{i}") for i in range(4)]
     print("ready", flush=True)
     deadline = time.monotonic() + 150.0
     while not gone.is_set() and time.monotonic() < deadline:
@@ -65,9 +67,10 @@ with open_session(zenoh_config("listener", listen=[endpoint])) as session:
                 if reply.ok is not None:
                     seen["config"] = json.loads(reply.ok.payload.to_bytes())
         if obstacle_doc and seen["published_at_x"] is None and pos and pos[2] < -1.8:
-            for bad in (b"not json", b'{"obstacles": [{"x_m": 1, "y_m": 0, "radius_m": NaN}]}',
-                        b'{"obstacles": [{"x_m": 1, "y_m": 0, "radius_m": -0.3}]}', b'{"trunks": []}'):
-                pub.put(bad)  # each must be counted and ignored
+            for bp, bad in zip(bad_pubs, (b"not json", b'{"obstacles": [{"x_m": 1, "y_m": 0, "radius_m": NaN}]}',
+                                          b'{"obstacles": [{"x_m": 1, "y_m": 0, "radius_m": -0.3}]}',
+                                          b'{"trunks": []}'), strict=True):
+                bp.put(bad)  # each must be counted and ignored
             pub.put(obstacle_doc.encode())
             seen["published_at_x"] = pos[0]
 with open(out_path, "w") as fh:
