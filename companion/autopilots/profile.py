@@ -1,22 +1,21 @@
-"""Vehicle profiles: the ONE place where thrust in newtons becomes MAVLink's normalized 0..1 thrust.
+"""Vehicle profiles: the ONE place where thrust in newtons becomes MAVLink's normalized 0..1 thrust, tied to the
+autopilot family whose modes and set-up the vehicle speaks.
 
 SET_ATTITUDE_TARGET carries a normalized thrust; what 0.5 means depends on the autopilot and airframe.
 A profile states the normalized thrust that holds the vehicle in hover and maps linearly around it:
 ``norm = hover_thrust_norm · thrust_n / hover_thrust_n`` (clipped to [0, 1]). PX4's MPC_THR_HOVER and
-ArduPilot's MOT_THST_HOVER are exactly that hover value (both autopilots linearize thrust internally).
+ArduPilot's MOT_THST_HOVER are exactly that hover value (both autopilots linearize thrust internally;
+ArduCopter only with GUID_OPTIONS bit 3, which the set-up sees to).
 
-The profile also names the autopilot family's flight modes, the other thing PX4 and ArduPilot disagree on
-(MAV_CMD_DO_SET_MODE parameters: base mode flag, custom mode, custom sub mode):
+=============  ============================  =============================  ====================  ==========
+profile        family                        companion in control           hold (abort)          land
+=============  ============================  =============================  ====================  ==========
+``bundled``    PX4 (hover 0.4)               OFFBOARD (main 6)              AUTO.LOITER (4, 3)    AUTO.LAND
+``px4``        PX4 (hover 0.5)               OFFBOARD                       AUTO.LOITER           AUTO.LAND
+``ardupilot``  ArduPilot (hover 0.35)        GUIDED_NOGPS (20)              BRAKE (17)            LAND (9)
+=============  ============================  =============================  ====================  ==========
 
-=============  =================================  ==============================  =====================
-family         companion in control               hold (abort)                    land
-=============  =================================  ==============================  =====================
-PX4 (bundled)  OFFBOARD (main 6)                  AUTO.LOITER (main 4, sub 3)     AUTO.LAND (4, 6)
-ArduPilot      GUIDED_NOGPS (20; takes attitude)  BRAKE (17)                      LAND (9)
-=============  =================================  ==============================  =====================
-
-The ArduPilot row follows ArduCopter's documented mode numbers; it is not exercised against a real
-ArduPilot here (no ArduPilot SITL on this machine), only the encoding is tested.
+Both families' tables are flown against the real autopilots (tests/test_real_autopilots.py, when built).
 """
 
 from __future__ import annotations
@@ -24,12 +23,20 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from companion.autopilots.ardupilot import ARDUPILOT
+from companion.autopilots.family import AutopilotFamily
+from companion.autopilots.px4 import PX4
+
 PROFILE_NAMES = ("bundled", "px4", "ardupilot")
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+MAV_AUTOPILOT_PX4 = 12
+_FAMILIES = {"bundled": PX4, "px4": PX4, "ardupilot": ARDUPILOT}
+_HOVER = {"bundled": 0.4, "px4": PX4.default_hover_thrust, "ardupilot": ARDUPILOT.default_hover_thrust}
 
 
 @dataclass(frozen=True)
 class VehicleProfile:
-    """How one autopilot family interprets normalized thrust.
+    """How one vehicle interprets normalized thrust, and which autopilot family it speaks.
 
     name: one of :data:`PROFILE_NAMES`; hover_thrust_norm: normalized thrust (0..1) that holds hover.
     """
@@ -44,6 +51,16 @@ class VehicleProfile:
         if not (math.isfinite(self.hover_thrust_norm) and 0.0 < self.hover_thrust_norm < 1.0):
             raise ValueError(f"hover_thrust_norm: must be in (0, 1), got {self.hover_thrust_norm}")
 
+    @property
+    def family(self) -> AutopilotFamily:
+        """The autopilot family's tables."""
+        return _FAMILIES.get(self.name, PX4)
+
+    @property
+    def autopilot(self) -> str:
+        """Mode family: ``"px4"`` (PX4 and the bundled vehicle) or ``"ardupilot"``."""
+        return self.family.name
+
     def thrust_to_norm(self, thrust_n: float, hover_thrust_n: float) -> float:
         """Normalized thrust in [0, 1] for ``thrust_n`` newtons, given the hover thrust in newtons."""
         if not hover_thrust_n > 0.0:
@@ -53,77 +70,39 @@ class VehicleProfile:
             return 0.0
         return min(1.0, max(0.0, v))
 
-    @property
-    def autopilot(self) -> str:
-        """Mode family: ``"px4"`` (PX4 and the bundled vehicle) or ``"ardupilot"``."""
-        return "ardupilot" if self.name == "ardupilot" else "px4"
+    def norm_to_thrust(self, thrust_norm: float, hover_thrust_n: float) -> float:
+        """Inverse of :meth:`thrust_to_norm` (newtons), for logging what a normalized value meant."""
+        return float(thrust_norm) * hover_thrust_n / self.hover_thrust_norm
 
     def mode_params(self, what: str) -> list[float]:
         """DO_SET_MODE params [base_mode, custom_mode, custom_sub_mode] for ``what`` in offboard/hold/land."""
-        try:
-            main, sub = _MODES[self.autopilot][what]
-        except KeyError:
-            raise ValueError(f"mode: unknown mode {what!r} (known: offboard, hold, land)") from None
-        return [float(MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(main), float(sub)]
+        return self.family.mode_params(what)
+
+    def mode_class(self, custom_mode: int) -> str:
+        """A HEARTBEAT custom_mode in the flight sequence's words (see :class:`AutopilotFamily`)."""
+        return self.family.mode_class(custom_mode)
 
     def is_offboard(self, custom_mode: int) -> bool:
         """Whether a HEARTBEAT custom_mode means the companion is in control."""
         return self.mode_class(custom_mode) == "offboard"
 
-    def mode_class(self, custom_mode: int) -> str:
-        """A HEARTBEAT custom_mode in the flight sequence's words: ``offboard`` (the companion flies),
-        ``hold``, ``land``, ``takeoff`` or ``other``."""
-        if self.autopilot == "ardupilot":
-            return _ARDUPILOT_CLASS.get(int(custom_mode), "other")
-        main = (int(custom_mode) >> 16) & 0xFF
-        sub = (int(custom_mode) >> 24) & 0xFF if main == 4 else 0
-        return _PX4_CLASS.get((main, sub), "other")
-
     @property
     def hover_param(self) -> str:
         """The autopilot parameter that holds the normalized hover thrust."""
-        return "MOT_THST_HOVER" if self.autopilot == "ardupilot" else "MPC_THR_HOVER"
+        return self.family.hover_param
 
     @property
     def takeover_before_arm(self) -> bool:
         """ArduPilot arms in its guided mode; PX4 arms first and then accepts OFFBOARD."""
-        return self.autopilot == "ardupilot"
-
-    def norm_to_thrust(self, thrust_norm: float, hover_thrust_n: float) -> float:
-        """Inverse of :meth:`thrust_to_norm` (newtons), for logging what a normalized value meant."""
-        return float(thrust_norm) * hover_thrust_n / self.hover_thrust_norm
-
-
-MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
-MAV_AUTOPILOT_ARDUPILOTMEGA = 3
-MAV_AUTOPILOT_PX4 = 12
-_MODES = {
-    "px4": {"offboard": (6, 0), "hold": (4, 3), "land": (4, 6)},
-    "ardupilot": {"offboard": (20, 0), "hold": (17, 0), "land": (9, 0)},
-}
-
-_PX4_CLASS = {(6, 0): "offboard", (4, 3): "hold", (4, 6): "land", (4, 2): "takeoff"}
-_ARDUPILOT_CLASS = {20: "offboard", 4: "offboard", 17: "hold", 5: "hold", 9: "land"}
-
-_PROFILES = {
-    # bundled SITL vehicle: thrust-to-weight 2.5, so hover at 1/2.5 of full thrust
-    "bundled": VehicleProfile("bundled", 0.4),
-    # PX4 multicopter default MPC_THR_HOVER
-    "px4": VehicleProfile("px4", 0.5),
-    # ArduPilot default MOT_THST_HOVER
-    "ardupilot": VehicleProfile("ardupilot", 0.35),
-}
+        return self.family.takeover_before_arm
 
 
 def profile_by_name(name: str, hover_thrust_norm: float | None = None) -> VehicleProfile:
     """The named profile; ``hover_thrust_norm`` overrides its hover value (e.g. read from the autopilot)."""
-    try:
-        p = _PROFILES[name]
-    except KeyError:
-        raise ValueError(f"profile: unknown vehicle profile {name!r} (known: {', '.join(PROFILE_NAMES)})") from None
-    if hover_thrust_norm is not None:
-        p = VehicleProfile(p.name, float(hover_thrust_norm))
-        p.validate()
+    if name not in _FAMILIES:
+        raise ValueError(f"profile: unknown vehicle profile {name!r} (known: {', '.join(PROFILE_NAMES)})")
+    p = VehicleProfile(name, _HOVER[name] if hover_thrust_norm is None else float(hover_thrust_norm))
+    p.validate()
     return p
 
 

@@ -57,6 +57,9 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                         "bundled with --sitl, else chosen from the autopilot's HEARTBEAT: px4 or ardupilot)")
     p.add_argument("--hover-thrust", type=float, default=None,
                    help="normalized hover thrust of your vehicle (PX4 MPC_THR_HOVER); overrides the profile's")
+    p.add_argument("--no-param-writes", action="store_true",
+                   help="never change an autopilot parameter: refuse the vehicle instead (ArduCopter needs "
+                        "GUID_OPTIONS bit 3, which the companion otherwise sets; see docs/autopilots.md)")
     p.add_argument("--rate-hz", type=float, default=250.0, help="outer-loop rate (Hz)")
     p.add_argument("--payload-sysid", type=int, default=None,
                    help="MAVLink system id of the payload's own stream (default 2; 200+N with --sitl --instance N)")

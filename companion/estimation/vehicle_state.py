@@ -115,6 +115,7 @@ class VehicleState:
     sensors_present: int = 0
     sensors_health: int = 0
     sys_status_seen: bool = False
+    autopilot_version: dict | None = None  # from AUTOPILOT_VERSION, when the autopilot sent it
     step_markers: int = 0
     counts: Counter = field(default_factory=Counter)
     rejected: Counter = field(default_factory=Counter)
@@ -261,6 +262,15 @@ class VehicleState:
                     self.rejected["nonfinite"] += 1
         elif mtype == "EXTENDED_SYS_STATE":
             self.landed_state = int(msg.landed_state)
+        elif mtype == "AUTOPILOT_VERSION":
+            v = int(msg.flight_sw_version)
+            self.autopilot_version = {
+                "flight_sw_version": f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF}",
+                "release_type": v & 0xFF, "vendor_id": int(msg.vendor_id), "product_id": int(msg.product_id),
+                "capabilities": int(msg.capabilities),
+                "flight_custom_version": bytes(msg.flight_custom_version).hex()
+                if not isinstance(msg.flight_custom_version, str) else msg.flight_custom_version,
+            }
         elif mtype == "SYS_STATUS":
             self.sys_status_seen = True
             self.sensors_present = int(msg.onboard_control_sensors_present)

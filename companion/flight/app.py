@@ -39,6 +39,7 @@ from typing import Any, Protocol
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.autopilots.family import SetupOptions
 from companion.autopilots.profile import VehicleProfile, profile_by_name, profile_for_autopilot
 from companion.core.mission import Mission
 from companion.core.model import payload_offset_ned_m
@@ -109,6 +110,7 @@ class FlyOptions:
     sock: socket.socket | None = None  # an already bound UDP socket for the link (fly --sitl reserves one)
     sequence: SequenceConfig | None = None  # timeouts of the flight sequence (defaults otherwise)
     provisional: Callable[[FlightApp], dict[str, Any]] | None = None  # the journal's provisional report
+    allow_param_writes: bool = True  # False: refuse a vehicle whose parameters would have to change (ArduPilot)
     # Fault injection for the fault suite: from this vehicle time (s) on, every tick that would compute a setpoint
     # raises (``SLUNGPILOT_INJECT_TICK_ERROR_AT_S`` sets it for ``slungpilot fly``). None in normal use.
     inject_tick_error_at_s: float | None = None
@@ -269,18 +271,12 @@ class FlightApp:
             self.profile = profile_for_autopilot(self.state.autopilot, self.opts.hover_thrust_norm)
             self.core.profile = self.profile
         self.state.mode_class = self.profile.mode_class
-        interval_us = 1e6 / self.opts.rate_hz
-        configure: list[tuple[str, float]] = [
-            ("message_interval:ATTITUDE", interval_us),
-            ("message_interval:LOCAL_POSITION_NED", interval_us),
-            ("message_interval:EXTENDED_SYS_STATE", 1e5),
-            ("message_interval:SYS_STATUS", 1e6),
-        ]
-        if self.opts.swing_input in ("auto", "cable_sensor"):
-            configure.append(("message_interval:DEBUG_FLOAT_ARRAY", interval_us))
-        if self.opts.hover_thrust_norm is None:
-            configure.append((f"param_read:{self.profile.hover_param}", float("nan")))
-        self.seq.plan(configure=tuple(configure), takeover_before_arm=self.profile.takeover_before_arm)
+        family = self.profile.family
+        setup = SetupOptions(rate_hz=self.opts.rate_hz, swing_sensor=self.opts.swing_input in ("auto", "cable_sensor"),
+                             read_hover_thrust=self.opts.hover_thrust_norm is None,
+                             allow_param_writes=self.opts.allow_param_writes)
+        self.seq.plan(configure=family.setup(setup), takeover_before_arm=family.takeover_before_arm,
+                      followup=lambda answers: family.followup(answers, setup))
         log.info("vehicle: system %s component %s, %s autopilot, mode %s", self.state.vehicle_sysid,
                  self.state.vehicle_compid, self.profile.autopilot, self.state.mode_name)
 
@@ -329,10 +325,11 @@ class FlightApp:
     async def _housekeeping_loop(self) -> None:
         while not self._done.is_set():
             if self.link.connected:
-                self.link.mav.heartbeat_send(
-                    mavlink2.MAV_TYPE_ONBOARD_CONTROLLER, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0,
-                    mavlink2.MAV_STATE_ACTIVE,
-                )
+                # announced the way the autopilot family wants (PX4 tells its reasons only to a GCS-typed link)
+                mav_type = self.profile.family.heartbeat_type if self.state.vehicle_sysid is not None else \
+                    mavlink2.MAV_TYPE_ONBOARD_CONTROLLER
+                self.link.mav.heartbeat_send(mav_type, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0,
+                                             mavlink2.MAV_STATE_ACTIVE)
             if self.journal is not None:
                 try:
                     self.journal.flush(self._provisional())
@@ -589,6 +586,9 @@ class FlightApp:
             "rejected_telemetry": dict(self.state.rejected),
             "vehicle_statustext": self.state.statustext[-20:],
             "swing_sources": self.swing_sources,
+            "autopilot": {"family": self.profile.autopilot, "system_id": self.state.vehicle_sysid,
+                          "component_id": self.state.vehicle_compid, "mav_autopilot": self.state.autopilot,
+                          "mav_type": self.state.vehicle_type, "version": self.state.autopilot_version},
             "autopilot_params": self.params,
         }
 

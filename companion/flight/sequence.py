@@ -42,6 +42,7 @@ clock stopped is still noticed.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
@@ -216,12 +217,18 @@ class FlightSequence:
         self._disarm_sent = False
         self._configured: dict[str, float | int] = {}
         self._configure_done = False
+        self._followup: Callable | None = None
+        self._followed_up = False
         self._bad_start: float | None = None
 
     # ---------------------------------------------------------------------------------------------- public
-    def plan(self, configure: tuple[tuple[str, float], ...], takeover_before_arm: bool) -> None:
-        """Once the vehicle is known: the set-up requests to ask and the autopilot family's arming order."""
+    def plan(self, configure: tuple[tuple[str, float], ...], takeover_before_arm: bool,
+             followup: Callable[[dict[str, float | int]], tuple[tuple[tuple[str, float], ...], str | None]]
+             | None = None) -> None:
+        """Once the vehicle is known: the set-up requests to ask, the autopilot family's arming order, and what
+        the set-up's answers call for next (``followup(answers) -> (more requests, or a reason to refuse)``)."""
         self.cfg = replace(self.cfg, configure=configure, takeover_before_arm=takeover_before_arm)
+        self._followup = followup
 
     def answer(self, key: str, result: int | float) -> bool:
         """The autopilot answered request ``key`` (COMMAND_ACK result, or a parameter's value)."""
@@ -359,7 +366,11 @@ class FlightSequence:
             return
         hb_age = math.inf if obs.heartbeat_wall_s is None else obs.wall_s - obs.heartbeat_wall_s
         tel_age = math.inf if obs.telemetry_wall_s is None else obs.wall_s - obs.telemetry_wall_s
-        if hb_age > self.cfg.heartbeat_loss_s or (obs.telemetry_ready and tel_age > self.cfg.telemetry_loss_s):
+        # Before setpoints flow, an autopilot that pauses its telemetry (PX4 while its estimator starts) is only
+        # not ready yet; from then on the vehicle may depend on us, and silence is a lost link.
+        telemetry_counts = s not in (State.CONFIGURE, State.WAIT_READY)
+        if hb_age > self.cfg.heartbeat_loss_s or (telemetry_counts and obs.telemetry_ready
+                                                  and tel_age > self.cfg.telemetry_loss_s):
             what = (f"no HEARTBEAT for {hb_age:.1f} s" if hb_age > self.cfg.heartbeat_loss_s
                     else f"no position/attitude for {tel_age:.2f} s")
             if self.outcome == "stale_telemetry":  # that was the first sign of this: name the real cause
@@ -417,7 +428,24 @@ class FlightSequence:
 
     def _on_configure(self, obs: Observation, send: list[Request]) -> None:
         """Ask the set-up requests one at a time: several share one MAVLink command (SET_MESSAGE_INTERVAL),
-        whose COMMAND_ACK does not say which request it answers."""
+        whose COMMAND_ACK does not say which request it answers. Then the follow-ups their answers call for."""
+        if not self._ask_in_turn(obs, send):
+            return
+        if self._followup is not None and not self._followed_up:
+            self._followed_up = True
+            more, refusal = self._followup(dict(self._configured))
+            if refusal is not None:
+                self._finish(obs, "refused", "configure", refusal)
+                return
+            if more:
+                self.cfg = replace(self.cfg, configure=self.cfg.configure + tuple(more))
+                if not self._ask_in_turn(obs, send):
+                    return
+        self._configure_done = True
+        self._go(obs, State.WAIT_READY, "streams and parameters set up")
+
+    def _ask_in_turn(self, obs: Observation, send: list[Request]) -> bool:
+        """Ask the next unanswered set-up request; True once every one is answered (or given up)."""
         for key, value in self.cfg.configure:
             if key in self._configured:
                 continue
@@ -430,12 +458,12 @@ class FlightSequence:
                 continue
             if not self.requests.pending(key):
                 send.extend(self.requests.ask(key, obs.now_s, value))
-            return
-        self._configure_done = True
-        self._go(obs, State.WAIT_READY, "streams and parameters set up")
+            return False
+        return True
 
     def _on_wait_ready(self, obs: Observation, send: list[Request]) -> None:
-        if obs.telemetry_ready and obs.vehicle_ready:
+        fresh = obs.telemetry_wall_s is not None and obs.wall_s - obs.telemetry_wall_s <= self.cfg.stale_s
+        if obs.telemetry_ready and fresh and obs.vehicle_ready:
             if obs.armed and not obs.on_ground:
                 self._armed_seen = True
             self._go(obs, State.PRESTREAM, "telemetry flowing, autopilot ready")

@@ -12,6 +12,7 @@ request key                sent as                                     answered 
                            altitude above home, m)
 ``message_interval:NAME``  COMMAND_LONG MAV_CMD_SET_MESSAGE_INTERVAL   COMMAND_ACK
                            (value: interval, µs)
+``request_message:NAME``   COMMAND_LONG MAV_CMD_REQUEST_MESSAGE        COMMAND_ACK (the message follows)
 ``data_stream:ID``         REQUEST_DATA_STREAM (value: rate, Hz)       nothing: answered at once
 ``param_read:NAME``        PARAM_REQUEST_READ                          PARAM_VALUE (the value)
 ``param_set:NAME``         PARAM_SET (value)                           PARAM_VALUE (the new value)
@@ -73,6 +74,8 @@ class RequestLink:
             self._command(req, M.MAV_CMD_NAV_TAKEOFF, [0, 0, 0, math.nan, math.nan, math.nan, req.value])
         elif kind == "message_interval":
             self._command(req, M.MAV_CMD_SET_MESSAGE_INTERVAL, [float(message_id(arg)), req.value])
+        elif kind == "request_message":
+            self._command(req, M.MAV_CMD_REQUEST_MESSAGE, [float(message_id(arg))])
         elif kind == "data_stream":
             self.mav.request_data_stream_send(sysid, compid, int(arg), max(1, round(req.value)), 1)
             self.instant_answers.append((req.key, M.MAV_RESULT_ACCEPTED))
