@@ -410,6 +410,88 @@ def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, dr
             "link": rep["link"]}
 
 
+def _start_vehicle(kind: str, comp_port: int, instance: int) -> tuple[subprocess.Popen, list[str]]:
+    """A real-time vehicle sending its onboard link to ``comp_port``: the bundled one, or PX4 SIH / ArduCopter
+    SITL from the launchers in $SLUNGPILOT_EXT (default /work/ext; see docs/autopilots.md)."""
+    if kind == "bundled":
+        argv = [sys.executable, "-m", "sim_bridge", "--onboard-port", str(free_udp_port()), "--onboard-remote",
+                f"127.0.0.1:{comp_port}", "--gcs-port", str(free_udp_port()), "--gcs-remote",
+                f"127.0.0.1:{free_udp_port()}"]
+        return subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                start_new_session=True), ["--profile", "bundled"]
+    ext = Path(os.environ.get("SLUNGPILOT_EXT", "/work/ext"))
+    script = ext / {"px4": "run-px4-sih.sh", "ardupilot": "run-arducopter.sh"}[kind]
+    if not script.exists():
+        raise FileNotFoundError(f"{script}: {kind} SITL not built here (docs/autopilots.md)")
+    proc = subprocess.Popen([str(script), str(instance)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    return proc, []
+
+
+def companion_killed_vehicle_failsafe(workdir: Path, *, vehicle: str = "bundled", after_s: float = 3.0,
+                                      watch_s: float = 60.0, instance: int = 6) -> dict[str, Any]:
+    """kill -9 the companion while the vehicle flies its setpoints (real time), then watch the vehicle from the
+    companion's port: how long until it leaves offboard, into which mode, and whether it lands and disarms."""
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    from companion.autopilots.profile import profile_for_autopilot
+    from companion.estimation.vehicle_state import px4_mode_name
+
+    comp_port = 14540 + instance if vehicle != "bundled" else free_udp_port()
+    veh, extra = _start_vehicle(vehicle, comp_port, instance)
+    run_dir = workdir / f"companion-killed-{vehicle}"
+    fly = Proc.start(fly_argv(run_dir, "--connect", f"udpin://127.0.0.1:{comp_port}", "--no-zenoh",
+                              "--ready-timeout", "120", *extra))
+    events: list[tuple[float, str]] = []
+    try:
+        fly.wait_for("takeover → mission", timeout_s=180)
+        time.sleep(after_s)
+        fly.proc.kill()
+        t_kill = time.monotonic()
+        fly.proc.wait(10)
+        mav = mavlink2.MAVLink(None)
+        mav.robust_parsing = True
+        last_mode, armed, z_min, vz_max = None, True, 0.0, 0.0
+        t_land = t_disarm = None
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind(("127.0.0.1", comp_port))
+            s.settimeout(0.2)
+            while time.monotonic() - t_kill < watch_s:
+                try:
+                    data, _ = s.recvfrom(65535)
+                except TimeoutError:
+                    continue
+                for m in mav.parse_buffer(data) or []:
+                    t = m.get_type()
+                    if t == "HEARTBEAT" and m.autopilot != 8 and m.get_srcComponent() == 1:
+                        fam = profile_for_autopilot(m.autopilot).family
+                        name = px4_mode_name(m.custom_mode) if fam.name == "px4" else f"mode {m.custom_mode}"
+                        if name != last_mode:
+                            events.append((time.monotonic() - t_kill, f"{name} ({fam.mode_class(m.custom_mode)})"))
+                            last_mode = name
+                        was, armed = armed, bool(m.base_mode & 128)
+                        if was and not armed and t_disarm is None:
+                            t_disarm = time.monotonic() - t_kill
+                    elif t == "EXTENDED_SYS_STATE" and m.landed_state == 1 and t_land is None:
+                        t_land = time.monotonic() - t_kill
+                    elif t == "LOCAL_POSITION_NED" and m.get_srcComponent() == 1:
+                        z_min, vz_max = min(z_min, m.z), max(vz_max, m.vz)
+                if t_disarm is not None:
+                    break
+    finally:
+        fly.kill_all()
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(veh.pid, signal.SIGTERM)
+        try:
+            veh.wait(15)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(veh.pid, signal.SIGKILL)
+    leave = next((t for t, name in events if not name.endswith("(offboard)")), None)
+    return {"vehicle": vehicle, "mode_changes_s": events, "left_offboard_s": leave, "landed_s": t_land,
+            "disarmed_s": t_disarm, "max_descent_mps": vz_max, "max_altitude_m": -z_min}
+
+
 SCENARIOS = {
     "vehicle_killed": vehicle_killed,
     "fuzz": fuzz,
