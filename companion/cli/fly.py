@@ -158,6 +158,7 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
         swing_input=args.swing_input, heartbeat_timeout_s=args.heartbeat_timeout,
         ready_timeout_s=args.ready_timeout, land_on_abort=not args.no_land_on_abort,
         tlog_path=run_dir / "flight.tlog", run_dir=run_dir, allow_param_writes=not args.no_param_writes,
+        start_here=args.start_here,
         inject_tick_error_at_s=_env_float("SLUNGPILOT_INJECT_TICK_ERROR_AT_S"),
     )
     if opts.rate_hz <= 0 or opts.rate_hz > 2000:

@@ -57,6 +57,10 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                         "bundled with --sitl, else chosen from the autopilot's HEARTBEAT: px4 or ardupilot)")
     p.add_argument("--hover-thrust", type=float, default=None,
                    help="normalized hover thrust of your vehicle (PX4 MPC_THR_HOVER); overrides the profile's")
+    p.add_argument("--start-here", action="store_true",
+                   help="fly the mission from where the vehicle stands (its start point moved under it); without "
+                        "it, mission coordinates are relative to home and a vehicle more than 1 m from the "
+                        "mission's start is refused")
     p.add_argument("--no-param-writes", action="store_true",
                    help="never change an autopilot parameter: refuse the vehicle instead (ArduCopter needs "
                         "GUID_OPTIONS bit 3, which the companion otherwise sets; see docs/autopilots.md)")

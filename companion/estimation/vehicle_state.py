@@ -116,6 +116,7 @@ class VehicleState:
     sensors_health: int = 0
     sys_status_seen: bool = False
     autopilot_version: dict | None = None  # from AUTOPILOT_VERSION, when the autopilot sent it
+    home_ned_m: np.ndarray | None = None  # HOME_POSITION's local x, y, z (m, the autopilot's local NED frame)
     step_markers: int = 0
     counts: Counter = field(default_factory=Counter)
     rejected: Counter = field(default_factory=Counter)
@@ -262,6 +263,11 @@ class VehicleState:
                     self.rejected["nonfinite"] += 1
         elif mtype == "EXTENDED_SYS_STATE":
             self.landed_state = int(msg.landed_state)
+        elif mtype == "HOME_POSITION":
+            h = (msg.x, msg.y, msg.z)
+            if not (isfinite(h[0]) and isfinite(h[1]) and isfinite(h[2])):
+                return self._reject("nonfinite")
+            self.home_ned_m = np.array(h)
         elif mtype == "AUTOPILOT_VERSION":
             v = int(msg.flight_sw_version)
             self.autopilot_version = {

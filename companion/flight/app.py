@@ -29,6 +29,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import socket
 import time
 from collections.abc import Awaitable, Callable, Sequence
@@ -111,6 +112,7 @@ class FlyOptions:
     sequence: SequenceConfig | None = None  # timeouts of the flight sequence (defaults otherwise)
     provisional: Callable[[FlightApp], dict[str, Any]] | None = None  # the journal's provisional report
     allow_param_writes: bool = True  # False: refuse a vehicle whose parameters would have to change (ArduPilot)
+    start_here: bool = False  # fly the mission from where the vehicle stands (its start moved there)
     # Fault injection for the fault suite: from this vehicle time (s) on, every tick that would compute a setpoint
     # raises (``SLUNGPILOT_INJECT_TICK_ERROR_AT_S`` sets it for ``slungpilot fly``). None in normal use.
     inject_tick_error_at_s: float | None = None
@@ -212,6 +214,9 @@ class FlightApp:
         self._connected_hook_started = False
         self._done = asyncio.Event()
         self._transitions_logged = 0
+        self.origin_ned_m = np.zeros(3)  # the mission frame's origin in the autopilot's local NED frame
+        self.origin_source = "local origin"
+        self._origin_fixed = False
 
     # ------------------------------------------------------------------ views
     @property
@@ -367,6 +372,36 @@ class FlightApp:
             self._tick()
 
     # ------------------------------------------------------------------ the tick
+    def _update_origin(self) -> float:
+        """Until setpoints flow: the mission frame's origin (home; else the take-off point; with ``start_here``
+        the point that puts the mission's start under the vehicle); returns the vehicle's distance from the
+        mission's start (m, horizontal)."""
+        st = self.state
+        start = self.mission.start_ned_m
+        pos = st.pos_ned_m
+        if not self._origin_fixed:
+            if self.opts.start_here and pos is not None:
+                z0 = st.home_ned_m[2] if st.home_ned_m is not None else (pos[2] if st.on_ground else 0.0)
+                self.origin_ned_m = np.array([pos[0] - start[0], pos[1] - start[1], z0])
+                self.origin_source = "start-here"
+            elif st.home_ned_m is not None:
+                self.origin_ned_m, self.origin_source = st.home_ned_m.copy(), "home"
+            elif pos is not None and st.on_ground:
+                self.origin_ned_m, self.origin_source = pos.copy(), "take-off point"
+            if self.seq.state.value not in ("connect", "configure", "wait_ready"):
+                self._origin_fixed = True
+                log.info("mission frame: origin at %s of the autopilot's local frame (%s)",
+                         np.round(self.origin_ned_m, 3).tolist(), self.origin_source)
+        if pos is None:
+            return 0.0
+        return math.hypot(pos[0] - self.origin_ned_m[0] - start[0], pos[1] - self.origin_ned_m[1] - start[1])
+
+    def _to_mission(self, est: Estimate) -> Estimate:
+        """An estimate in the mission frame (positions relative to :attr:`origin_ned_m`)."""
+        if not self.origin_ned_m.any():
+            return est
+        return replace(est, pos_ned_m=est.pos_ned_m - self.origin_ned_m)
+
     def _observe(self, est: Estimate | None, wall: float) -> Observation:
         st = self.state
         tel_wall = st.telemetry_wall_s
@@ -384,6 +419,7 @@ class FlightApp:
             armed=st.armed, mode=st.mode, on_ground=st.on_ground, heartbeats=st.heartbeats,
             estimate_ok=est is not None, core_result=self.core.result, tick_errors_in_row=self._tick_errors_in_row,
             abort=self.abort_reason, mission_timeout_s=self.mission.timeout_s, last_words=st.last_words,
+            start_error_m=self._update_origin(),
         )
 
     def _tick(self, watchdog: bool = False) -> None:
@@ -402,6 +438,8 @@ class FlightApp:
         try:
             est = self.state.estimate()
             step = self.seq.step(self._observe(est, wall))
+            if est is not None:
+                est = self._to_mission(est)
             stream = step.stream
             for req in step.send:
                 self.requests.send(req)
@@ -548,8 +586,10 @@ class FlightApp:
         swing = self.state.measured_swing()
         if swing is not None:
             payload = est.pos_ned_m + payload_offset_ned_m(swing[0], swing[1], self.mission.vehicle.l)
+        elif self.state.payload_pos_ned_m is not None:
+            payload = self.state.payload_pos_ned_m - self.origin_ned_m
         else:
-            payload = self.state.payload_pos_ned_m
+            payload = None
         self.log.append(est.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, swing, payload, cmd)
 
     def _send_setpoint(self, t_s: float, q: np.ndarray, thrust_norm: float) -> None:
@@ -590,6 +630,7 @@ class FlightApp:
                           "component_id": self.state.vehicle_compid, "mav_autopilot": self.state.autopilot,
                           "mav_type": self.state.vehicle_type, "version": self.state.autopilot_version},
             "autopilot_params": self.params,
+            "mission_frame": {"origin_local_ned_m": self.origin_ned_m.tolist(), "origin": self.origin_source},
         }
 
     def _provisional(self) -> dict[str, Any]:

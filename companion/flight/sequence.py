@@ -120,6 +120,7 @@ class SequenceConfig:
     land_at_end: bool = True  # after the mission: land (else hold and finish)
     land_on_abort: bool = True  # after Ctrl-C: land (else hold and finish)
     configure: tuple[tuple[str, float], ...] = ()  # requests asked once connected (streams, parameters)
+    start_tolerance_m: float = 1.0  # refuse to start a mission this far from its start point
 
 
 @dataclass(frozen=True, slots=True)
@@ -152,6 +153,7 @@ class Observation:
     abort: str | None = None
     mission_timeout_s: float = math.inf
     last_words: str = ""
+    start_error_m: float = 0.0  # horizontal distance of the vehicle from the mission start (mission frame)
 
 
 @dataclass(frozen=True, slots=True)
@@ -463,7 +465,12 @@ class FlightSequence:
 
     def _on_wait_ready(self, obs: Observation, send: list[Request]) -> None:
         fresh = obs.telemetry_wall_s is not None and obs.wall_s - obs.telemetry_wall_s <= self.cfg.stale_s
-        if obs.telemetry_ready and fresh and obs.vehicle_ready:
+        if obs.telemetry_ready and fresh and obs.vehicle_ready and obs.start_error_m > self.cfg.start_tolerance_m:
+            self._finish(obs, "refused", "wait_ready",
+                         f"the vehicle stands {obs.start_error_m:.1f} m from the mission's start (tolerance "
+                         f"{self.cfg.start_tolerance_m:g} m; coordinates are relative to home): fly it there, or "
+                         "fly the mission from where it is with --start-here")
+        elif obs.telemetry_ready and fresh and obs.vehicle_ready:
             if obs.armed and not obs.on_ground:
                 self._armed_seen = True
             self._go(obs, State.PRESTREAM, "telemetry flowing, autopilot ready")
