@@ -205,3 +205,28 @@ def test_ctrl_c_in_lockstep_holds_and_lands(tmp_path):
     assert "Mode: AUTO.LOITER" in err and "Mode: AUTO.LAND" in err
     rep = json.loads((tmp_path / "report.json").read_text())
     assert rep["outcome"] == "aborted" and rep["final_phase"] == "landed" and rep["reached_goal"] is False
+
+
+def test_ctrl_c_in_the_terminal_reaches_the_companion_only_which_lands_the_vehicle(tmp_path):
+    """A terminal sends SIGINT to the whole foreground process group: the bundled vehicle runs in its own, so it is
+    still flying while the companion holds and lands it, and is stopped last (issue 14)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "companion.cli.main", "-v", "fly", "--sitl", "--realtime", "--no-zenoh", "--no-plots",
+         "--mission", str(FOREST), "--run-dir", str(tmp_path)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, start_new_session=True,
+    )
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            if "takeover → mission" in line:
+                break
+        time.sleep(2.0)
+        os.killpg(os.getpgid(proc.pid), signal.SIGINT)  # what Ctrl-C in a terminal does
+        _out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(os.getpgid(proc.pid), signal.SIGKILL)
+    assert proc.returncode == 130, err[-2000:]
+    assert "Mode: AUTO.LOITER" in err and "Mode: AUTO.LAND" in err and "no COMMAND_ACK" not in err
+    rep = json.loads((tmp_path / "report.json").read_text())
+    assert rep["outcome"] == "aborted" and rep["final_phase"] == "landed"

@@ -103,8 +103,11 @@ class SitlProcess:
         argv = self.argv()
         log.info("starting the bundled vehicle: %s", " ".join(argv))
         self._stderr = self._stderr_path.open("wb")
+        # its own session (process group): a terminal's Ctrl-C reaches the companion only, which then holds, lands
+        # and stops the vehicle last
         self.proc = await asyncio.create_subprocess_exec(
-            *argv, stdout=asyncio.subprocess.PIPE, stderr=self._stderr, stdin=asyncio.subprocess.DEVNULL
+            *argv, stdout=asyncio.subprocess.PIPE, stderr=self._stderr, stdin=asyncio.subprocess.DEVNULL,
+            start_new_session=True,
         )
         assert self.proc.stdout is not None
         try:
