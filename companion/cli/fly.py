@@ -3,7 +3,7 @@
 Run folder (default ``runs/<UTC time>-<mission>-<planner>-<controller>/``): ``report.json``,
 ``summary.txt``, ``flight.tlog`` (every MAVLink frame in and out), ``flight_log.npz`` (per-tick arrays),
 ``plan.png``, ``timeseries.png``, ``trajectory3d.png``; with ``--sitl`` also ``vehicle.toml`` and
-``sitl.log`` (the vehicle's own log).
+``sitl.log`` (the vehicle's own log), ``recording.rrd`` (the Rerun recording; ``--view`` shows it live).
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from typing import Any
 from companion.autopilots.profile import profile_by_name
 from companion.cli.fly_args import DEFAULT_GAINS, EXIT_CODES
 from companion.cli.narrate import Narrator
+from companion.cli.viz_cmds import flight_view
 from companion.config import resolve_mission
 from companion.control.params import ControllerConfig, load_controller_config
 from companion.core.mission import Mission, load_mission
@@ -165,6 +166,7 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
         raise ConfigError(f"--rate-hz: must be in (0, 2000], got {opts.rate_hz}")
     wall0 = time.monotonic()
     stack = contextlib.AsyncExitStack()
+    view = flight_view(args, mission, run_dir)  # recording.rrd, and the live viewer with --view
     zt_holder: list[ZenohTelemetry] = []
     if not args.no_zenoh:
         zcfg = zenoh_config_from_args(args, "companion")  # flag errors before anything starts
@@ -177,12 +179,17 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
             zt_holder.append(zt)
             zt.set_config_provider(lambda: effective_config(app, args))
             app.sinks.append(ZenohTelemetrySink(zt, mission.vehicle.l, status_fn=status_of))
+            if view is not None:
+                view.sink.current_obstacles = lambda: zt.last_obstacles
             app.obstacle_source = zt.obstacle_source(mission.obstacles)
 
         opts.on_connected = connect_zenoh
     app: FlightApp | None = None
     error: BaseException | None = None
     async with stack:
+        if view is not None:
+            stack.enter_context(view)
+            opts.sinks.append(view.sink)
         if args.sitl:
             from companion.cli.sitl_launcher import SitlProcess
 
@@ -221,6 +228,8 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
     seen = app.obstacles_seen
     if seen:
         app.log.obstacles = seen  # live obstacles count for clearance and collisions too
+    if view is not None:
+        extra["recording"] = view.stats()
     report = write_run(app.log, mission, extra, run_dir, args.report, plots=not args.no_plots)
     if error is not None:
         raise error

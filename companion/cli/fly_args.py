@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from companion.autopilots.profile import PROFILE_NAMES
+from companion.cli.viz_cmds import add_view_arguments
 from companion.config import shipped_config
 from companion.estimation import SWING_INPUTS
 from companion.zenoh_io.session import add_zenoh_arguments
@@ -81,3 +82,4 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds to wait for telemetry and the autopilot's ready-to-arm (default 90: PX4 SITL "
                         "can take ~40 s after boot)")
     add_zenoh_arguments(p, "companion")
+    add_view_arguments(p)

@@ -51,6 +51,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         for k, v in res.items():
             print(f"  {k:32s} {v}")
         return 0
+    if args.target == "view":
+        from companion.cli import bench_view
+
+        return bench_view.print_bench(60.0 if args.seconds == 3.0 else args.seconds)
     if args.target == "zenoh":
         from companion.cli.zenoh_cmds import cmd_bench_zenoh
 
@@ -150,6 +154,15 @@ def _add_zenoh_tool(name: str) -> Callable[[Any], None]:
     return add
 
 
+def _add_viz_tool(name: str) -> Callable[[Any], None]:
+    def add(sub: Any) -> None:
+        from companion.cli import viz_cmds
+
+        {"replay": viz_cmds.add_replay_parser, "view": viz_cmds.add_view_parser}[name](sub)
+
+    return add
+
+
 def _add_lab(name: str) -> Callable[[Any], None]:
     def add(sub: Any) -> None:
         from lab import cli as lab_cli
@@ -183,11 +196,13 @@ def _add_bench(sub: Any) -> None:
         description="Benchmarks that print numbers; nothing is asserted. Run on an idle machine.",
     )
     bench.add_argument(
-        "target", choices=["model", "sitl", "fly", "zenoh", "faults"],
+        "target", choices=["model", "sitl", "fly", "zenoh", "faults", "view"],
         help="model: RK4 steps/s of the dynamics kernel; sitl: lockstep real-time factor of the bundled vehicle; "
              "fly: the forest mission end to end (real-time factor, tick p50/p99); zenoh: 250 Hz swing stream "
              "latency/loss between two processes and the cost per publish; faults: the fault suite's scenarios "
-             "(vehicle killed, fuzz, tick exceptions, companion killed, Zenoh flood, jitter) with their figures",
+             "(vehicle killed, fuzz, tick exceptions, companion killed, Zenoh flood, jitter) with their figures; "
+             "view: the 3-D view's recording cost per tick and per minute of flight (--seconds of flight, "
+             "default 60)",
     )
     bench.add_argument("--only", default="", help="faults: comma-separated scenario names (default: all)")
     bench.add_argument("--seconds", type=float, default=3.0, help="measuring time per benchmark (s)")
@@ -206,13 +221,15 @@ COMMANDS = {
     "evaluate": "fly N random forests per planner in parallel and summarise success, collisions, times",
     "report": "rebuild a run folder's report, summary and plots from its journal (e.g. after kill -9)",
     "missions": "list the shipped missions (use their names with fly --mission)",
-    "bench": "print performance numbers (model, sitl, fly, zenoh, faults)",
+    "replay": "open a run folder's recording.rrd in Rerun's viewer (web viewer on 127.0.0.1 without a display)",
+    "view": "show every vehicle on the Zenoh network live in Rerun's viewer",
+    "bench": "print performance numbers (model, sitl, fly, zenoh, faults, view)",
 }
 _ADDERS: dict[str, Callable[[Any], None]] = {
     "fly": _add_fly, "sitl": _add_sitl, "listen": _add_zenoh_tool("listen"),
     "obstacles": _add_zenoh_tool("obstacles"), "zenoh-router": _add_zenoh_tool("zenoh-router"),
     "experiments": _add_lab("experiments"), "evaluate": _add_lab("evaluate"), "report": _add_report,
-    "missions": _add_missions, "bench": _add_bench,
+    "missions": _add_missions, "bench": _add_bench, "replay": _add_viz_tool("replay"), "view": _add_viz_tool("view"),
 }
 
 
