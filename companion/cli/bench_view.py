@@ -25,7 +25,7 @@ from companion.estimation.estimate import Estimate
 from companion.flight.core import Command
 
 
-def _tick(t: float) -> tuple[Estimate, Command]:
+def synthetic_tick(t: float) -> tuple[Estimate, Command]:
     w = 0.3
     pos = np.array([5.0 * math.sin(w * t), 5.0 * (1 - math.cos(w * t)), -2.0])
     vel = np.array([5.0 * w * math.cos(w * t), 5.0 * w * math.sin(w * t), 0.0])
@@ -46,7 +46,7 @@ def run(seconds: float = 60.0, rate_hz: float = 250.0, realtime: bool = False) -
     app = SimpleNamespace(phase="mission", state=SimpleNamespace(payload_pos_ned_m=None),
                           obstacles_seen=tuple(mission.obstacles))
     n = int(seconds * rate_hz)
-    ticks = [_tick(k / rate_hz) for k in range(n)]
+    ticks = [synthetic_tick(k / rate_hz) for k in range(n)]
     with tempfile.TemporaryDirectory() as tmp:
         cpu0, wall0 = time.process_time(), time.perf_counter()
         view = open_flight_recording(mission, Path(tmp))

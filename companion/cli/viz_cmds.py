@@ -172,4 +172,4 @@ def run_view(args: argparse.Namespace) -> int:
     """Subscribe and draw until Ctrl-C or ``--duration``."""
     from companion.viz.fleet import run_fleet_view
 
-    return run_fleet_view(args)
+    return run_fleet_view(args, lambda line: print(line, flush=True))

@@ -1,8 +1,10 @@
 """Post-flight figures like the paper's (headless matplotlib, Agg backend), written as PNG.
 
-* ``plan.png`` — 2-D plan view (Figs. 11–12): obstacles with their safe-distance rings, quadrotor and
-  payload tracks, the envelope circle R_max drawn along the way, start and goal.
-* ``timeseries.png`` — position, attitude and swing angles over time (Figs. 6, 8, 9).
+* ``plan.png`` — 2-D plan view (Figs. 11–12): trunks (mission ones brown, trunks added live over Zenoh orange and
+  hatched, labelled with their publisher) with their safe-distance rings and a drawn crown, quadrotor and
+  payload tracks, the envelope circle R_max drawn along the way, start and goal; a legend names each.
+* ``timeseries.png`` — position, attitude and swing angles over mission time (Figs. 6, 8, 9), 0 at the
+  mission's first tick (the log's first row), not at the autopilot's boot.
 * ``trajectory3d.png`` — the 3-D trajectory of quadrotor and payload with the trunks (Figs. 7, 10).
 
 Input is a mapping of per-tick arrays (``t_s``, ``pos_ned_m`` (N,3), ``payload_pos_ned_m`` (N,3),
@@ -20,17 +22,37 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.patches import Circle
+from matplotlib.lines import Line2D
+from matplotlib.patches import Circle, Patch
 
 from companion.core.obstacles import Obstacle
 
+CROWN_M = 0.6  # the paper's figures draw each tree's crown around its trunk; ours is drawn r + 0.6 m (picture only)
+RGB_MISSION = "saddlebrown"
+RGB_LIVE = "darkorange"
+
+
+def _short_source(source: str) -> str:
+    """``slungpilot/1/obstacles/in/lidar`` → ``lidar`` (the publisher's name, the key's last chunk)."""
+    return source.rstrip("/").rsplit("/", 1)[-1] or source
+
 
 def _plan(ax, a: Mapping[str, np.ndarray], obstacles: Sequence[Obstacle], start, goal, title: str) -> None:
+    live_sources: list[str] = []
     for o in obstacles:
-        ax.add_patch(Circle((o.y_m, o.x_m), o.radius_m, color="saddlebrown", alpha=0.85, zorder=3))
+        live = o.source != "mission"
+        colour = RGB_LIVE if live else RGB_MISSION
+        ax.add_patch(Circle((o.y_m, o.x_m), o.radius_m, facecolor=colour, edgecolor="black" if live else colour,
+                            hatch="///" if live else None, alpha=0.85, zorder=3))
         ax.add_patch(Circle((o.y_m, o.x_m), o.radius_m + o.safe_distance_m, fill=False, ls="--",
-                            color="saddlebrown", lw=0.8, zorder=3))
-        ax.add_patch(Circle((o.y_m, o.x_m), o.radius_m + 0.6, color="green", alpha=0.12, zorder=1))
+                            color=colour, lw=0.8, zorder=3))
+        ax.add_patch(Circle((o.y_m, o.x_m), o.radius_m + CROWN_M, color="green", alpha=0.12, zorder=1))
+        if live:
+            name = _short_source(o.source)
+            if name not in live_sources:
+                live_sources.append(name)
+            ax.annotate(f"live: {name}", (o.y_m, o.x_m), xytext=(6, 6), textcoords="offset points", fontsize=7,
+                        color=RGB_LIVE, zorder=6)
     pos = a["pos_ned_m"]
     pay = a["payload_pos_ned_m"]
     ax.plot(pos[:, 1], pos[:, 0], color="tab:blue", lw=1.6, label="quadrotor", zorder=4)
@@ -40,6 +62,7 @@ def _plan(ax, a: Mapping[str, np.ndarray], obstacles: Sequence[Obstacle], start,
         ref = a["ref_pos_ned_m"]
         okr = np.all(np.isfinite(ref), axis=1)
         ax.plot(ref[okr, 1], ref[okr, 0], color="gray", lw=0.8, ls=":", label="reference", zorder=4)
+    handles_extra: list = []
     if "r_max_m" in a and len(pos):
         r = a["r_max_m"]
         step = max(1, len(pos) // 25)
@@ -47,6 +70,8 @@ def _plan(ax, a: Mapping[str, np.ndarray], obstacles: Sequence[Obstacle], start,
             if np.isfinite(r[i]):
                 ax.add_patch(Circle((pos[i, 1], pos[i, 0]), r[i], fill=False, color="tab:blue", alpha=0.25,
                                     lw=0.6, zorder=2))
+        handles_extra.append(Line2D([], [], ls="none", marker="o", mfc="none", mec="tab:blue", alpha=0.5, ms=9,
+                                    label=f"swing envelope R_max (every {step}-th tick)"))
     ax.plot(start[1], start[0], "k^", ms=8, label="start", zorder=5)
     ax.plot(goal[1], goal[0], "k*", ms=12, label="goal", zorder=5)
     ax.set_xlabel("east y (m)")
@@ -54,22 +79,41 @@ def _plan(ax, a: Mapping[str, np.ndarray], obstacles: Sequence[Obstacle], start,
     ax.set_aspect("equal")
     ax.grid(alpha=0.3)
     ax.set_title(title)
-    ax.legend(loc="best", fontsize=8)
+    handles, _ = ax.get_legend_handles_labels()
+    handles += handles_extra
+    if any(o.source == "mission" for o in obstacles):
+        handles.append(Patch(facecolor=RGB_MISSION, alpha=0.85, label="trunk (mission file)"))
+    if live_sources:
+        handles.append(Patch(facecolor=RGB_LIVE, edgecolor="black", hatch="///", alpha=0.85,
+                             label="trunk added live: " + ", ".join(live_sources)))
+    if obstacles:
+        handles.append(Line2D([], [], ls="--", color=RGB_MISSION, lw=0.8, label="safe distance (radius + d_s)"))
+        handles.append(Patch(facecolor="green", alpha=0.12, label=f"crown (radius + {CROWN_M} m, drawing only)"))
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, borderaxespad=0.0)
 
 
 def plot_plan(a: Mapping[str, np.ndarray], obstacles, start, goal, path: Path, title: str = "") -> Path:
     """Plan view (Figs. 11–12) to ``path``."""
-    fig, ax = plt.subplots(figsize=(6, 8))
+    fig, ax = plt.subplots(figsize=(9, 8))
     _plan(ax, a, obstacles, start, goal, title or "plan view")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
     return path
 
 
 def plot_timeseries(a: Mapping[str, np.ndarray], path: Path, title: str = "") -> Path:
-    """Position, attitude and swing over time (Figs. 6, 8, 9) to ``path``."""
-    t = a["t_s"]
+    """Position, attitude and swing over mission time (Figs. 6, 8, 9) to ``path``."""
+    fig = timeseries_figure(a, title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def timeseries_figure(a: Mapping[str, np.ndarray], title: str = ""):
+    """The figure of :func:`plot_timeseries` (the caller closes it)."""
+    t = np.asarray(a["t_s"], dtype=np.float64)
+    t = t - t[0] if len(t) else t  # mission time: the log starts at the mission's first tick, not at boot
     fig, axs = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
     for i, (lbl, c) in enumerate((("x", "tab:blue"), ("y", "tab:orange"), ("altitude −z", "tab:green"))):
         sgn = -1.0 if i == 2 else 1.0
@@ -91,16 +135,14 @@ def plot_timeseries(a: Mapping[str, np.ndarray], path: Path, title: str = "") ->
     for lim in (0.05, -0.05):
         axs[2].axhline(lim, color="gray", lw=0.6, ls="--")
     axs[2].set_ylabel("swing (rad)")
-    axs[2].set_xlabel("time (s)")
+    axs[2].set_xlabel("mission time (s, from the mission's first tick)")
     axs[2].legend(loc="best", fontsize=8)
     for ax in axs:
         ax.grid(alpha=0.3)
     if title:
         axs[0].set_title(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig
 
 
 def draw_trunks_3d(ax, obstacles: Sequence[Obstacle], n: int = 24, lw: float = 0.6) -> None:

@@ -59,8 +59,8 @@ def flight_blueprint(prefix: str = "") -> rrb.Blueprint:
             rrb.Vertical(
                 rrb.TimeSeriesView(origin=f"{prefix}plots/swing", name="swing α, β (rad)"),
                 rrb.TimeSeriesView(origin=f"{prefix}plots/attitude", name="attitude (deg)"),
-                rrb.TimeSeriesView(contents=[f"{prefix}plots/thrust", f"{prefix}plots/envelope"],
-                                   name="thrust (N), envelope R_max (m)"),
+                rrb.TimeSeriesView(origin=f"{prefix}plots/thrust", name="thrust (N)"),
+                rrb.TimeSeriesView(origin=f"{prefix}plots/envelope", name="envelope R_max (m)"),
                 rrb.TextLogView(origin=f"{prefix}log", name="events"),
             ),
             column_shares=[3, 2],
