@@ -134,3 +134,19 @@ def test_two_vehicles_two_companions_one_subscriber_through_a_router(tmp_path):
         rep = json.loads((tmp_path / f"v{vid}" / "report.json").read_text())
         assert rep["zenoh"]["keys_prefix"] == f"slungpilot/{vid}"
         assert len(seqs) > 1000 and seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+
+
+def test_the_recording_shows_the_live_trunk_with_its_source(zenoh_flight):
+    """Issue 14: the run folder's recording.rrd draws the trunk fed in mid-flight, labelled with its publisher."""
+    from rerun.chunk import RrdReader
+
+    _, _, run = zenoh_flight
+    labels, events = [], []
+    for chunk in RrdReader(run / "recording.rrd").stream():
+        batch = chunk.to_record_batch()
+        if chunk.entity_path == "/world/trunks/live" and "Cylinders3D:labels" in batch.schema.names:
+            labels += [x for x in batch.column("Cylinders3D:labels").to_pylist() if x]
+        if chunk.entity_path == "/log/events":
+            events += [" ".join(x) for x in batch.column("TextLog:text").to_pylist() if x]
+    assert any("slungpilot/1/obstacles/in/perception" in lab for lab in labels), labels
+    assert any("live trunk from slungpilot/1/obstacles/in/perception" in e for e in events), events
