@@ -80,8 +80,13 @@ class FlightViewSession:
             if self.view is not None:
                 self.view.recorder.close()
                 path = self.run_dir / RECORDING_FILE
+                written = path.stat().st_size if path.exists() else 0
+                if written:
+                    from companion.viz.viewer import optimize_recording
+
+                    optimize_recording(path)
                 self._stats = {"file": str(path), "bytes": path.stat().st_size if path.exists() else 0,
-                               **self.view.stats()}
+                               "bytes_written": written, **self.view.stats()}
                 if self._stats.get("dropped"):
                     log.warning("recording: %d ticks dropped (the logging thread fell behind)",
                                 self._stats["dropped"])

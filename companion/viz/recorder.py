@@ -8,8 +8,8 @@ that turns it into column sends (``send_columns`` costs ≈ 5–15 µs per row a
 bounded: when it is full the item is dropped and counted (``dropped``), so a slow viewer or disk can never
 block or grow the control loop. Handler errors are counted and logged at most once a second, never raised.
 
-The handler is any callable ``handler(recording, items)``; :mod:`companion.viz.flight` and
-:mod:`companion.viz.fleet` provide them.
+The handler is any callable ``handler(recording, items)`` (with an optional ``finish(recording)`` called once at
+close for what it still buffers); :mod:`companion.viz.flight` and :mod:`companion.viz.fleet` provide them.
 """
 
 from __future__ import annotations
@@ -91,6 +91,13 @@ class Recorder:
             if th.is_alive():
                 log.warning("rerun: the logging thread did not finish within %.0f s", timeout_s)
         rec, self.recording = self.recording, None
+        finish = getattr(self.handler, "finish", None)
+        if rec is not None and finish is not None:
+            try:
+                finish(rec)  # whatever the handler still buffers
+            except Exception as exc:
+                self.handler_errors += 1
+                log.warning("rerun: the last buffered rows were not logged: %r", exc)
         if rec is not None:
             try:
                 rec.flush(timeout_sec=timeout_s)
