@@ -32,19 +32,23 @@ REPORT_KEYS = (
 
 
 def fly_args(run_dir: Path, plots: bool, gains: Path | None = None) -> argparse.Namespace:
-    """The parsed arguments of ``slungpilot fly --sitl --no-zenoh --run-dir RUN_DIR [--no-plots]`` (lockstep).
+    """The parsed arguments of ``slungpilot fly --sitl --no-zenoh --no-recording --run-dir RUN_DIR [--no-plots]``
+    (lockstep, no narration).
 
-    No Zenoh: batch flights run side by side and would all want the default listen port."""
+    No Zenoh: batch flights run side by side and would all want the default listen port. No 3-D recording: it costs
+    ~1 s of import and its CPU per flight, and a batch has its own figures."""
     from companion.cli.fly_args import add_fly_arguments
 
     p = argparse.ArgumentParser()
     add_fly_arguments(p)
-    argv = ["--sitl", "--no-zenoh", "--run-dir", str(run_dir)]
+    argv = ["--sitl", "--no-zenoh", "--no-recording", "--run-dir", str(run_dir)]
     if not plots:
         argv.append("--no-plots")
     if gains is not None:
         argv += ["--gains", str(gains)]
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    args.quiet = True  # the global -q: no narration from batch workers
+    return args
 
 
 LOST_CONTROL_SWING_RAD = math.pi / 2  # the model's own bound on the swing angles (eq. 1)
