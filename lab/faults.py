@@ -410,22 +410,20 @@ def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, dr
             "link": rep["link"]}
 
 
-def _start_vehicle(kind: str, comp_port: int, instance: int) -> tuple[subprocess.Popen, list[str]]:
-    """A real-time vehicle sending its onboard link to ``comp_port``: the bundled one, or PX4 SIH / ArduCopter
-    SITL from the launchers in $SLUNGPILOT_EXT (default /work/ext; see docs/autopilots.md)."""
+def _start_vehicle(kind: str, comp_port: int, instance: int, workdir: Path) -> tuple[subprocess.Popen, list[str]]:
+    """A real-time vehicle sending its onboard link to ``comp_port``: the bundled one, PX4 SIH (port 14540+I) or
+    ArduCopter SITL (:mod:`lab.sitl_external`); and the ``fly`` options it needs."""
     if kind == "bundled":
         argv = [sys.executable, "-m", "sim_bridge", "--onboard-port", str(free_udp_port()), "--onboard-remote",
                 f"127.0.0.1:{comp_port}", "--gcs-port", str(free_udp_port()), "--gcs-remote",
                 f"127.0.0.1:{free_udp_port()}"]
         return subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                 start_new_session=True), ["--profile", "bundled"]
-    ext = Path(os.environ.get("SLUNGPILOT_EXT", "/work/ext"))
-    script = ext / {"px4": "run-px4-sih.sh", "ardupilot": "run-arducopter.sh"}[kind]
-    if not script.exists():
-        raise FileNotFoundError(f"{script}: {kind} SITL not built here (docs/autopilots.md)")
-    proc = subprocess.Popen([str(script), str(instance)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True)
-    return proc, []
+    from lab import sitl_external
+
+    if kind == "px4":
+        return sitl_external.start_px4_sih(workdir, instance), []
+    return sitl_external.start_arducopter(workdir, comp_port, instance=0), []
 
 
 def companion_killed_vehicle_failsafe(workdir: Path, *, vehicle: str = "bundled", after_s: float = 3.0,
@@ -437,8 +435,8 @@ def companion_killed_vehicle_failsafe(workdir: Path, *, vehicle: str = "bundled"
     from companion.autopilots.profile import profile_for_autopilot
     from companion.estimation.vehicle_state import px4_mode_name
 
-    comp_port = 14540 + instance if vehicle != "bundled" else free_udp_port()
-    veh, extra = _start_vehicle(vehicle, comp_port, instance)
+    comp_port = 14540 + instance if vehicle == "px4" else free_udp_port()
+    veh, extra = _start_vehicle(vehicle, comp_port, instance, workdir)
     run_dir = workdir / f"companion-killed-{vehicle}"
     fly = Proc.start(fly_argv(run_dir, "--connect", f"udpin://127.0.0.1:{comp_port}", "--no-zenoh",
                               "--ready-timeout", "120", *extra))

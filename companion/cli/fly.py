@@ -247,9 +247,10 @@ def run_options(app: FlightApp, args: argparse.Namespace, mission: Mission, run_
         "connect": app.opts.connect,
         "run_dir": str(run_dir),
         "tlog": str(run_dir / "flight.tlog"),
-        "wind": {"model": mission.wind.model, "scale": mission.wind.scale},
         "vehicle": mission.vehicle.as_dict(),
     }
+    if app.profile.name == "bundled":  # the mission's wind is the bundled vehicle's simulation; a real one has its own
+        out["wind"] = {"model": mission.wind.model, "scale": mission.wind.scale}
     if zt_holder:
         zt = zt_holder[0]
         out["zenoh"] = {"keys_prefix": f"{args.zenoh_prefix}/{zt.options.vehicle_id}", "published": dict(zt.seq),

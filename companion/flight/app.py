@@ -198,7 +198,7 @@ class FlightApp:
         self.last_cmd: Command | None = None
         self.sinks: list[TelemetrySink] = list(opts.sinks)
         self.obstacle_source: Callable[[float], Sequence[Obstacle]] | None = opts.obstacle_source
-        self.params: dict[str, float] = {}  # autopilot parameters read or set during the flight
+        self.params: dict[str, dict[str, float]] = {"read": {}, "set": {}}  # the autopilot parameters we read/set
         self._last_obstacles: Sequence[Obstacle] | None = None
         self._obstacles_seen: dict[tuple, Obstacle] = {}
         self._culled: Sequence[Obstacle] = ()
@@ -262,10 +262,12 @@ class FlightApp:
         ans = self.requests.answer_of(msg)
         if ans is not None:
             key, value = ans
-            if key.startswith("param:"):
+            if key.startswith("param:"):  # a PARAM_VALUE: ours only if it answers a read or a write we asked for
                 name = key[6:]
-                self.params[name] = float(value)
-                self.seq.answer(f"param_read:{name}", value) or self.seq.answer(f"param_set:{name}", value)
+                if self.seq.answer(f"param_read:{name}", value):
+                    self.params["read"][name] = float(value)
+                elif self.seq.answer(f"param_set:{name}", value):
+                    self.params["set"][name] = float(value)
             else:
                 self.seq.answer(key, value)
 
