@@ -1,0 +1,623 @@
+"""Swing estimator: an extended Kalman filter over the swing, the airframe velocity, the unknown force on the
+airframe and the accelerometer bias, and the thrust error, with the project's own model as its process model.
+
+Process and measurement models: :mod:`companion.estimation.swing_model` (derivation in
+``docs/swing-estimation.md``). Inputs (known, not estimated): the attitude the autopilot reports and the thrust
+the companion commanded. Measurements, each optional and usable alone or together:
+
+* ``update_imu``: accelerometer specific force (HIGHRES_IMU / SCALED_IMU, body FRD, m/s²) — the sensorless path;
+* ``update_payload_offset`` / ``update_payload_position``: payload position fixes (relative to the airframe, or
+  absolute NED with the airframe's position looked up at the fix's time), any rate, late and out of order;
+* ``update_velocity``: the airframe velocity (LOCAL_POSITION_NED), which pins the unknown force d down and lets
+  the accelerometer bias be told from it.
+
+Time: every call carries the time of validity of its data on one clock (the vehicle's ``time_boot_ms``/
+``time_usec``, s). Measurements are events kept for ``history_s``: one that arrives late (older than the newest
+processed one) is inserted at its time and the events after it are replayed from a checkpoint, so a fix delayed
+by 300 ms is fused exactly where it belongs. Older than ``history_s`` it is dropped and counted.
+``estimate(t)`` predicts from the newest processed event to ``t`` (incrementally, cheap at the control rate).
+
+Trust: the averaged normalized innovation squared (NIS per degree of freedom, ≈ 1 when the model and the noise
+settings describe the data) over the last ``trust_window_s`` per source, and the 1σ of the swing angle from the
+covariance, give ``fade`` in [0, 1] (scale the feed-forward by it) and ``bound_rad`` (|swing| + 3σ, for the
+envelope).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from companion.core.model import VehicleParams
+from companion.estimation.swing_model import (
+    I_THRUST,
+    N_STATE,
+    SL_BIAS,
+    accel_force_jacobian_rows,
+    payload_offset_jacobian,
+    payload_offset_m,
+    rotate_by_rates,
+    rotation_from_euler,
+    rotation_from_quat,
+    thrust_axis_by_rates,
+    translation_swing_accel,
+)
+
+SOURCES = ("imu", "fix", "vel")
+_IN = np.eye(N_STATE)
+_I3 = np.eye(3)
+_NIS_CAP = 100.0
+_MAX_EXTRAPOLATE_S = 0.05
+_JUMP_SIGMAS2 = 9.0
+
+
+@dataclass(frozen=True)
+class SwingEstimatorConfig:
+    """Noise model and behaviour of :class:`SwingEstimator` (SI units).
+
+    Process noise (white, continuous-time spectral densities): ``q_swing`` on α̈, β̈ ((rad/s²)²/Hz: model error,
+    e.g. thrust or attitude timing), ``q_vel`` on ξ̈ ((m/s²)²/Hz), ``q_force`` the random walk of the unknown
+    force d (N²/s; eq. 49's wind varies by ~1 N/s), ``q_bias`` the accelerometer-bias random walk ((m/s²)²/s),
+    ``q_thrust`` the random walk of the thrust error δT (N²/s; fast: saturating rotors change it by newtons).
+    Measurement noise (1σ per axis): ``imu_sigma_mps2`` (sensor noise per sample plus model mismatch),
+    ``fix_sigma_m`` (payload offset), ``vel_sigma_mps``. Initial 1σ: ``init_*``. ``step_s``: longest
+    prediction step; ``history_s``: how late a measurement may arrive and still be fused at its time;
+    ``gate_nis``: innovations with NIS above it (3 dof) are rejected as outliers; ``trust_window_s``: window of
+    the NIS averages; ``fade_bound3_rad`` (lo, hi): the 3σ swing bound over which fade goes 1 → 0;
+    ``fade_nis`` (lo, hi): the averaged NIS per dof over which fade goes 1 → 0.
+    """
+
+    q_swing: float = 0.0005
+    q_vel: float = 0.005
+    q_force: float = 0.3
+    q_bias: float = 1e-5
+    q_thrust: float = 2.0
+    imu_sigma_mps2: float | tuple[float, float, float] = 0.05
+    fix_sigma_m: float = 0.03
+    vel_sigma_mps: float = 0.03
+    init_swing_sigma_rad: float = 0.01
+    init_rate_sigma_rad_s: float = 0.02
+    init_vel_sigma_mps: float = 0.1
+    init_force_sigma_n: float = 0.5
+    init_bias_sigma_mps2: float = 0.3
+    init_thrust_sigma_n: float = 1.0
+    step_s: float = 0.01
+    cov_step_s: float = 0.02
+    history_s: float = 1.0
+    gate_nis: float = 30.0
+    trust_window_s: float = 1.0
+    fade_bound3_rad: tuple[float, float] = (0.12, 0.30)
+    fade_nis: tuple[float, float] = (3.0, 10.0)
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` for non-positive or inconsistent values."""
+        sig = self.imu_sigma_mps2 if isinstance(self.imu_sigma_mps2, tuple) else (self.imu_sigma_mps2,)
+        if not (len(sig) in (1, 3) and all(math.isfinite(v) and v > 0.0 for v in sig)):
+            raise ValueError(f"imu_sigma_mps2: must be > 0 (one value or three), got {self.imu_sigma_mps2}")
+        for key in ("q_swing", "q_vel", "q_force", "q_bias", "fix_sigma_m", "vel_sigma_mps",
+                    "init_swing_sigma_rad", "init_rate_sigma_rad_s", "init_vel_sigma_mps", "init_force_sigma_n",
+                    "init_bias_sigma_mps2", "init_thrust_sigma_n", "q_thrust", "step_s", "cov_step_s", "history_s",
+                    "gate_nis", "trust_window_s"):
+            v = getattr(self, key)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"{key}: must be > 0, got {v}")
+        for key in ("fade_bound3_rad", "fade_nis"):
+            lo, hi = getattr(self, key)
+            if not (0.0 <= lo < hi):
+                raise ValueError(f"{key}: needs 0 <= lo < hi, got {(lo, hi)}")
+
+
+@dataclass(frozen=True, slots=True)
+class SwingEstimate:
+    """The swing estimate at ``t_s``.
+
+    swing: [α, β, α̇, β̇] (rad, rad/s); swing_acc: [α̈, β̈] (rad/s²) from the model at the estimate; cov: 4×4
+    covariance of ``swing``; sigma_rad: 1σ of the swing angle along its least certain direction;
+    bound_rad: |(α, β)| + 3σ, an upper bound on the swing angle for the envelope; fade: 0..1, how much of
+    the feed-forward to apply; force_ned_n: the unknown force on the airframe (wind, drag, thrust error), N;
+    accel_bias_frd_mps2: the accelerometer bias; nis: averaged NIS per dof per source over the trust window
+    (sources without data in the window absent); sources: those sources; rejected: outliers gated in the
+    window; dropped_late: measurements older than the history, ever.
+    """
+
+    t_s: float
+    swing: np.ndarray
+    swing_acc: np.ndarray
+    cov: np.ndarray
+    sigma_rad: float
+    bound_rad: float
+    fade: float
+    force_ned_n: np.ndarray
+    accel_bias_frd_mps2: np.ndarray
+    nis: dict[str, float]
+    sources: tuple[str, ...]
+    rejected: int = 0
+    dropped_late: int = 0
+
+
+@dataclass(slots=True)
+class _Event:
+    t: float
+    seq: int
+    kind: str
+    z: np.ndarray
+    sigma: np.ndarray
+    nis: float = math.nan
+    accepted: bool = False
+    x: np.ndarray | None = None  # state and covariance after this event
+    P: np.ndarray | None = None
+    t0_lin: float = math.nan  # linearization kept for replays: interval start, [(h, J)], H, Rᵀ (IMU)
+    lin: list | None = None
+    H: np.ndarray | None = None
+    Rt: np.ndarray | None = None
+
+
+@dataclass
+class _History:
+    """Time-ordered input samples with bisect lookup (zero-order hold)."""
+
+    t: list[float] = field(default_factory=list)
+    v: list[tuple] = field(default_factory=list)
+
+    def add(self, t: float, value: tuple) -> None:
+        if not self.t or t >= self.t[-1]:
+            self.t.append(t)
+            self.v.append(value)
+        else:
+            i = bisect.bisect_right(self.t, t)
+            self.t.insert(i, t)
+            self.v.insert(i, value)
+
+    def at(self, t: float) -> tuple[float, tuple] | None:
+        if not self.t:
+            return None
+        i = bisect.bisect_right(self.t, t) - 1
+        i = max(i, 0)
+        return self.t[i], self.v[i]
+
+    def prune(self, t_keep: float) -> None:
+        """Drop samples older than the last one at or before ``t_keep``."""
+        i = bisect.bisect_right(self.t, t_keep) - 1
+        if i > 0:
+            del self.t[:i]
+            del self.v[:i]
+
+
+def _inv3(S: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive-definite 3×3 (cofactors; ~5x faster than numpy.linalg.inv here)."""
+    a, b, c = float(S[0, 0]), float(S[0, 1]), float(S[0, 2])
+    d, e, f = float(S[1, 1]), float(S[1, 2]), float(S[2, 2])
+    c00 = d * f - e * e
+    c01 = c * e - b * f
+    c02 = b * e - c * d
+    det = a * c00 + b * c01 + c * c02
+    if not (det > 0.0 and math.isfinite(det)):
+        return np.linalg.pinv(S)
+    k = 1.0 / det
+    c11 = a * f - c * c
+    c12 = b * c - a * e
+    c22 = a * d - b * b
+    return np.array([[c00 * k, c01 * k, c02 * k], [c01 * k, c11 * k, c12 * k], [c02 * k, c12 * k, c22 * k]])
+
+
+class SwingEstimator:
+    """EKF over [α, β, α̇, β̇, v_NED, d_NED, b_FRD, δT] (see :mod:`companion.estimation.swing_model`).
+
+    ``params``: the model (M, m, l, Ip, g: vehicle mass, payload mass, cable length — identified or from the
+    mission). ``t0_s``: start time; ``swing0``: initial [α, β, α̇, β̇] (default hanging at rest, e.g. at lift-off);
+    ``vel0_ned_mps``: initial airframe velocity. Start it at lift-off: the model is of a flying vehicle (on the
+    ground the ground's reaction would be taken for a force on the airframe).
+    """
+
+    def __init__(
+        self,
+        params: VehicleParams,
+        config: SwingEstimatorConfig | None = None,
+        t0_s: float = 0.0,
+        swing0=None,
+        vel0_ned_mps=None,
+        swing_sigma0_rad: float | None = None,
+    ) -> None:
+        self.params = params
+        self.cfg = config or SwingEstimatorConfig()
+        self.cfg.validate()
+        c = self.cfg
+        p = params
+        self._pp = (p.M, p.m, p.g, p.Ip, p.l)
+        self._hover_n = (p.M + p.m) * p.g
+        x = np.zeros(N_STATE)
+        if swing0 is not None:
+            x[0:4] = np.asarray(swing0, dtype=np.float64)
+        if vel0_ned_mps is not None:
+            x[4:7] = np.asarray(vel0_ned_mps, dtype=np.float64)
+        s0 = c.init_swing_sigma_rad if swing_sigma0_rad is None else float(swing_sigma0_rad)
+        r0 = c.init_rate_sigma_rad_s if swing_sigma0_rad is None else 3.5 * float(swing_sigma0_rad)
+        P = np.diag(np.array([s0, s0, r0, r0] + [c.init_vel_sigma_mps] * 3 + [c.init_force_sigma_n] * 3
+                             + [c.init_bias_sigma_mps2] * 3 + [c.init_thrust_sigma_n]) ** 2)
+        self._base = _Event(t=float(t0_s), seq=-1, kind="init", z=np.zeros(0), sigma=np.zeros(3), x=x, P=P)
+        self._events: list[_Event] = []
+        self._seq = 0
+        self._att = _History()
+        self._thr = _History()
+        self._pos = _History()
+        self._version = 0
+        self._shadow: tuple[int, float, np.ndarray, float, np.ndarray] | None = None
+        self._Qc = np.array([0.0, 0.0, c.q_swing, c.q_swing] + [c.q_vel] * 3 + [c.q_force] * 3 + [c.q_bias] * 3
+                            + [c.q_thrust])
+        self.dropped_late = 0
+        self.rejected_total = 0
+        self._trust_cache: tuple[int, float, dict, tuple, int] | None = None
+
+    # ------------------------------------------------------------------------------------------- inputs
+    def set_thrust(self, t_s: float, thrust_n: float) -> None:
+        """The collective thrust the companion commanded (N, along −z body), valid from ``t_s`` on."""
+        T = float(thrust_n)
+        if not math.isfinite(T):
+            raise ValueError(f"thrust_n: must be finite, got {thrust_n!r}")
+        self._thr.add(float(t_s), (T,))
+
+    def set_attitude_euler(self, t_s: float, euler_rad, rates_frd_rad_s=None) -> None:
+        """ATTITUDE: ZYX Euler angles [φ, θ, ψ] (rad) and body rates (rad/s, FRD; used to interpolate)."""
+        e = [float(v) for v in euler_rad]
+        self._add_attitude(t_s, rotation_from_euler(*e), rates_frd_rad_s)
+
+    def set_attitude_quat(self, t_s: float, q_wxyz, rates_frd_rad_s=None) -> None:
+        """ATTITUDE_QUATERNION: [w, x, y, z] (body FRD → NED) and body rates (rad/s, FRD)."""
+        self._add_attitude(t_s, rotation_from_quat(q_wxyz), rates_frd_rad_s)
+
+    def _add_attitude(self, t_s: float, R: np.ndarray, rates) -> None:
+        w = (0.0, 0.0, 0.0) if rates is None else tuple(float(v) for v in rates)
+        if not (np.all(np.isfinite(R)) and all(math.isfinite(v) for v in w)):
+            raise ValueError("attitude or rates not finite")
+        self._att.add(float(t_s), (R, R.tolist(), w))
+
+    def _dt_att(self, t: float) -> tuple[float, tuple] | None:
+        a = self._att.at(t)
+        if a is None:
+            return None
+        return min(max(t - a[0], -_MAX_EXTRAPOLATE_S), _MAX_EXTRAPOLATE_S), a[1]
+
+    def _thrust(self, t: float) -> float:
+        th = self._thr.at(t)
+        return self._hover_n if th is None else th[1][0]
+
+    def _force(self, t: float, x: np.ndarray) -> tuple[float, float, float, float, float, float]:
+        """(F + d, body z axis) at time t (N and unit vector, NED): thrust T + δT along −z body (attitude from the
+        sample before t extrapolated with its body rates; level before any sample), T held from its last
+        command (the hover thrust before any)."""
+        a = self._att.at(t)
+        if a is None:
+            b0, b1, b2 = 0.0, 0.0, 1.0
+        else:
+            dt = min(max(t - a[0], -_MAX_EXTRAPOLATE_S), _MAX_EXTRAPOLATE_S)
+            _, Rl, w = a[1]
+            b0, b1, b2 = thrust_axis_by_rates(Rl, w, dt)
+        th = self._thr.at(t)
+        T = (self._hover_n if th is None else th[1][0]) + float(x[13])
+        return -b0 * T + float(x[7]), -b1 * T + float(x[8]), -b2 * T + float(x[9]), b0, b1, b2
+
+    def _rotation(self, t: float) -> np.ndarray:
+        a = self._dt_att(t)
+        if a is None:
+            return _I3
+        dt, (R, _, w) = a
+        return rotate_by_rates(R, w, dt)
+
+    # ------------------------------------------------------------------------------------- measurements
+    def update_imu(self, t_s: float, accel_frd_mps2, sigma_mps2=None) -> None:
+        """Accelerometer specific force (HIGHRES_IMU xacc/yacc/zacc, SCALED_IMU ×9.81e-3; m/s², body FRD) at
+        ``t_s`` (for an average over an integration window, pass the window's middle). ``sigma_mps2``: 1σ, one
+        value or one per axis (default: the config's)."""
+        self._add_event(t_s, "imu", accel_frd_mps2, self.cfg.imu_sigma_mps2 if sigma_mps2 is None else sigma_mps2)
+
+    def update_payload_offset(self, t_s: float, offset_ned_m, sigma_m: float | None = None) -> None:
+        """Payload position minus airframe position (NED, m) at ``t_s`` (e.g. :func:`~companion.estimation.
+        swing_model.payload_offset_from_global` of the payload's and the vehicle's GLOBAL_POSITION_INT)."""
+        self._add_event(t_s, "fix", offset_ned_m, self.cfg.fix_sigma_m if sigma_m is None else sigma_m)
+
+    def update_payload_position(self, t_s: float, payload_pos_ned_m, sigma_m: float | None = None) -> bool:
+        """Absolute payload position (NED, m) at ``t_s``; the airframe position at ``t_s`` is interpolated from
+        the positions given to :meth:`update_velocity`. Returns False (fix not used) when ``t_s`` is not
+        covered by that history."""
+        pos = self._position_at(float(t_s))
+        if pos is None:
+            return False
+        self.update_payload_offset(t_s, np.asarray(payload_pos_ned_m, dtype=np.float64) - pos, sigma_m)
+        return True
+
+    def update_velocity(self, t_s: float, vel_ned_mps, pos_ned_m=None, sigma_mps: float | None = None) -> None:
+        """Airframe velocity (LOCAL_POSITION_NED vx, vy, vz; m/s). ``pos_ned_m`` (optional) is stored to align
+        absolute payload fixes."""
+        if pos_ned_m is not None:
+            p = tuple(float(v) for v in pos_ned_m)
+            if all(math.isfinite(v) for v in p):
+                self._pos.add(float(t_s), p)
+        if vel_ned_mps is not None:
+            self._add_event(t_s, "vel", vel_ned_mps, self.cfg.vel_sigma_mps if sigma_mps is None else sigma_mps)
+
+    def _position_at(self, t: float) -> np.ndarray | None:
+        ts = self._pos.t
+        if not ts or t < ts[0] or t > ts[-1] + 0.05:
+            return None
+        i = bisect.bisect_right(ts, t) - 1
+        p0 = np.array(self._pos.v[i])
+        if i + 1 >= len(ts):
+            return p0
+        w = (t - ts[i]) / (ts[i + 1] - ts[i])
+        return p0 + w * (np.array(self._pos.v[i + 1]) - p0)
+
+    def _add_event(self, t_s: float, kind: str, z, sigma) -> None:
+        t = float(t_s)
+        zz = np.asarray(z, dtype=np.float64).reshape(3)
+        sg = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (3,)).copy()
+        if not (math.isfinite(t) and np.all(np.isfinite(zz)) and np.all(np.isfinite(sg)) and np.all(sg > 0.0)):
+            raise ValueError(f"{kind} measurement at t={t_s!r}: non-finite value or sigma")
+        if t < self._base.t:
+            self.dropped_late += 1
+            return
+        ev = _Event(t=t, seq=self._seq, kind=kind, z=zz, sigma=sg)
+        self._seq += 1
+        evs = self._events
+        if not evs or t >= evs[-1].t:
+            x0, P0 = (evs[-1].x, evs[-1].P) if evs else (self._base.x, self._base.P)
+            t0 = evs[-1].t if evs else self._base.t
+            self._apply(ev, x0, P0, t0)
+            evs.append(ev)
+        else:  # late: insert at its time and replay what follows
+            i = bisect.bisect_right([e.t for e in evs], t)
+            evs.insert(i, ev)
+            prev = evs[i - 1] if i > 0 else self._base
+            for e in evs[i:]:
+                self._apply(e, prev.x, prev.P, prev.t)
+                prev = e
+        self._version += 1
+        self._prune()
+
+    def _prune(self) -> None:
+        evs = self._events
+        t_cut = evs[-1].t - self.cfg.history_s
+        k = 0
+        while k < len(evs) - 1 and evs[k].t < t_cut:
+            k += 1
+        if k:
+            self._base = evs[k - 1]
+            del evs[:k]
+        keep = self._base.t - 0.1
+        self._att.prune(keep)
+        self._thr.prune(keep)
+        self._pos.prune(keep)
+
+    # ------------------------------------------------------------------------------------------ the filter
+    def _acc(self, x: np.ndarray, f: tuple[float, float, float]) -> tuple[float, float, float, float, float]:
+        M, m, g, Ip, l = self._pp
+        return translation_swing_accel(x[0], x[1], x[2], x[3], f[0], f[1], f[2], M, m, g, Ip, l)
+
+    def _acc_jacobian(self, x: np.ndarray, f, base) -> np.ndarray:
+        """∂(α̈, β̈, ẍ, ÿ, z̈)/∂x (5×14): swing columns by forward differences, force and thrust columns analytic
+        (``f`` as returned by :meth:`_force`)."""
+        M, m, g, Ip, l = self._pp
+        a0, a1, a2, a3 = float(x[0]), float(x[1]), float(x[2]), float(x[3])
+        f0, f1, f2, b0, b1, b2 = f
+        c0 = translation_swing_accel(a0 + 1e-6, a1, a2, a3, f0, f1, f2, M, m, g, Ip, l)
+        c1 = translation_swing_accel(a0, a1 + 1e-6, a2, a3, f0, f1, f2, M, m, g, Ip, l)
+        c2 = translation_swing_accel(a0, a1, a2 + 1e-5, a3, f0, f1, f2, M, m, g, Ip, l)
+        c3 = translation_swing_accel(a0, a1, a2, a3 + 1e-5, f0, f1, f2, M, m, g, Ip, l)
+        F = accel_force_jacobian_rows(a0, a1, M, m, Ip, l)
+        return np.array([[(c0[i] - base[i]) * 1e6, (c1[i] - base[i]) * 1e6, (c2[i] - base[i]) * 1e5,
+                          (c3[i] - base[i]) * 1e5, 0.0, 0.0, 0.0, F[i][0], F[i][1], F[i][2], 0.0, 0.0, 0.0,
+                          -(F[i][0] * b0 + F[i][1] * b1 + F[i][2] * b2)]
+                         for i in range(5)])
+
+    def _mean(self, x: np.ndarray, t0: float, t1: float) -> np.ndarray:
+        """Mean from t0 to t1 (RK2 midpoint, steps <= ``step_s``, inputs at each step's middle); a new array."""
+        x = x.copy()
+        span = t1 - t0
+        if span <= 0.0:
+            return x
+        n = max(1, math.ceil(span / self.cfg.step_s - 1e-9))
+        h = span / n
+        M, m, g, Ip, l = self._pp
+        for k in range(n):
+            f0, f1, f2, _, _, _ = self._force(t0 + (k + 0.5) * h, x)
+            a0, a1, a2, a3 = float(x[0]), float(x[1]), float(x[2]), float(x[3])
+            k1 = translation_swing_accel(a0, a1, a2, a3, f0, f1, f2, M, m, g, Ip, l)
+            m2 = a2 + 0.5 * h * k1[0]
+            m3 = a3 + 0.5 * h * k1[1]
+            k2 = translation_swing_accel(a0 + 0.5 * h * a2, a1 + 0.5 * h * a3, m2, m3, f0, f1, f2, M, m, g, Ip, l)
+            x[0] = a0 + h * m2
+            x[1] = a1 + h * m3
+            x[2] = a2 + h * k2[0]
+            x[3] = a3 + h * k2[1]
+            x[4] += h * k2[2]
+            x[5] += h * k2[3]
+            x[6] += h * k2[4]
+        return x
+
+    def _cov(self, P: np.ndarray, J: np.ndarray, h: float) -> np.ndarray:
+        """P after h seconds with the accelerations' Jacobian J: Φ = I + A·h + (A·h)²/2, plus Q·h."""
+        A = np.zeros((N_STATE, N_STATE))
+        A[0, 2] = A[1, 3] = 1.0
+        A[2:7, :] = J[0:5, :]
+        Ah = A * h
+        Phi = _IN + Ah + 0.5 * (Ah @ Ah)
+        P = Phi @ P @ Phi.T
+        P[np.diag_indices(N_STATE)] += self._Qc * h
+        return P
+
+    def _propagate(self, x, P, t0: float, t1: float):
+        """(x, P, acc, J, chunks) at t1 from (x, P) at t0: the mean in steps of ``step_s``, the covariance in
+        steps of at most ``cov_step_s`` with the Jacobian at each step's end (the last one is reused for the
+        measurement at t1); ``chunks`` = [(h, J)] for replays."""
+        span = t1 - t0
+        n = max(1, math.ceil(span / self.cfg.cov_step_s - 1e-9)) if span > 0.0 else 0
+        h = span / n if n else 0.0
+        ta = t0
+        acc = J = None
+        chunks = []
+        for k in range(n):
+            tb = t1 if k == n - 1 else t0 + (k + 1) * h
+            x = self._mean(x, ta, tb)
+            f = self._force(tb, x)
+            acc = self._acc(x, f)
+            J = self._acc_jacobian(x, f, acc)
+            P = self._cov(P, J, tb - ta)
+            chunks.append((tb - ta, J))
+            ta = tb
+        if J is None:
+            f = self._force(t1, x)
+            acc = self._acc(x, f)
+            J = self._acc_jacobian(x, f, acc)
+        return x, P, acc, J, chunks
+
+    def _apply(self, ev: _Event, x0: np.ndarray, P0: np.ndarray, t0: float) -> None:
+        """Predict from (t0, x0, P0) to the event and fuse it; stores the result in the event.
+
+        In a replay (the event was processed before over the same interval) the mean is predicted again but the
+        covariance and measurement Jacobians are the stored ones: the linearization point moves little, and a
+        replay then costs a third of the first pass."""
+        if ev.lin is not None and ev.t0_lin == t0:
+            x = self._mean(x0, t0, ev.t)
+            P = P0
+            for h_c, J_c in ev.lin:
+                P = self._cov(P, J_c, h_c)
+            H = ev.H
+            if ev.kind == "imu":
+                acc = self._acc(x, self._force(ev.t, x))
+        else:
+            x, P, acc, J, chunks = self._propagate(x0, P0, t0, ev.t)
+            H = np.zeros((3, N_STATE))
+            if ev.kind == "imu":
+                ev.Rt = self._rotation(ev.t).T
+                H[:, :] = ev.Rt @ J[2:5, :]
+                H[0, 10] = H[1, 11] = H[2, 12] = 1.0
+            elif ev.kind == "fix":
+                H[:, 0:2] = payload_offset_jacobian(x[0], x[1], self._pp[4])
+            else:  # vel
+                H[0, 4] = H[1, 5] = H[2, 6] = 1.0
+            ev.t0_lin, ev.lin, ev.H = t0, chunks, H
+        if ev.kind == "imu":
+            h = ev.Rt @ np.array([acc[2], acc[3], acc[4] - self._pp[2]]) + x[SL_BIAS]
+        elif ev.kind == "fix":
+            h = np.array(payload_offset_m(x[0], x[1], self._pp[4]))
+        else:
+            h = x[4:7]
+        r2 = ev.sigma * ev.sigma
+        PHt = P @ H.T
+        S = H @ PHt
+        S[0, 0] += r2[0]
+        S[1, 1] += r2[1]
+        S[2, 2] += r2[2]
+        nu = ev.z - h
+        Sinv = _inv3(S)
+        nis = float(nu @ Sinv @ nu)
+        ev.nis = nis
+        hz = H[2, I_THRUST]
+        if ev.kind == "imu" and nu[2] * nu[2] > _JUMP_SIGMAS2 * S[2, 2] and abs(hz) > 1e-9:
+            # the body-z specific force is off by more than 3σ: the thrust produced changed faster than
+            # q_thrust allows (a rotor saturating while the attitude loop fights a torque); let δT take it
+            P = P.copy()
+            P[I_THRUST, I_THRUST] += (nu[2] / hz) ** 2
+            PHt = P @ H.T
+            S = H @ PHt
+            S[0, 0] += r2[0]
+            S[1, 1] += r2[1]
+            S[2, 2] += r2[2]
+            Sinv = _inv3(S)
+            nis_gate = float(nu @ Sinv @ nu)
+        else:
+            nis_gate = nis
+        if nis_gate <= self.cfg.gate_nis:
+            K = PHt @ Sinv
+            x = x + K @ nu
+            IKH = _IN - K @ H
+            P = IKH @ P @ IKH.T + (K * r2) @ K.T
+            P = 0.5 * (P + P.T)
+            ev.accepted = True
+        else:
+            ev.accepted = False
+        ev.x, ev.P = x, P
+
+    # ------------------------------------------------------------------------------------------- output
+    @property
+    def t_processed_s(self) -> float:
+        """Time of the newest processed measurement (or the start)."""
+        return self._events[-1].t if self._events else self._base.t
+
+    def _frontier(self) -> _Event:
+        return self._events[-1] if self._events else self._base
+
+    def _trust(self, t: float) -> tuple[dict[str, float], tuple[str, ...], int]:
+        key = round(t / 0.05)
+        if self._trust_cache is not None and self._trust_cache[0] == key:
+            return self._trust_cache[1], self._trust_cache[2], self._trust_cache[3]
+        t_lo = t - self.cfg.trust_window_s
+        sums: dict[str, float] = {}
+        counts: dict[str, int] = {}
+        rejected = 0
+        for e in reversed(self._events):
+            if e.t < t_lo:
+                break
+            sums[e.kind] = sums.get(e.kind, 0.0) + min(e.nis, _NIS_CAP) / 3.0
+            counts[e.kind] = counts.get(e.kind, 0) + 1
+            rejected += 0 if e.accepted else 1
+        nis = {k: sums[k] / counts[k] for k in sums}
+        sources = tuple(s for s in SOURCES if s in nis)
+        self._trust_cache = (key, nis, sources, rejected)
+        return nis, sources, rejected
+
+    def estimate(self, t_s: float) -> SwingEstimate:
+        """The estimate at ``t_s``, predicted from the newest processed measurement with the inputs given. The
+        mean is predicted to ``t_s``; the covariance in steps of ``cov_step_s`` (it changes slowly)."""
+        t = float(t_s)
+        fr = self._frontier()
+        sh = self._shadow
+        if sh is None or sh[0] != self._version or t < sh[1]:
+            sh = (self._version, fr.t, fr.x, fr.t, fr.P)
+        _, t_x, x, t_P, P = sh
+        if t > t_x:
+            x = self._mean(x, t_x, t)
+            t_x = t
+        f = self._force(t_x, x)
+        a = self._acc(x, f)
+        if t_x - t_P >= self.cfg.cov_step_s:
+            P = self._cov(P, self._acc_jacobian(x, f, a), t_x - t_P)
+            t_P = t_x
+        self._shadow = (self._version, t_x, x, t_P, P)
+        Ps = P[0:2, 0:2]
+        tr = 0.5 * (Ps[0, 0] + Ps[1, 1])
+        det = Ps[0, 0] * Ps[1, 1] - Ps[0, 1] * Ps[1, 0]
+        sigma = math.sqrt(max(tr + math.sqrt(max(tr * tr - det, 0.0)), 0.0))
+        bound = math.hypot(x[0], x[1]) + 3.0 * sigma
+        nis, sources, rejected = self._trust(t)
+        c = self.cfg
+        f_sigma = _ramp_down(3.0 * sigma, *c.fade_bound3_rad)
+        f_nis = _ramp_down(max(nis.values()), *c.fade_nis) if nis else 1.0
+        return SwingEstimate(
+            t_s=t_x, swing=x[0:4].copy(), swing_acc=np.array([a[0], a[1]]), cov=P[0:4, 0:4].copy(),
+            sigma_rad=sigma, bound_rad=bound, fade=f_sigma * f_nis, force_ned_n=x[7:10].copy(),
+            accel_bias_frd_mps2=x[10:13].copy(), nis=nis, sources=sources, rejected=rejected,
+            dropped_late=self.dropped_late,
+        )
+
+
+def _ramp_down(v: float, lo: float, hi: float) -> float:
+    """1 below ``lo``, 0 above ``hi``, linear between."""
+    if v <= lo:
+        return 1.0
+    if v >= hi:
+        return 0.0
+    return (hi - v) / (hi - lo)
+
+
+def widened_swing(est: SwingEstimate) -> tuple[float, float]:
+    """(α, β) stretched along their direction to the magnitude ``est.bound_rad`` (|swing| + 3σ), for the
+    envelope (eq. 20–21) when the estimate is uncertain. Pointing along α when the swing is ~0."""
+    a, b = float(est.swing[0]), float(est.swing[1])
+    mag = math.hypot(a, b)
+    if mag < 1e-9:
+        return est.bound_rad, 0.0
+    k = est.bound_rad / mag
+    return a * k, b * k
