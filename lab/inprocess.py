@@ -5,6 +5,10 @@ the simulated state (swing from the sim's cable angles, as the bundled vehicle's
 calls the very same :class:`~companion.flight.core.FlightCore` the MAVLink app uses, applies the command
 with ``VehicleSim.set_attitude_target`` and steps the physics for one control period. Used for tuning and
 for the fast evaluation mode; the vehicle starts landed on the ground below the mission's start.
+
+``swing_source="estimate"`` replaces the cable sensor by the swing estimator (issue 11) fed with the messages
+a real autopilot would send, simulated from the physics by :mod:`lab.swing_sim` (IMU, attitude, velocity,
+delayed and dropped payload fixes); ``truth`` records every tick for offline estimation.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from companion.core.mission import Mission
 from companion.estimation.estimate import Estimate
 from companion.flight.core import FlightCore
 from companion.report.metrics import FlightLog
+from lab.swing_sim import EstimatorDriver, TruthLog, TruthRecorder
 from sim_bridge.physics import VehicleSim
 
 log = logging.getLogger(__name__)
@@ -34,12 +39,25 @@ def fly_inprocess(
     swing_sensor: bool = True,
     physics_dt_s: float = 1e-3,
     stop_when_done: bool = True,
+    swing_source: str | None = None,
+    estimator: EstimatorDriver | None = None,
+    truth: TruthLog | None = None,
 ) -> FlightLog:
     """Fly ``mission`` from take-off to the end of the hold (or timeout); returns the flight log.
 
     ``swing_sensor`` False flies without swing measurement (full-cable envelope, no feed-forward).
+    ``swing_source`` overrides it: ``"cable_sensor"``, ``"none"`` or ``"estimate"`` (the swing estimator fed
+    by ``estimator``, default :class:`~lab.swing_sim.EstimatorDriver` with its default sensors, seed 0).
+    ``truth``: if given, every tick's true state, commanded thrust and specific force is appended to it.
     With ``record`` False only the last tick is kept (for throughput measurements).
     """
+    source = swing_source or ("cable_sensor" if swing_sensor else "none")
+    if source not in ("cable_sensor", "none", "estimate"):
+        raise ValueError(f"swing_source: must be cable_sensor, none or estimate, got {swing_source!r}")
+    if source == "estimate" and estimator is None:
+        estimator = EstimatorDriver(mission.vehicle, seed=0)
+    driver = estimator if source == "estimate" else None
+    recorder = TruthRecorder() if (driver is not None or truth is not None) else None
     n_sub = max(1, round(control_period_s / physics_dt_s))
     x0 = np.zeros(16)
     x0[0:2] = mission.start_ned_m[:2]
@@ -52,13 +70,26 @@ def fly_inprocess(
     wall0 = time.perf_counter()
     t_end = mission.timeout_s + mission.hold_s + 1.0
     while sim.t_s < t_end:
-        swing = sim.swing if swing_sensor else None
-        est = Estimate(
-            t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,
-            rates_frd_rad_s=sim.body_rates_frd_rad_s, swing=swing,
-            swing_source="cable_sensor" if swing_sensor else "none",
-        )
+        sample = recorder.sample(sim) if recorder is not None else None
+        if driver is not None:
+            se = driver.step(sample)
+            est = Estimate(
+                t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,
+                rates_frd_rad_s=sim.body_rates_frd_rad_s, swing=None if se is None else se.swing,
+                swing_source="none" if se is None else "estimate",
+                swing_fade=1.0 if se is None else se.fade, swing_bound_rad=None if se is None else se.bound_rad,
+            )
+        else:
+            swing = sim.swing if source == "cable_sensor" else None
+            est = Estimate(
+                t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,
+                rates_frd_rad_s=sim.body_rates_frd_rad_s, swing=swing, swing_source=source,
+            )
         cmd = core.update(est, mission.obstacles)
+        if driver is not None:
+            driver.command(sim.t_s, cmd.thrust_n)
+        if truth is not None and sample is not None:
+            truth.samples.append(TruthRecorder.commanded(sample, cmd.thrust_n))
         if record or len(flog) == 0:
             flog.append(sim.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, sim.swing, sim.payload_pos_ned_m, cmd)
         if stop_when_done and core.phase == "done":

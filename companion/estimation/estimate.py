@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-SWING_SOURCES = ("cable_sensor", "payload_position", "none")
+SWING_SOURCES = ("cable_sensor", "payload_position", "estimate", "none")
 
 
 @dataclass(frozen=True, slots=True)
@@ -23,7 +23,9 @@ class Estimate:
     t_s: time, s; pos_ned_m, vel_ned_mps: airframe position (m) and velocity (m/s) in NED;
     euler_rad: [φ, θ, ψ] rad (ZYX, body FRD to NED); rates_frd_rad_s: body rates, rad/s;
     swing: [α, β, α̇, β̇] (rad, rad/s) or None when no swing measurement is available;
-    swing_source: one of :data:`SWING_SOURCES`.
+    swing_source: one of :data:`SWING_SOURCES`; for ``"estimate"`` (the swing estimator,
+    :mod:`companion.estimation.swing_estimator`) also swing_fade (0..1, how much feed-forward the estimate
+    can carry) and swing_bound_rad (|swing| + 3σ, the swing angle the envelope should assume).
     """
 
     t_s: float
@@ -33,6 +35,8 @@ class Estimate:
     rates_frd_rad_s: np.ndarray
     swing: np.ndarray | None = None
     swing_source: str = "none"
+    swing_fade: float = 1.0
+    swing_bound_rad: float | None = None
 
 
 def swing_from_payload(

@@ -14,7 +14,9 @@ on the bundled vehicle, like ArduPilot's slung-payload stream) is used for the e
 only, not by the controller: the feed-forward differentiates α̇, and a 10 Hz staircase differentiated at
 250 Hz makes it inject spikes that excite the swing (measured: the forest flown that way swung to
 0.75 rad and never reached the goal). Only the cable-angle sensor, sampled at the control rate, feeds the
-payload compensation and the feed-forward.
+payload compensation and the feed-forward. So does the swing estimator's output (``swing_source ==
+"estimate"``, a model-based estimate at the control rate): its feed-forward is scaled by ``swing_fade`` and its
+envelope assumes the swing angle ``swing_bound_rad`` (|swing| + 3σ).
 """
 
 from __future__ import annotations
@@ -181,7 +183,14 @@ class FlightCore:
 
         swing = None if est.swing is None else np.asarray(est.swing, dtype=np.float64)
         if swing is not None:
-            r_max = r_max_m(float(swing[0]), float(swing[1]), self.params)
+            a_env, b_env = float(swing[0]), float(swing[1])
+            if est.swing_bound_rad is not None:  # an uncertain estimate: the envelope assumes |swing| + 3σ
+                mag = math.hypot(a_env, b_env)
+                if mag > 1e-9:
+                    a_env, b_env = a_env * est.swing_bound_rad / mag, b_env * est.swing_bound_rad / mag
+                else:
+                    a_env, b_env = est.swing_bound_rad, 0.0
+            r_max = r_max_m(a_env, b_env, self.params)
             mode = "swing"
             swing_acc = self.swing_acc.update_scalar(est.t_s, float(swing[2]), float(swing[3]))
         else:
@@ -216,7 +225,11 @@ class FlightCore:
         if dt > 0.0:
             ref.step((vdx, vdy, vdz), dt)
 
-        ctl_swing = swing if est.swing_source == "cable_sensor" else None
+        ctl_swing = swing if est.swing_source in ("cable_sensor", "estimate") else None
+        if ctl_swing is not None and est.swing_source == "estimate" and est.swing_fade < 1.0:
+            fade = max(0.0, float(est.swing_fade))  # an untrusted estimate carries less (or no) feed-forward
+            ctl_swing = ctl_swing * fade
+            swing_acc = (swing_acc[0] * fade, swing_acc[1] * fade)
         ctl = self.controller.update(
             pos, vel, ref.p, ref.v, ref.a, ctl_swing, swing_acc if ctl_swing is not None else (0.0, 0.0),
             max(dt, 1e-4),
