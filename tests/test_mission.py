@@ -87,3 +87,48 @@ def test_bad_missions_name_file_and_key(tmp_path, old, new, needle):
 def test_goal_above_obstacle_top_is_fine(tmp_path):
     m = load_mission(_write(tmp_path, GOOD.replace("goal_ned_m = [10.0, 0.0, -2.0]", "goal_ned_m = [5.0, 2.0, -6.0]")))
     np.testing.assert_allclose(m.goal_ned_m, [5, 2, -6])
+
+
+def test_payload_table_absent_keeps_the_vehicle(tmp_path):
+    m = load_mission(_write(tmp_path, GOOD))
+    assert m.payload.is_default and not m.payload.identify
+    assert m.companion_params() == m.vehicle
+    assert "[payload]" not in mission_to_toml(m)
+
+
+def test_payload_table_overrides_the_companions_model_not_the_vehicle(tmp_path):
+    text = GOOD + "[payload]\nmass_kg = 0.4\ncable_length_m = 1.3\nidentify = true\n"
+    m = load_mission(_write(tmp_path, text))
+    assert (m.payload.mass_kg, m.payload.cable_length_m, m.payload.identify) == (0.4, 1.3, True)
+    assert (m.vehicle.m, m.vehicle.l) == (0.25, 1.0)  # the physical vehicle (what the bundled sim flies)
+    cp = m.companion_params()
+    assert (cp.m, cp.l, cp.M) == (0.4, 1.3, m.vehicle.M)
+    m2 = load_mission(_write(tmp_path, mission_to_toml(m)))
+    assert m2.payload == m.payload
+    only_l = load_mission(_write(tmp_path, GOOD + "[payload]\ncable_length_m = 0.8\n"))
+    assert (only_l.companion_params().m, only_l.companion_params().l) == (0.25, 0.8)
+    assert not only_l.payload.identify
+
+
+@pytest.mark.parametrize(
+    "table,needle",
+    [
+        ("mass_kg = -0.1", "[payload] mass_kg: must be in (0, 100]"),
+        ("cable_length_m = 25.0", "[payload] cable_length_m: must be in (0, 20]"),
+        ("mass_kg = 20.0", "[payload] mass_kg: 20.0 kg is more than ten times"),
+        ("identify = 1", "[payload] identify: expected bool"),
+        ("length = 1.0", "[payload]: unknown key 'length'"),
+        ("mass_kg = nan", "[payload] mass_kg: must be finite"),
+    ],
+)
+def test_bad_payload_table_names_file_and_key(tmp_path, table, needle):
+    p = _write(tmp_path, GOOD + "[payload]\n" + table + "\n")
+    with pytest.raises(ConfigError) as ei:
+        load_mission(p)
+    assert str(p) in str(ei.value) and needle in str(ei.value)
+
+
+def test_shipped_missions_still_load():
+    for name in ("forest.toml", "group1.toml"):
+        m = load_mission(ROOT / "config" / "missions" / name)
+        assert m.payload.is_default

@@ -17,12 +17,22 @@ Format (TOML; every table strict: unknown keys, missing required keys and wrong 
     scale = 1.0
     [vehicle]                      # optional: VehicleParams overrides by field name
     m = 0.25
+    [payload]                      # optional: what the companion assumes about the payload (issue 11)
+    mass_kg = 0.25                 # optional; measured by the user: used as is, never identified
+    cable_length_m = 1.0           # optional; likewise
+    identify = false               # optional: identify what is not given above, in flight (hover hop)
     [[obstacles]]                  # optional, any number; Obstacle keys (not "source")
     x_m = 3.0
     y_m = -0.22
     radius_m = 0.3
     height_m = 4.0
     safe_distance_m = 0.1
+
+``[vehicle]`` is the whole physical vehicle (the bundled simulator flies it; the companion's model uses it too).
+``[payload]`` lets the companion's model differ from it: a measured ``mass_kg`` / ``cable_length_m`` overrides
+``[vehicle]`` m / l for the companion (and for identification: a given value is never identified);
+``identify = true`` asks for :func:`companion.estimation.payload_id.identify_payload` on the values not given.
+:meth:`Mission.companion_params` is the model the companion should fly with before any identification.
 
 A start or goal whose airframe circle (r_uav + L_uav) would overlap an obstacle's safety ring
 (radius_m + safe_distance_m) below the obstacle's top is refused too.
@@ -82,6 +92,28 @@ class MissionTable:
 
 
 @dataclass(frozen=True)
+class PayloadConfig:
+    """The ``[payload]`` table: measured payload mass (kg) and cable length (m), each None when not given, and
+    whether to identify the ones not given in flight."""
+
+    mass_kg: float | None = None
+    cable_length_m: float | None = None
+    identify: bool = False
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` for non-physical values."""
+        if self.mass_kg is not None and not (0.0 < self.mass_kg <= 100.0):
+            raise ValueError(f"mass_kg: must be in (0, 100], got {self.mass_kg}")
+        if self.cable_length_m is not None and not (0.0 < self.cable_length_m <= 20.0):
+            raise ValueError(f"cable_length_m: must be in (0, 20] (the model's range), got {self.cable_length_m}")
+
+    @property
+    def is_default(self) -> bool:
+        """True when the table says nothing (absent or empty)."""
+        return self.mass_kg is None and self.cable_length_m is None and not self.identify
+
+
+@dataclass(frozen=True)
 class Mission:
     """A validated mission (see module docstring for the file format). Arrays are NED metres, (3,)."""
 
@@ -97,6 +129,15 @@ class Mission:
     hold_s: float = 5.0
     land: bool = True
     source_path: str = ""
+    payload: PayloadConfig = field(default_factory=PayloadConfig)
+
+    def companion_params(self) -> VehicleParams:
+        """The model the companion flies with: ``vehicle`` with ``[payload]``'s measured mass and cable length."""
+        from dataclasses import replace
+
+        p = self.payload
+        return replace(self.vehicle, m=self.vehicle.m if p.mass_kg is None else p.mass_kg,
+                       l=self.vehicle.l if p.cable_length_m is None else p.cable_length_m)
 
     def with_(self, **changes: Any) -> Mission:
         """A copy with fields replaced (e.g. another planner for a comparison run)."""
@@ -121,14 +162,18 @@ def _check_clear(where: str, key: str, p: np.ndarray, obstacles: tuple[Obstacle,
 
 def mission_from_dict(data: dict[str, Any], where: str) -> Mission:
     """Build and validate a :class:`Mission` from a parsed TOML document; ``where`` names the file."""
-    unknown = sorted(set(data) - {"mission", "wind", "vehicle", "obstacles"})
+    unknown = sorted(set(data) - {"mission", "wind", "vehicle", "payload", "obstacles"})
     if unknown:
-        raise ConfigError(f"{where}: unknown table or key {unknown[0]!r} (known: mission, wind, vehicle, obstacles)")
+        raise ConfigError(f"{where}: unknown table or key {unknown[0]!r} "
+                          "(known: mission, wind, vehicle, payload, obstacles)")
     if "mission" not in data:
         raise ConfigError(f"{where}: missing required table [mission]")
     mt = dataclass_from_table(MissionTable, data["mission"], where=f"{where}: [mission]")
     wind = dataclass_from_table(WindConfig, data.get("wind", {"model": "none", "scale": 0.0}), where=f"{where}: [wind]")
     vp = vehicle_params_with(VehicleParams(), data.get("vehicle", {}), where=f"{where}: [vehicle]")
+    payload = dataclass_from_table(PayloadConfig, data.get("payload", {}), where=f"{where}: [payload]")
+    if payload.mass_kg is not None and payload.mass_kg > 10.0 * vp.M:
+        raise ConfigError(f"{where}: [payload] mass_kg: {payload.mass_kg} kg is more than ten times the vehicle mass")
     raw_obs = data.get("obstacles", [])
     if not isinstance(raw_obs, list):
         raise ConfigError(f"{where}: obstacles: expected an array of tables [[obstacles]]")
@@ -146,7 +191,7 @@ def mission_from_dict(data: dict[str, Any], where: str) -> Mission:
     return Mission(
         name=mt.name, start_ned_m=start, goal_ned_m=goal, planner=mt.planner, controller=mt.controller,
         timeout_s=mt.timeout_s, wind=wind, vehicle=vp, obstacles=obs, hold_s=mt.hold_s, land=mt.land,
-        source_path=where,
+        source_path=where, payload=payload,
     )
 
 
@@ -180,6 +225,14 @@ def mission_to_toml(mission: Mission) -> str:
     ]
     for k, v in mission.vehicle.as_dict().items():
         lines.append(f"{k} = {float(v)!r}")
+    p = mission.payload
+    if not p.is_default:
+        lines += ["", "[payload]"]
+        if p.mass_kg is not None:
+            lines.append(f"mass_kg = {float(p.mass_kg)!r}")
+        if p.cable_length_m is not None:
+            lines.append(f"cable_length_m = {float(p.cable_length_m)!r}")
+        lines.append(f"identify = {'true' if p.identify else 'false'}")
     for o in mission.obstacles:
         lines += [
             "",
