@@ -237,6 +237,15 @@ class SensorSuite:
 
 
 # ---------------------------------------------------------------------------------------------------- driver
+def estimator_config_for(sensors: SensorConfig, **overrides) -> SwingEstimatorConfig:
+    """The estimator told the noise of the sensors it gets, as a user would configure it: the IMU's white noise
+    per axis (at least 0.035 m/s²: the model's own mismatch), the fixes' and the velocity's white noise."""
+    cfg = SwingEstimatorConfig(
+        imu_sigma_mps2=tuple(max(0.035, float(w)) for w in sensors.imu.white_mps2),
+        fix_sigma_m=max(0.01, sensors.fix_white_m), vel_sigma_mps=max(0.01, sensors.vel_white_mps))
+    return replace(cfg, **overrides)
+
+
 class EstimatorDriver:
     """A :class:`SwingEstimator` started at lift-off and fed with a :class:`SensorSuite`'s messages.
 
@@ -247,8 +256,7 @@ class EstimatorDriver:
                  est_config: SwingEstimatorConfig | None = None, model_params: VehicleParams | None = None) -> None:
         self.suite = SensorSuite(params, sensors, seed)
         self.model_params = model_params or params
-        self.est_config = est_config or SwingEstimatorConfig(
-            imu_sigma_mps2=max(0.05, float(np.max((sensors or SensorConfig()).imu.white_mps2))))
+        self.est_config = est_config or estimator_config_for(self.suite.cfg)
         self.est: SwingEstimator | None = None
         self.cpu_s = 0.0
         self.updates = 0

@@ -1,0 +1,247 @@
+"""Payload identification: cable length and payload mass from a few seconds of IMU and attitude data.
+
+The airframe's Newton equation in the body frame, with the cable force from the payload's own equation
+(t·r̂ = m·(g·e_z − a − r̈), a = ξ̈ the airframe's acceleration, r the payload offset) and the accelerometer's
+specific force f_b = Rᵀ·(a − g·e_z)::
+
+    M·f_b = −T·e_z + m·Rᵀ·(g·e_z − a − r̈) + Rᵀ·d = −T·e_z − m·f_b − m·Rᵀ·r̈ + Rᵀ·d
+
+Its two lateral rows contain no thrust at all (the rotors push along z_body only)::
+
+    f_b,xy = −μ·(Rᵀ·r̈)_xy + (Rᵀ·d)_xy/(M+m),        μ = m/(M+m)
+
+and r̈ follows from the pendulum driven by the pivot acceleration the same accelerometer measures,
+a = R·f_b + g·e_z. So for a candidate cable length l we integrate the pendulum (the model's swing equation with
+ξ̈ = a given: (m·JᵀJ + Ip)·s̈ = m·Jᵀ·(g·e_z − a − J̇ṡ), Ip → 0) from rest, and fit the lateral specific force
+by linear least squares in μ, a slow disturbance (constant + linear trend per axis) and a free oscillation at
+ω = √(g/l) (the swing that was already there when the window starts; its amplitude is free). The residual is
+a function of l alone; a grid search and a golden-section refinement find its minimum. The mass follows as
+m = μ·M/(1 − μ) with the vehicle's own mass M known.
+
+Needs: an excitation (a lateral move: a step or doublet of a metre at hover, or the first seconds of a
+mission's cruise) that swings the payload by ~0.1 rad or more, IMU specific force and attitude (no thrust, no
+position). Accuracy (``tests/test_payload_id.py`` on the bundled physics, eq. 49 wind, PX4-SITL-like IMU noise,
+`python -m lab.swing_bench`): see ``docs/swing-estimation.md``.
+
+The alternative the issue mentions, mass from the hover thrust (``mass_from_hover_thrust``), is given too; it
+depends on the thrust being calibrated in newtons and is biased by any vertical force (eq. 49's wind pushes
+down by 0.23 N on average: +0.023 kg).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.estimation.swing_model import rotation_from_euler
+
+_GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
+
+
+@dataclass(frozen=True, slots=True)
+class PayloadId:
+    """Identified payload.
+
+    cable_length_m, payload_mass_kg: the estimates; mass_ratio: μ = m/(M+m); cable_length_sigma_m and
+    payload_mass_sigma_kg: 1σ from the least-squares statistics (residual-based, optimistic when the residual is
+    not white); swing_signal_mps2: RMS of the fitted swing term μ·(Rᵀr̈)_xy; residual_mps2: RMS of what the
+    fit leaves; ok: enough excitation (swing signal > 3× residual) and l not at the search limits; reason:
+    why not when not ok.
+    """
+
+    cable_length_m: float
+    payload_mass_kg: float
+    mass_ratio: float
+    cable_length_sigma_m: float
+    payload_mass_sigma_kg: float
+    swing_signal_mps2: float
+    residual_mps2: float
+    n_samples: int
+    window_s: float
+    ok: bool
+    reason: str = ""
+
+
+def _pendulum_accel(a_ned: np.ndarray, R: np.ndarray, t: np.ndarray, l: float, g: float) -> np.ndarray:
+    """(Rᵀ·r̈)_xy (N, 2) of a point payload on a rigid cable of length l hanging from rest from a pivot with
+    acceleration a_ned (N, 3), integrated with RK4 over the samples (a linearly interpolated)."""
+    n = len(t)
+    out = np.zeros((n, 2))
+    al = be = dal = dbe = 0.0
+
+    def acc(al, be, dal, dbe, ax, ay, az):
+        sa, ca, sb, cb = math.sin(al), math.cos(al), math.sin(be), math.cos(be)
+        # (JᵀJ)·s̈ = Jᵀ·(g·e_z − a − a_c) with JᵀJ = l²·diag(cβ², 1)
+        ac0 = l * (-sa * cb * (dal * dal + dbe * dbe) - 2.0 * ca * sb * dal * dbe)
+        ac1 = l * sb * dbe * dbe
+        ac2 = l * (-ca * cb * (dal * dal + dbe * dbe) + 2.0 * sa * sb * dal * dbe)
+        w0, w1, w2 = -ax - ac0, -ay - ac1, g - az - ac2
+        dda = (ca * cb * w0 - sa * cb * w2) / (l * max(cb * cb, 1e-6))
+        ddb = (-sa * sb * w0 - cb * w1 - ca * sb * w2) / l
+        # r̈ = J·s̈ + a_c
+        r0 = l * (ca * cb * dda - sa * sb * ddb) + ac0
+        r1 = -l * cb * ddb + ac1
+        r2 = l * (-sa * cb * dda - ca * sb * ddb) + ac2
+        return dda, ddb, r0, r1, r2
+
+    for k in range(n):
+        ax, ay, az = a_ned[k]
+        _, _, r0, r1, r2 = acc(al, be, dal, dbe, ax, ay, az)
+        Rk = R[k]
+        out[k, 0] = Rk[0, 0] * r0 + Rk[1, 0] * r1 + Rk[2, 0] * r2
+        out[k, 1] = Rk[0, 1] * r0 + Rk[1, 1] * r1 + Rk[2, 1] * r2
+        if k + 1 < n:  # classical RK4 on (α, β, α̇, β̇), the pivot acceleration linear between samples
+            h = t[k + 1] - t[k]
+            bx, by, bz = a_ned[k + 1]
+            mx, my, mz = 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz)
+            k1 = acc(al, be, dal, dbe, ax, ay, az)
+            y2 = (al + 0.5 * h * dal, be + 0.5 * h * dbe, dal + 0.5 * h * k1[0], dbe + 0.5 * h * k1[1])
+            k2 = acc(*y2, mx, my, mz)
+            y3 = (al + 0.5 * h * y2[2], be + 0.5 * h * y2[3], dal + 0.5 * h * k2[0], dbe + 0.5 * h * k2[1])
+            k3 = acc(*y3, mx, my, mz)
+            y4 = (al + h * y3[2], be + h * y3[3], dal + h * k3[0], dbe + h * k3[1])
+            k4 = acc(*y4, bx, by, bz)
+            al += h / 6.0 * (dal + 2.0 * y2[2] + 2.0 * y3[2] + y4[2])
+            be += h / 6.0 * (dbe + 2.0 * y2[3] + 2.0 * y3[3] + y4[3])
+            dal += h / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
+            dbe += h / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
+            if not (abs(be) < 1.5 and abs(al) < 1.5):
+                return out * np.nan
+    return out
+
+
+def _design(t: np.ndarray, q: np.ndarray, R: np.ndarray, l: float, g: float) -> np.ndarray:
+    """Columns: −(Rᵀr̈)_xy (μ), a free oscillation along north and east (cos, sin each: 4), per body axis a
+    constant and a trend (4); rows: x samples then y samples."""
+    n = len(t)
+    w = math.sqrt(g / l)
+    tt = t - t[0]
+    c, s = np.cos(w * tt), np.sin(w * tt)
+    X = np.zeros((2 * n, 9))
+    X[:n, 0] = -q[:, 0]
+    X[n:, 0] = -q[:, 1]
+    # free swing r = A·cos + B·sin along north (0) and east (1); its r̈ = −ω²·r, seen in body axes via Rᵀ
+    col = 1
+    for axis in (0, 1):
+        for basis in (c, s):
+            rdd = -w * w * basis
+            X[:n, col] = -R[:, axis, 0] * rdd
+            X[n:, col] = -R[:, axis, 1] * rdd
+            col += 1
+    span = max(tt[-1], 1e-9)
+    X[:n, 5] = 1.0
+    X[:n, 6] = tt / span
+    X[n:, 7] = 1.0
+    X[n:, 8] = tt / span
+    return X
+
+
+def _fit(t, f_xy, a_ned, R, l, g):
+    q = _pendulum_accel(a_ned, R, t, l, g)
+    if not np.all(np.isfinite(q)):
+        return math.inf, None, None, None
+    X = _design(t, q, R, l, g)
+    y = np.concatenate([f_xy[:, 0], f_xy[:, 1]])
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    res = y - X @ coef
+    return float(res @ res), coef, X, res
+
+
+def identify_payload(
+    t_s,
+    accel_frd_mps2,
+    euler_rad,
+    vehicle_mass_kg: float,
+    g_mps2: float = 9.81,
+    l_range_m: tuple[float, float] = (0.2, 5.0),
+) -> PayloadId:
+    """Cable length and payload mass from samples of the accelerometer's specific force (N, 3; body FRD, m/s²)
+    and the attitude (N, 3; ZYX Euler, rad) at times ``t_s`` (N,; s, increasing) over a window with a lateral
+    excitation; ``vehicle_mass_kg`` is the airframe's mass M without payload. Raises ValueError on bad input."""
+    t = np.asarray(t_s, dtype=np.float64)
+    f = np.asarray(accel_frd_mps2, dtype=np.float64)
+    e = np.asarray(euler_rad, dtype=np.float64)
+    n = len(t)
+    if n < 50 or f.shape != (n, 3) or e.shape != (n, 3):
+        raise ValueError(f"need >= 50 samples of t (N,), accel (N, 3), euler (N, 3); got {t.shape}, {f.shape}, "
+                         f"{e.shape}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(f)) and np.all(np.isfinite(e))):
+        raise ValueError("non-finite samples")
+    if np.any(np.diff(t) <= 0.0):
+        raise ValueError("t_s must increase")
+    if not (vehicle_mass_kg > 0.0 and g_mps2 > 0.0 and 0.0 < l_range_m[0] < l_range_m[1]):
+        raise ValueError("vehicle_mass_kg, g_mps2 must be > 0 and l_range_m increasing")
+    R = np.array([rotation_from_euler(*row) for row in e])
+    a = np.einsum("nij,nj->ni", R, f) + np.array([0.0, 0.0, g_mps2])
+    f_xy = f[:, 0:2]
+
+    # grid in log(l), then golden section around the best point
+    grid = np.exp(np.linspace(math.log(l_range_m[0]), math.log(l_range_m[1]), 40))
+    sse = [(_fit(t, f_xy, a, R, float(lv), g_mps2)[0], float(lv)) for lv in grid]
+    k = int(np.argmin([s for s, _ in sse]))
+    lo = grid[max(k - 1, 0)]
+    hi = grid[min(k + 1, len(grid) - 1)]
+    x1 = hi - _GOLDEN * (hi - lo)
+    x2 = lo + _GOLDEN * (hi - lo)
+    f1 = _fit(t, f_xy, a, R, x1, g_mps2)[0]
+    f2 = _fit(t, f_xy, a, R, x2, g_mps2)[0]
+    for _ in range(30):
+        if f1 < f2:
+            hi, x2, f2 = x2, x1, f1
+            x1 = hi - _GOLDEN * (hi - lo)
+            f1 = _fit(t, f_xy, a, R, x1, g_mps2)[0]
+        else:
+            lo, x1, f1 = x1, x2, f2
+            x2 = lo + _GOLDEN * (hi - lo)
+            f2 = _fit(t, f_xy, a, R, x2, g_mps2)[0]
+        if hi - lo < 1e-4 * hi:
+            break
+    l_hat = 0.5 * (lo + hi)
+    s0, coef, X, res = _fit(t, f_xy, a, R, l_hat, g_mps2)
+    if coef is None:
+        return PayloadId(math.nan, math.nan, math.nan, math.nan, math.nan, 0.0, math.nan, n, float(t[-1] - t[0]),
+                         False, "the pendulum diverged for every cable length")
+    mu = float(coef[0])
+    dof = max(len(res) - X.shape[1] - 1, 1)
+    s2 = s0 / dof
+    try:
+        cov = s2 * np.linalg.inv(X.T @ X)
+        sigma_mu = math.sqrt(max(cov[0, 0], 0.0))
+    except np.linalg.LinAlgError:
+        sigma_mu = math.inf
+    # σ_l from the curvature of the residual sum: SSE(l) ≈ SSE0 + ½·SSE''·δl², σ_l² = 2·s²/SSE''
+    dl = 0.02 * l_hat
+    sp = _fit(t, f_xy, a, R, l_hat + dl, g_mps2)[0]
+    sm = _fit(t, f_xy, a, R, l_hat - dl, g_mps2)[0]
+    curv = (sp - 2.0 * s0 + sm) / (dl * dl)
+    sigma_l = math.sqrt(2.0 * s2 / curv) if curv > 0.0 else math.inf
+    M = vehicle_mass_kg
+    m_hat = mu * M / (1.0 - mu) if mu < 1.0 else math.inf
+    sigma_m = sigma_mu * M / (1.0 - mu) ** 2 if mu < 1.0 else math.inf
+    signal = float(np.sqrt(np.mean((coef[0] * X[:, 0]) ** 2)))
+    resid = float(np.sqrt(np.mean(res * res)))
+    reason = ""
+    if not (mu > 0.0):
+        reason = f"no payload seen (mass ratio {mu:.3f} <= 0)"
+    elif signal < 3.0 * resid:
+        reason = f"too little excitation: swing signal {signal:.3f} m/s² < 3 × residual {resid:.3f} m/s²"
+    elif l_hat < 1.05 * l_range_m[0] or l_hat > 0.95 * l_range_m[1]:
+        reason = f"cable length {l_hat:.2f} m at the search limit {l_range_m}"
+    return PayloadId(
+        cable_length_m=l_hat, payload_mass_kg=m_hat, mass_ratio=mu, cable_length_sigma_m=sigma_l,
+        payload_mass_sigma_kg=sigma_m, swing_signal_mps2=signal, residual_mps2=resid, n_samples=n,
+        window_s=float(t[-1] - t[0]), ok=not reason, reason=reason,
+    )
+
+
+def mass_from_hover_thrust(thrust_n, vehicle_mass_kg: float, g_mps2: float = 9.81, accel_down_mps2=None) -> float:
+    """Payload mass (kg) from the thrust that holds the vehicle: m = mean(T / (g − a_z)) − M (a_z: the airframe's
+    downward acceleration, 0 in a steady hover). Only as good as the thrust's calibration in newtons, and biased
+    by any vertical force: a downward push d_z adds d_z/g."""
+    T = np.asarray(thrust_n, dtype=np.float64)
+    az = np.zeros_like(T) if accel_down_mps2 is None else np.asarray(accel_down_mps2, dtype=np.float64)
+    if T.size == 0 or T.shape != az.shape or not (np.all(np.isfinite(T)) and np.all(np.isfinite(az))):
+        raise ValueError("thrust_n (and accel_down_mps2) must be non-empty, finite and of one shape")
+    return float(np.mean(T / (g_mps2 - az))) - vehicle_mass_kg

@@ -1,0 +1,280 @@
+"""Benchmark of the swing estimator (issue 11): prints the estimation error figures, the closed-loop flights, the
+payload identification and the estimator's cost per update. Numbers are printed, never asserted.
+
+    python -m lab.swing_bench                  # everything on the Table 2 forest (a few minutes)
+    python -m lab.swing_bench --forests 30     # plus the error over 30 random forests
+    python -m lab.swing_bench --only cost      # one section: error | sih | forests | closed | id | sensitivity | cost
+
+Truth: the bundled physics (sim_bridge.physics.VehicleSim) under eq. 49's wind, in-process; measurements:
+lab.swing_sim (PX4 SITL Gazebo IMU noise unless said otherwise, 50 Hz IMU, 100 Hz attitude, 50 Hz velocity,
+10 Hz payload fixes 0.1–0.2 s late, 15 % dropped, none from 9 to 11.5 s). CPU is process time on this machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+
+import numpy as np
+
+from companion.config import shipped_config
+from companion.core.mission import load_mission
+from companion.core.model import VehicleParams
+from companion.estimation.payload_id import identify_payload
+from companion.estimation.swing_estimator import SwingEstimator
+from companion.report.metrics import compute_metrics
+from lab.forests import generate_forest
+from lab.inprocess import fly_inprocess
+from lab.swing_scenarios import (
+    PATHS,
+    cruise_start_s,
+    hop_mission,
+    imu_attitude_series,
+    record_truth,
+    replay_estimator,
+    sensors_for,
+)
+from lab.swing_sim import EstimatorDriver, ImuNoise, SensorConfig
+
+SECTIONS = ("error", "sih", "forests", "closed", "id", "sensitivity", "cost")
+
+
+def _forest():
+    return load_mission(shipped_config("missions/forest.toml"))
+
+
+def section_error(truth) -> None:
+    print("\n## Estimation error, Table 2 forest, eq. 49 wind, PX4 SITL (Gazebo) IMU noise, seed 0\n")
+    print("| path | RMS (rad) | RMS α / β | max | RMS rate (rad/s) | |e| <= 3σ | fade mean | µs/tick | target |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    targets = {"fixes": "<= 0.02 (fixes)", "fixes+vel": "<= 0.02 (fixes)", "imu": "<= 0.03 (sensorless)",
+               "imu+vel": "<= 0.03 (sensorless)", "fused": "<= 0.02"}
+    for path in PATHS:
+        e, _ = replay_estimator(truth, sensors_for(path))
+        print(f"| {path} | {e.rms:.4f} | {e.rms_alpha:.4f} / {e.rms_beta:.4f} | {e.max:.3f} | {e.rms_rate:.3f} | "
+              f"{e.within_3sigma:.3f} | {e.fade_mean:.2f} | {e.cpu_us_per_tick:.0f} | {targets[path]} |")
+
+
+def section_sih(truth) -> None:
+    print("\n## Sensorless with PX4 SIH's accelerometer noise (0.5, 1.7, 1.4 m/s² per sample), Table 2 forest\n")
+    print("| path | IMU rate | RMS (rad) | max | |e| <= 3σ |")
+    print("|---|---|---|---|---|")
+    for path in ("imu+vel", "imu", "fused"):
+        for hz in (50.0, 250.0):
+            e, _ = replay_estimator(truth, replace(sensors_for(path), imu=ImuNoise.px4_sih(), imu_hz=hz))
+            print(f"| {path} | {hz:.0f} Hz | {e.rms:.4f} | {e.max:.3f} | {e.within_3sigma:.3f} |")
+
+
+def _forest_job(seed: int) -> dict:
+    m = generate_forest(seed)
+    truth = record_truth(m)
+    return {p: replay_estimator(truth, sensors_for(p))[0].rms for p in PATHS}
+
+
+def section_forests(n: int, workers: int) -> None:
+    print(f"\n## Estimation error over {n} random forests (lab.forests seeds 0..{n - 1}, eq. 49 wind)\n")
+    with ProcessPoolExecutor(workers) as ex:
+        res = list(ex.map(_forest_job, range(n)))
+    print("| path | RMS median | RMS p90 | RMS worst |")
+    print("|---|---|---|---|")
+    for p in PATHS:
+        v = sorted(r[p] for r in res)
+        print(f"| {p} | {statistics.median(v):.4f} | {v[min(len(v) - 1, int(0.9 * len(v)))]:.4f} | {v[-1]:.4f} |")
+
+
+def _closed_job(path: str | None) -> tuple[str, dict, float | None]:
+    m = _forest()
+    if path is None:
+        r = compute_metrics(fly_inprocess(m), m)
+        return "cable sensor", r, None
+    if path == "none":
+        r = compute_metrics(fly_inprocess(m, swing_source="none"), m)
+        return "none", r, None
+    d = EstimatorDriver(m.vehicle, sensors_for(path), seed=0)
+    r = compute_metrics(fly_inprocess(m, swing_source="estimate", estimator=d), m)
+    e = np.array([h[1][:2] - h[2][:2] for h in d.history])
+    return f"estimate ({path})", r, float(np.sqrt(np.mean(e * e)))
+
+
+def section_closed(workers: int) -> None:
+    print("\n## Closed loop: Table 2 forest, feed-forward and envelope on the estimate (in-process, eq. 49)\n")
+    print("| swing input | max swing (true) | time to goal | min clearance | collisions | estimate RMS | target |")
+    print("|---|---|---|---|---|---|---|")
+    targets = {"imu+vel": "<= 0.27", "imu": "<= 0.27", "fixes+vel": "<= 0.26", "fixes": "<= 0.26",
+               "fused": "<= 0.26"}
+    jobs = [None, "imu+vel", "imu", "fixes+vel", "fixes", "fused", "none"]
+    with ProcessPoolExecutor(workers) as ex:
+        res = list(ex.map(_closed_job, jobs))
+    for (name, r, rms), path in zip(res, jobs, strict=True):
+        print(f"| {name} | {r['max_swing_rad']:.3f} rad | {r['time_to_goal_s']:.3f} s | {r['min_clearance_m']:.3f} m "
+              f"| {r['collisions']} | {'' if rms is None else f'{rms:.4f}'} | {targets.get(path, '')} |")
+
+
+def _id_job(args: tuple[float, float, float, str]) -> tuple:
+    l, m, wind, noise = args
+    vp = replace(VehicleParams(), l=l, m=m)
+    truth = record_truth(hop_mission(vp, hop_m=2.0, wind_scale=wind))
+    t0 = cruise_start_s(truth, 2.0)
+    sensors = SensorConfig(imu=ImuNoise.px4_sih() if noise == "sih" else ImuNoise())
+    t, f, e = imu_attitude_series(truth, sensors, seed=1, t_from_s=t0, t_to_s=t0 + 8.0)
+    c0 = time.process_time()
+    r = identify_payload(t, f, e, vp.M, vp.g)
+    return l, m, wind, noise, r, time.process_time() - c0
+
+
+def section_id(workers: int) -> None:
+    print("\n## Payload identification: 2 m hop at hover without feed-forward, 8 s window, 50 Hz IMU + attitude\n")
+    print("| true l / m | wind | IMU noise | l (err) | m (err) | 1σ l / m | ok | CPU |")
+    print("|---|---|---|---|---|---|---|---|")
+    cases = [(1.0, 0.25, 1.0, "gazebo"), (1.0, 0.25, 0.0, "gazebo"), (0.5, 0.1, 1.0, "gazebo"),
+             (1.5, 0.5, 1.0, "gazebo"), (0.7, 0.4, 1.0, "gazebo"), (1.0, 0.25, 2.0, "gazebo"),
+             (1.0, 0.25, 1.0, "sih")]
+    with ProcessPoolExecutor(workers) as ex:
+        res = list(ex.map(_id_job, cases))
+    for l, m, wind, noise, r, cpu in res:
+        el = 100.0 * (r.cable_length_m / l - 1.0)
+        em = 100.0 * (r.payload_mass_kg / m - 1.0)
+        print(f"| {l} m / {m} kg | {wind:g} | {noise} | {r.cable_length_m:.3f} ({el:+.1f} %)"
+              f" | {r.payload_mass_kg:.3f} ({em:+.1f} %) | {r.cable_length_sigma_m:.3f}"
+              f" / {r.payload_mass_sigma_kg:.3f} | {'yes' if r.ok else 'no: ' + r.reason} | {cpu:.2f} s |")
+
+
+def section_sensitivity(truth) -> None:
+    print("\n## Model error: the estimator's l and m off by a factor (imu+vel / fixes+vel), Table 2 forest\n")
+    print("| estimator's l, m | imu+vel RMS | fixes+vel RMS | fused RMS |")
+    print("|---|---|---|---|")
+    p = truth.params
+    for kl, km in ((1.0, 1.0), (1.05, 1.0), (0.95, 1.0), (1.0, 1.2), (1.0, 0.8), (1.1, 1.2)):
+        mp = replace(p, l=p.l * kl, m=p.m * km)
+        row = [replay_estimator(truth, sensors_for(path), model_params=mp)[0].rms
+               for path in ("imu+vel", "fixes+vel", "fused")]
+        print(f"| l×{kl:g}, m×{km:g} | " + " | ".join(f"{v:.4f}" for v in row) + " |")
+
+
+def _time_calls(fn, n: int) -> tuple[float, float]:
+    """(median, min) over 7 repeats of the mean process time per call (µs); the min is the closest to an idle
+    machine."""
+    runs = []
+    for _ in range(7):
+        c0 = time.process_time()
+        for i in range(n):
+            fn(i)
+        runs.append((time.process_time() - c0) / n * 1e6)
+    return statistics.median(runs), min(runs)
+
+
+def section_cost() -> None:
+    print("\n## Cost per call (process time, median of 5 runs; this 2-core machine is shared, see the load)\n")
+    p = VehicleParams()
+    est = SwingEstimator(p)
+    hover = p.hover_thrust_n
+    t = [0.0]
+
+    def feed_inputs(k: int) -> None:
+        t[0] += 0.004
+        est.set_thrust(t[0], hover)
+        est.set_attitude_euler(t[0], (0.01, -0.02, 0.0), (0.1, 0.0, 0.0))
+
+    def warm(n: int) -> None:
+        for k in range(n):
+            feed_inputs(k)
+            if k % 5 == 0:
+                est.update_imu(t[0], (0.0, 0.0, -9.81))
+                est.update_velocity(t[0], (0.0, 0.0, 0.0), (0.0, 0.0, -2.0))
+            if k % 25 == 0:
+                est.update_payload_offset(t[0], (0.0, 0.0, 1.0))
+            est.estimate(t[0])
+
+    warm(500)
+    rows = [
+        ("set_thrust + set_attitude_euler (per control tick)", _time_calls(feed_inputs, 2000)),
+    ]
+
+    def tick(k: int) -> None:
+        feed_inputs(k)
+        est.estimate(t[0])
+
+    rows.append(("estimate() per control tick (4 ms on)", _time_calls(tick, 2000)))
+
+    def imu(k: int) -> None:
+        t[0] += 0.02
+        est.set_thrust(t[0], hover)
+        est.update_imu(t[0], (0.0, 0.0, -9.81))
+
+    rows.append(("update_imu, in order, 20 ms after the last event", _time_calls(imu, 500)))
+
+    def vel(k: int) -> None:
+        t[0] += 0.02
+        est.update_velocity(t[0], (0.0, 0.0, 0.0), (0.0, 0.0, -2.0))
+
+    rows.append(("update_velocity, in order", _time_calls(vel, 500)))
+
+    def fix(k: int) -> None:
+        t[0] += 0.1
+        est.update_payload_offset(t[0], (0.0, 0.0, 1.0))
+
+    rows.append(("update_payload_offset, in order", _time_calls(fix, 200)))
+    warm(500)
+
+    def advance_100ms(k: int) -> None:  # IMU + velocity at 50 Hz, inputs at 250 Hz
+        for _ in range(25):
+            feed_inputs(0)
+            if round(t[0] / 0.004) % 5 == 0:
+                est.update_imu(t[0], (0.0, 0.0, -9.81))
+                est.update_velocity(t[0], (0.0, 0.0, 0.0), (0.0, 0.0, -2.0))
+
+    def late_fix(k: int) -> None:
+        advance_100ms(k)
+        est.update_payload_offset(t[0] - 0.15, (0.0, 0.0, 1.0))
+
+    with_fix = _time_calls(late_fix, 40)
+    without = _time_calls(advance_100ms, 40)
+    rows.append(("update_payload_offset 0.15 s late (replays ~15 events)",
+                 (with_fix[0] - without[0], with_fix[1] - without[1])))
+    print("| call | median | min |")
+    print("|---|---|---|")
+    for name, (med, mn) in rows:
+        print(f"| {name} | {med:.0f} µs | {mn:.0f} µs |")
+    try:
+        import os
+
+        print(f"\nload average during the run: {os.getloadavg()[0]:.1f} (2 cores)")
+    except OSError:
+        pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m lab.swing_bench", description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=SECTIONS, action="append", help="run only this section (repeatable)")
+    ap.add_argument("--forests", type=int, default=0, help="random forests for the error section (default 0)")
+    ap.add_argument("--workers", type=int, default=2)
+    a = ap.parse_args(argv)
+    only = set(a.only or SECTIONS)
+    if a.forests <= 0:
+        only.discard("forests")
+    w0 = time.perf_counter()
+    truth = record_truth(_forest()) if only & {"error", "sih", "sensitivity"} else None
+    if "error" in only:
+        section_error(truth)
+    if "sih" in only:
+        section_sih(truth)
+    if "forests" in only:
+        section_forests(a.forests, a.workers)
+    if "closed" in only:
+        section_closed(a.workers)
+    if "id" in only:
+        section_id(a.workers)
+    if "sensitivity" in only:
+        section_sensitivity(truth)
+    if "cost" in only:
+        section_cost()
+    print(f"\n(wall time {time.perf_counter() - w0:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
