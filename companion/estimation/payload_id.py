@@ -16,7 +16,12 @@ a = R·f_b + g·e_z. So for a candidate cable length l we integrate the pendulum
 by linear least squares in μ, a slow disturbance (constant + linear trend per axis) and a free oscillation at
 ω = √(g/l) (the swing that was already there when the window starts; its amplitude is free). The residual is
 a function of l alone; a grid search and a golden-section refinement find its minimum. The mass follows as
-m = μ·M/(1 − μ) with the vehicle's own mass M known.
+m = μ·M/(1 − μ) with the vehicle's own mass M known. Both sides are low-passed (zero phase, 3 Hz): the payload
+does not follow vibration. r̈ contains −a, so accelerometer noise below that cut-off is on both sides of the
+fit and biases μ up (errors in variables): with PX4 SIH's 1.7 m/s² per-sample noise the mass comes out ~3×
+too large and the fit is flagged not ok (an alternative regressor, the payload's own specific force, removes
+that bias but correlates with the wind-induced tilt and biases the mass low by ~20 % under eq. 49's wind; we
+keep the one that is better for a clean IMU).
 
 Needs: an excitation (a lateral move: a step or doublet of a metre at hover, or the first seconds of a
 mission's cruise) that swings the payload by ~0.1 rad or more, IMU specific force and attitude (no thrust, no
@@ -34,6 +39,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.signal import butter, filtfilt
 
 from companion.estimation.swing_model import rotation_from_euler
 
@@ -64,9 +70,10 @@ class PayloadId:
     reason: str = ""
 
 
-def _pendulum_accel(a_ned: np.ndarray, R: np.ndarray, t: np.ndarray, l: float, g: float) -> np.ndarray:
-    """(Rᵀ·r̈)_xy (N, 2) of a point payload on a rigid cable of length l hanging from rest from a pivot with
-    acceleration a_ned (N, 3), integrated with RK4 over the samples (a linearly interpolated)."""
+def _relative_accel(a_ned: np.ndarray, R: np.ndarray, t: np.ndarray, l: float, g: float) -> np.ndarray:
+    """(Rᵀ·r̈)_xy (N, 2): the payload's acceleration relative to the pivot, seen in the body frame, for a point
+    payload on a rigid cable of length l hanging from rest from a pivot with acceleration a_ned (N, 3), integrated
+    with RK4 over the samples (a linear in between)."""
     n = len(t)
     out = np.zeros((n, 2))
     al = be = dal = dbe = 0.0
@@ -80,18 +87,18 @@ def _pendulum_accel(a_ned: np.ndarray, R: np.ndarray, t: np.ndarray, l: float, g
         w0, w1, w2 = -ax - ac0, -ay - ac1, g - az - ac2
         dda = (ca * cb * w0 - sa * cb * w2) / (l * max(cb * cb, 1e-6))
         ddb = (-sa * sb * w0 - cb * w1 - ca * sb * w2) / l
-        # r̈ = J·s̈ + a_c
-        r0 = l * (ca * cb * dda - sa * sb * ddb) + ac0
-        r1 = -l * cb * ddb + ac1
-        r2 = l * (-sa * cb * dda - ca * sb * ddb) + ac2
-        return dda, ddb, r0, r1, r2
+        # relative acceleration r̈ = J·s̈ + a_c
+        p0 = l * (ca * cb * dda - sa * sb * ddb) + ac0
+        p1 = -l * cb * ddb + ac1
+        p2 = l * (-sa * cb * dda - ca * sb * ddb) + ac2
+        return dda, ddb, p0, p1, p2
 
     for k in range(n):
         ax, ay, az = a_ned[k]
-        _, _, r0, r1, r2 = acc(al, be, dal, dbe, ax, ay, az)
+        _, _, p0, p1, p2 = acc(al, be, dal, dbe, ax, ay, az)
         Rk = R[k]
-        out[k, 0] = Rk[0, 0] * r0 + Rk[1, 0] * r1 + Rk[2, 0] * r2
-        out[k, 1] = Rk[0, 1] * r0 + Rk[1, 1] * r1 + Rk[2, 1] * r2
+        out[k, 0] = Rk[0, 0] * p0 + Rk[1, 0] * p1 + Rk[2, 0] * p2
+        out[k, 1] = Rk[0, 1] * p0 + Rk[1, 1] * p1 + Rk[2, 1] * p2
         if k + 1 < n:  # classical RK4 on (α, β, α̇, β̇), the pivot acceleration linear between samples
             h = t[k + 1] - t[k]
             bx, by, bz = a_ned[k + 1]
@@ -112,17 +119,18 @@ def _pendulum_accel(a_ned: np.ndarray, R: np.ndarray, t: np.ndarray, l: float, g
     return out
 
 
-def _design(t: np.ndarray, q: np.ndarray, R: np.ndarray, l: float, g: float) -> np.ndarray:
-    """Columns: −(Rᵀr̈)_xy (μ), a free oscillation along north and east (cos, sin each: 4), per body axis a
+def _design(t: np.ndarray, p: np.ndarray, R: np.ndarray, l: float, g: float) -> np.ndarray:
+    """Columns: −(Rᵀr̈)_xy (coefficient μ), a free swing along north and east (cos, sin each: 4), per body axis a
     constant and a trend (4); rows: x samples then y samples."""
     n = len(t)
     w = math.sqrt(g / l)
     tt = t - t[0]
     c, s = np.cos(w * tt), np.sin(w * tt)
     X = np.zeros((2 * n, 9))
-    X[:n, 0] = -q[:, 0]
-    X[n:, 0] = -q[:, 1]
-    # free swing r = A·cos + B·sin along north (0) and east (1); its r̈ = −ω²·r, seen in body axes via Rᵀ
+    X[:n, 0] = -p[:, 0]
+    X[n:, 0] = -p[:, 1]
+    # a swing already there at the window's start, r = A·cos + B·sin along north (0) and east (1), adds
+    # r̈ = −ω²·r, seen in body axes via Rᵀ
     col = 1
     for axis in (0, 1):
         for basis in (c, s):
@@ -139,10 +147,10 @@ def _design(t: np.ndarray, q: np.ndarray, R: np.ndarray, l: float, g: float) -> 
 
 
 def _fit(t, f_xy, a_ned, R, l, g):
-    q = _pendulum_accel(a_ned, R, t, l, g)
-    if not np.all(np.isfinite(q)):
+    p = _relative_accel(a_ned, R, t, l, g)
+    if not np.all(np.isfinite(p)):
         return math.inf, None, None, None
-    X = _design(t, q, R, l, g)
+    X = _design(t, p, R, l, g)
     y = np.concatenate([f_xy[:, 0], f_xy[:, 1]])
     coef, *_ = np.linalg.lstsq(X, y, rcond=None)
     res = y - X @ coef
@@ -156,10 +164,13 @@ def identify_payload(
     vehicle_mass_kg: float,
     g_mps2: float = 9.81,
     l_range_m: tuple[float, float] = (0.2, 5.0),
+    pivot_cutoff_hz: float = 3.0,
 ) -> PayloadId:
     """Cable length and payload mass from samples of the accelerometer's specific force (N, 3; body FRD, m/s²)
-    and the attitude (N, 3; ZYX Euler, rad) at times ``t_s`` (N,; s, increasing) over a window with a lateral
-    excitation; ``vehicle_mass_kg`` is the airframe's mass M without payload. Raises ValueError on bad input."""
+    and the attitude (N, 3; ZYX Euler, rad) at times ``t_s`` (N,; s, increasing, near-uniform) over a window with
+    a lateral excitation; ``vehicle_mass_kg`` is the airframe's mass M without payload. The pivot acceleration
+    that drives the simulated pendulum is low-passed (zero phase, ``pivot_cutoff_hz``; 0 = off): the payload does
+    not follow vibration (the specific force is filtered alike). Raises ValueError on bad input."""
     t = np.asarray(t_s, dtype=np.float64)
     f = np.asarray(accel_frd_mps2, dtype=np.float64)
     e = np.asarray(euler_rad, dtype=np.float64)
@@ -175,6 +186,12 @@ def identify_payload(
         raise ValueError("vehicle_mass_kg, g_mps2 must be > 0 and l_range_m increasing")
     R = np.array([rotation_from_euler(*row) for row in e])
     a = np.einsum("nij,nj->ni", R, f) + np.array([0.0, 0.0, g_mps2])
+    if pivot_cutoff_hz > 0.0:
+        fs = (n - 1) / (t[-1] - t[0])
+        if pivot_cutoff_hz < 0.45 * fs:
+            b, a_f = butter(2, pivot_cutoff_hz / (0.5 * fs))
+            a = filtfilt(b, a_f, a, axis=0)
+            f = filtfilt(b, a_f, f, axis=0)
     f_xy = f[:, 0:2]
 
     # grid in log(l), then golden section around the best point
@@ -223,8 +240,10 @@ def identify_payload(
     signal = float(np.sqrt(np.mean((coef[0] * X[:, 0]) ** 2)))
     resid = float(np.sqrt(np.mean(res * res)))
     reason = ""
-    if not (mu > 0.0):
-        reason = f"no payload seen (mass ratio {mu:.3f} <= 0)"
+    if not (0.0 < mu < 1.0):
+        reason = f"no payload seen (mass ratio {mu:.3f} outside (0, 1))"
+    elif m_hat > 10.0 * M or sigma_m > 0.3 * m_hat:
+        reason = f"mass not determined: {m_hat:.3f} ± {sigma_m:.3f} kg"
     elif signal < 3.0 * resid:
         reason = f"too little excitation: swing signal {signal:.3f} m/s² < 3 × residual {resid:.3f} m/s²"
     elif l_hat < 1.05 * l_range_m[0] or l_hat > 0.95 * l_range_m[1]:

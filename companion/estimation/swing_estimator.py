@@ -550,7 +550,7 @@ class SwingEstimator:
         return self._events[-1] if self._events else self._base
 
     def _trust(self, t: float) -> tuple[dict[str, float], tuple[str, ...], int]:
-        key = round(t / 0.05)
+        key = (self._version, round(t / 0.05))
         if self._trust_cache is not None and self._trust_cache[0] == key:
             return self._trust_cache[1], self._trust_cache[2], self._trust_cache[3]
         t_lo = t - self.cfg.trust_window_s
