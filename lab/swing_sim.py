@@ -259,6 +259,7 @@ class EstimatorDriver:
         self.est_config = est_config or estimator_config_for(self.suite.cfg)
         self.est: SwingEstimator | None = None
         self.cpu_s = 0.0
+        self.tick_cpu_s: list[float] = []  # estimator CPU per control tick (process time, s)
         self.updates = 0
         self._last_thrust: tuple[float, float] | None = None
         self._last_att: Message | None = None
@@ -300,7 +301,9 @@ class EstimatorDriver:
                 est.update_payload_offset(msg.t_valid, msg.data[0])
                 self.updates += 1
         out = est.estimate(s.t_s)
-        self.cpu_s += time.process_time() - c0
+        dt_cpu = time.process_time() - c0
+        self.cpu_s += dt_cpu
+        self.tick_cpu_s.append(dt_cpu)
         self.history.append((s.t_s, out.swing, s.x[[6, 7, 14, 15]], out.sigma_rad, out.fade))
         return out
 

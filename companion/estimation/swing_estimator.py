@@ -26,6 +26,7 @@ envelope).
 from __future__ import annotations
 
 import bisect
+import heapq
 import math
 from dataclasses import dataclass, field
 
@@ -65,7 +66,9 @@ class SwingEstimatorConfig:
     Measurement noise (1σ per axis): ``imu_sigma_mps2`` (sensor noise per sample plus model mismatch),
     ``fix_sigma_m`` (payload offset), ``vel_sigma_mps``. Initial 1σ: ``init_*``. ``step_s``: longest
     prediction step; ``history_s``: how late a measurement may arrive and still be fused at its time;
-    ``gate_nis``: innovations with NIS above it (3 dof) are rejected as outliers; ``trust_window_s``: window of
+    ``reorder_s``: measurements wait this long to be fused, so that those a few milliseconds apart on different
+    streams are taken in time order without a replay (the estimate is predicted over it); ``gate_nis``:
+    innovations with NIS above it (3 dof) are rejected as outliers; ``trust_window_s``: window of
     the NIS averages; ``fade_bound3_rad`` (lo, hi): the 3σ swing bound over which fade goes 1 → 0;
     ``fade_nis`` (lo, hi): the averaged NIS per dof over which fade goes 1 → 0.
     """
@@ -87,6 +90,7 @@ class SwingEstimatorConfig:
     step_s: float = 0.01
     cov_step_s: float = 0.02
     history_s: float = 1.0
+    reorder_s: float = 0.01
     gate_nis: float = 30.0
     trust_window_s: float = 1.0
     fade_bound3_rad: tuple[float, float] = (0.12, 0.30)
@@ -104,6 +108,8 @@ class SwingEstimatorConfig:
             v = getattr(self, key)
             if not (math.isfinite(v) and v > 0.0):
                 raise ValueError(f"{key}: must be > 0, got {v}")
+        if not (math.isfinite(self.reorder_s) and 0.0 <= self.reorder_s < self.history_s):
+            raise ValueError(f"reorder_s: must be in [0, history_s), got {self.reorder_s}")
         for key in ("fade_bound3_rad", "fade_nis"):
             lo, hi = getattr(self, key)
             if not (0.0 <= lo < hi):
@@ -149,10 +155,9 @@ class _Event:
     accepted: bool = False
     x: np.ndarray | None = None  # state and covariance after this event
     P: np.ndarray | None = None
-    t0_lin: float = math.nan  # linearization kept for replays: interval start, [(h, J)], H, Rᵀ (IMU)
-    lin: list | None = None
-    H: np.ndarray | None = None
-    Rt: np.ndarray | None = None
+    K: np.ndarray | None = None  # gain (None when rejected)
+    Rt: np.ndarray | None = None  # Rᵀ at the event (IMU)
+    T: np.ndarray | None = None  # (I − K·H)·Φ from the previous event to this one, for replays
 
 
 @dataclass
@@ -239,6 +244,7 @@ class SwingEstimator:
                              + [c.init_bias_sigma_mps2] * 3 + [c.init_thrust_sigma_n]) ** 2)
         self._base = _Event(t=float(t0_s), seq=-1, kind="init", z=np.zeros(0), sigma=np.zeros(3), x=x, P=P)
         self._events: list[_Event] = []
+        self._pending: list[tuple[float, int, _Event]] = []  # in-order measurements waiting ``reorder_s``
         self._seq = 0
         self._att = _History()
         self._thr = _History()
@@ -358,21 +364,37 @@ class SwingEstimator:
         if t < self._base.t:
             self.dropped_late += 1
             return
+
         ev = _Event(t=t, seq=self._seq, kind=kind, z=zz, sigma=sg)
         self._seq += 1
         evs = self._events
-        if not evs or t >= evs[-1].t:
-            x0, P0 = (evs[-1].x, evs[-1].P) if evs else (self._base.x, self._base.P)
-            t0 = evs[-1].t if evs else self._base.t
-            self._apply(ev, x0, P0, t0)
-            evs.append(ev)
+        if not evs or t >= evs[-1].t:  # in order: wait ``reorder_s`` for others that belong before it
+            heapq.heappush(self._pending, (t, ev.seq, ev))
+            self._flush(t - self.cfg.reorder_s)
+            return
         else:  # late: insert at its time and replay what follows
             i = bisect.bisect_right([e.t for e in evs], t)
             evs.insert(i, ev)
             prev = evs[i - 1] if i > 0 else self._base
-            for e in evs[i:]:
-                self._apply(e, prev.x, prev.P, prev.t)
-                prev = e
+            self._apply(ev, prev.x, prev.P, prev.t)
+            nxt = evs[i + 1]  # its interval changed: process it again in full
+            x_old, P_old = nxt.x, nxt.P
+            self._apply(nxt, ev.x, ev.P, ev.t)
+            self._replay(i + 2, nxt.x - x_old, nxt.P - P_old)
+        self._version += 1
+        self._prune()
+
+    def _flush(self, t_upto: float) -> None:
+        """Apply the waiting measurements up to ``t_upto``, in time order."""
+        pend = self._pending
+        if not pend or pend[0][0] > t_upto:
+            return
+        evs = self._events
+        while pend and pend[0][0] <= t_upto:
+            ev = heapq.heappop(pend)[2]
+            prev = evs[-1] if evs else self._base
+            self._apply(ev, prev.x, prev.P, prev.t)
+            evs.append(ev)
         self._version += 1
         self._prune()
 
@@ -436,73 +458,63 @@ class SwingEstimator:
             x[6] += h * k2[4]
         return x
 
-    def _cov(self, P: np.ndarray, J: np.ndarray, h: float) -> np.ndarray:
-        """P after h seconds with the accelerations' Jacobian J: Φ = I + A·h + (A·h)²/2, plus Q·h."""
+    def _phi(self, J: np.ndarray, h: float) -> np.ndarray:
+        """Φ = I + A·h + (A·h)²/2 for the accelerations' Jacobian J (A: α̇, β̇ rows and J's five rows)."""
         A = np.zeros((N_STATE, N_STATE))
-        A[0, 2] = A[1, 3] = 1.0
-        A[2:7, :] = J[0:5, :]
-        Ah = A * h
-        Phi = _IN + Ah + 0.5 * (Ah @ Ah)
+        A[0, 2] = A[1, 3] = h
+        A[2:7, :] = J * h
+        return _IN + A + 0.5 * (A @ A)
+
+    def _cov(self, P: np.ndarray, J: np.ndarray, h: float) -> np.ndarray:
+        """P after h seconds with the accelerations' Jacobian J, plus Q·h."""
+        Phi = self._phi(J, h)
         P = Phi @ P @ Phi.T
         P[np.diag_indices(N_STATE)] += self._Qc * h
         return P
 
     def _propagate(self, x, P, t0: float, t1: float):
-        """(x, P, acc, J, chunks) at t1 from (x, P) at t0: the mean in steps of ``step_s``, the covariance in
-        steps of at most ``cov_step_s`` with the Jacobian at each step's end (the last one is reused for the
-        measurement at t1); ``chunks`` = [(h, J)] for replays."""
+        """(x, P, acc, J, Φ) at t1 from (x, P) at t0: the mean in steps of ``step_s``, the covariance in steps of at
+        most ``cov_step_s`` with the Jacobian at each step's end (the last one is reused for the measurement at
+        t1); Φ the transition over the whole interval."""
         span = t1 - t0
         n = max(1, math.ceil(span / self.cfg.cov_step_s - 1e-9)) if span > 0.0 else 0
         h = span / n if n else 0.0
         ta = t0
         acc = J = None
-        chunks = []
+        Phi_total = _IN
         for k in range(n):
             tb = t1 if k == n - 1 else t0 + (k + 1) * h
             x = self._mean(x, ta, tb)
             f = self._force(tb, x)
             acc = self._acc(x, f)
             J = self._acc_jacobian(x, f, acc)
-            P = self._cov(P, J, tb - ta)
-            chunks.append((tb - ta, J))
+            Phi = self._phi(J, tb - ta)
+            P = Phi @ P @ Phi.T
+            P[np.diag_indices(N_STATE)] += self._Qc * (tb - ta)
+            Phi_total = Phi @ Phi_total
             ta = tb
         if J is None:
             f = self._force(t1, x)
             acc = self._acc(x, f)
             J = self._acc_jacobian(x, f, acc)
-        return x, P, acc, J, chunks
+        return x, P, acc, J, Phi_total
 
     def _apply(self, ev: _Event, x0: np.ndarray, P0: np.ndarray, t0: float) -> None:
-        """Predict from (t0, x0, P0) to the event and fuse it; stores the result in the event.
-
-        In a replay (the event was processed before over the same interval) the mean is predicted again but the
-        covariance and measurement Jacobians are the stored ones: the linearization point moves little, and a
-        replay then costs a third of the first pass."""
-        if ev.lin is not None and ev.t0_lin == t0:
-            x = self._mean(x0, t0, ev.t)
-            P = P0
-            for h_c, J_c in ev.lin:
-                P = self._cov(P, J_c, h_c)
-            H = ev.H
-            if ev.kind == "imu":
-                acc = self._acc(x, self._force(ev.t, x))
-        else:
-            x, P, acc, J, chunks = self._propagate(x0, P0, t0, ev.t)
-            H = np.zeros((3, N_STATE))
-            if ev.kind == "imu":
-                ev.Rt = self._rotation(ev.t).T
-                H[:, :] = ev.Rt @ J[2:5, :]
-                H[0, 10] = H[1, 11] = H[2, 12] = 1.0
-            elif ev.kind == "fix":
-                H[:, 0:2] = payload_offset_jacobian(x[0], x[1], self._pp[4])
-            else:  # vel
-                H[0, 4] = H[1, 5] = H[2, 6] = 1.0
-            ev.t0_lin, ev.lin, ev.H = t0, chunks, H
+        """Predict from (t0, x0, P0) to the event and fuse it; stores the result, the gain and the transition
+        (I − K·H)·Φ in the event (for replays)."""
+        x, P, acc, J, Phi = self._propagate(x0, P0, t0, ev.t)
+        H = np.zeros((3, N_STATE))
+        l = self._pp[4]
         if ev.kind == "imu":
+            ev.Rt = self._rotation(ev.t).T
+            H[:, :] = ev.Rt @ J[2:5, :]
+            H[0, 10] = H[1, 11] = H[2, 12] = 1.0
             h = ev.Rt @ np.array([acc[2], acc[3], acc[4] - self._pp[2]]) + x[SL_BIAS]
         elif ev.kind == "fix":
-            h = np.array(payload_offset_m(x[0], x[1], self._pp[4]))
-        else:
+            H[:, 0:2] = payload_offset_jacobian(x[0], x[1], l)
+            h = np.array(payload_offset_m(x[0], x[1], l))
+        else:  # vel
+            H[0, 4] = H[1, 5] = H[2, 6] = 1.0
             h = x[4:7]
         r2 = ev.sigma * ev.sigma
         PHt = P @ H.T
@@ -532,13 +544,29 @@ class SwingEstimator:
         if nis_gate <= self.cfg.gate_nis:
             K = PHt @ Sinv
             x = x + K @ nu
-            IKH = _IN - K @ H
-            P = IKH @ P @ IKH.T + (K * r2) @ K.T
+            P = P - K @ PHt.T  # optimal gain: (I − K·H)·P (symmetrized; Joseph's form costs four products more)
             P = 0.5 * (P + P.T)
             ev.accepted = True
+            ev.K = K
+            ev.T = Phi - K @ (H @ Phi)
         else:
             ev.accepted = False
+            ev.K = None
+            ev.T = Phi
+            self.rejected_total += 1
         ev.x, ev.P = x, P
+
+    def _replay(self, start: int, dx: np.ndarray, dP: np.ndarray) -> None:
+        """Events[start:] again after the one before them changed by (dx, dP) because of a late measurement. With
+        their stored gains and transitions T = (I − K·H)·Φ the change carries through linearly: x_k += M_k·dx,
+        P_k += M_k·dP·M_kᵀ with M_k = T_k···T_start — exact for the linearized filter with those gains (the
+        covariance of any gain, Joseph's form), and a few µs per event instead of running the filter again."""
+        M = _IN
+        for e in self._events[start:]:
+            M = e.T @ M
+            e.x = e.x + M @ dx
+            P = e.P + M @ dP @ M.T
+            e.P = 0.5 * (P + P.T)
 
     # ------------------------------------------------------------------------------------------- output
     @property
@@ -550,7 +578,7 @@ class SwingEstimator:
         return self._events[-1] if self._events else self._base
 
     def _trust(self, t: float) -> tuple[dict[str, float], tuple[str, ...], int]:
-        key = (self._version, round(t / 0.05))
+        key = (round(t / 0.05), self.rejected_total)  # recomputed every 50 ms, and at once after an outlier
         if self._trust_cache is not None and self._trust_cache[0] == key:
             return self._trust_cache[1], self._trust_cache[2], self._trust_cache[3]
         t_lo = t - self.cfg.trust_window_s
@@ -572,6 +600,7 @@ class SwingEstimator:
         """The estimate at ``t_s``, predicted from the newest processed measurement with the inputs given. The
         mean is predicted to ``t_s``; the covariance in steps of ``cov_step_s`` (it changes slowly)."""
         t = float(t_s)
+        self._flush(t - self.cfg.reorder_s)
         fr = self._frontier()
         sh = self._shadow
         if sh is None or sh[0] != self._version or t < sh[1]:
