@@ -1,4 +1,4 @@
 """State estimation: vehicle state from telemetry, the swing estimate (pure)."""
 
-#: What ``--swing-input`` may say: the cable sensor, else the payload's position, else none (``auto``), or one.
-SWING_INPUTS = ("auto", "cable_sensor", "payload_position", "none")
+#: What ``--swing-input`` may say (see :mod:`companion.estimation.swing_feed`).
+SWING_INPUTS = ("auto", "cable_sensor", "estimate", "estimate_imu", "estimate_fixes", "payload_position", "none")

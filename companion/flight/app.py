@@ -47,6 +47,7 @@ from companion.core.model import payload_offset_ned_m
 from companion.core.obstacles import Obstacle
 from companion.core.rotations import quat_from_euler
 from companion.estimation.estimate import Estimate
+from companion.estimation.swing_feed import SwingFeed
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
 from companion.flight.health import LinkHealth
@@ -168,6 +169,7 @@ class FlightApp:
             cable_length_m=mission.vehicle.l, payload_sysid=opts.payload_sysid, swing_input=opts.swing_input,
             max_time_rate=1e4 if opts.lockstep else 2.0,
         )
+        self.swing_feed = SwingFeed(mission.companion_params(), opts.swing_input)
         self.swing_sources: dict[str, int] = {}
         self._last_swing_source = ""
         self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path, sock=opts.sock)
@@ -243,6 +245,8 @@ class FlightApp:
         wall = time.monotonic()
         known = self.state.vehicle_sysid is not None
         mtype = self.state.ingest(msg, wall)
+        if mtype != "REJECTED":
+            self.swing_feed.ingest(mtype, msg, self.state)
         if not known and self.state.vehicle_sysid is not None:
             self._vehicle_found()
         src = msg.get_srcSystem()
@@ -441,7 +445,8 @@ class FlightApp:
             est = self.state.estimate()
             step = self.seq.step(self._observe(est, wall))
             if est is not None:
-                est = self._to_mission(est)
+                self.swing_feed.maybe_start(self.state)
+                est = self._to_mission(self.swing_feed.choose(est))
             stream = step.stream
             for req in step.send:
                 self.requests.send(req)
@@ -459,6 +464,7 @@ class FlightApp:
                         raise RuntimeError("injected tick fault (SLUNGPILOT_INJECT_TICK_ERROR_AT_S)")
                     obstacles = self._obstacles(est)
                     cmd = self.core.update(est, obstacles)
+                    self.swing_feed.commanded(est.t_s, cmd.thrust_n)
                     self.last_cmd = cmd
                     setpoint = (est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm)
                 else:
@@ -592,7 +598,8 @@ class FlightApp:
             payload = self.state.payload_pos_ned_m - self.origin_ned_m
         else:
             payload = None
-        self.log.append(est.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, swing, payload, cmd)
+        self.log.append(est.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, swing, payload, cmd,
+                        swing_used=est.swing if src == "estimate" else None)
 
     def _send_setpoint(self, t_s: float, q: np.ndarray, thrust_norm: float) -> None:
         if not self.link.connected:
@@ -628,12 +635,24 @@ class FlightApp:
             "rejected_telemetry": dict(self.state.rejected),
             "vehicle_statustext": self.state.statustext[-20:],
             "swing_sources": self.swing_sources,
+            "swing_estimator": self._estimator_facts(),
             "autopilot": {"family": self.profile.autopilot, "system_id": self.state.vehicle_sysid,
                           "component_id": self.state.vehicle_compid, "mav_autopilot": self.state.autopilot,
                           "mav_type": self.state.vehicle_type, "version": self.state.autopilot_version},
             "autopilot_params": self.params,
             "mission_frame": {"origin_local_ned_m": self.origin_ned_m.tolist(), "origin": self.origin_source},
         }
+
+    def _estimator_facts(self) -> dict[str, Any] | None:
+        """What the swing estimator ran on, when it ran."""
+        feed = self.swing_feed
+        if feed.estimator is None:
+            return None
+        last = feed.last
+        return {"inputs": dict(feed.counts), "rejected": None if last is None else last.rejected,
+                "dropped_late": feed.estimator.dropped_late,
+                "sources_last_second": None if last is None else list(last.sources),
+                "fade_last": None if last is None else last.fade}
 
     def _provisional(self) -> dict[str, Any]:
         facts = self.run_facts()

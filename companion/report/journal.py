@@ -34,11 +34,12 @@ PARTIAL = "report.partial.json"
 MISSION = "mission.toml"
 
 #: (FlightLog field, width) in row order
-COLUMNS = (("t", 1), ("pos", 3), ("vel", 3), ("euler", 3), ("swing", 4), ("payload_pos", 3), ("ref_pos", 3),
+COLUMNS = (("t", 1), ("pos", 3), ("vel", 3), ("euler", 3), ("swing", 4), ("swing_used", 4), ("payload_pos", 3),
+           ("ref_pos", 3),
            ("ref_vel", 3), ("ref_acc", 3), ("euler_cmd", 3), ("thrust_n", 1), ("ff_accel", 3), ("force_att", 2),
            ("force_rep", 2), ("r_max_m", 1), ("phase", 1), ("envelope_mode", 1))
 N_COLUMNS = sum(w for _, w in COLUMNS)
-PHASE_CODES = ("", "climb", "cruise", "hold", "done", "hold_here", "descend")
+PHASE_CODES = ("", "climb", "cruise", "hold", "done", "hold_here", "descend", "takeoff")
 ENVELOPE_CODES = ("", "swing", "full_cable")
 
 
@@ -130,8 +131,8 @@ def read_journal(run_dir: Path, flog: FlightLog) -> int:
                     vals[name] = row[i] if width == 1 else row[i : i + width].copy()
                     i += width
                 flog.t.append(float(vals["t"]))
-                for name in ("pos", "vel", "euler", "swing", "payload_pos", "ref_pos", "ref_vel", "ref_acc",
-                             "euler_cmd", "ff_accel", "force_att", "force_rep"):
+                for name in ("pos", "vel", "euler", "swing", "swing_used", "payload_pos", "ref_pos", "ref_vel",
+                             "ref_acc", "euler_cmd", "ff_accel", "force_att", "force_rep"):
                     getattr(flog, name).append(vals[name])
                 flog.thrust_n.append(float(vals["thrust_n"]))
                 flog.r_max_m.append(float(vals["r_max_m"]))

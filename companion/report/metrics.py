@@ -25,6 +25,8 @@ import numpy as np
 from companion.core.obstacles import Obstacle
 
 GOAL_TOL_M = 0.1
+_NAN4 = np.full(4, np.nan)
+_NAN4.flags.writeable = False
 SETTLE_RAD = 0.05
 
 
@@ -40,7 +42,8 @@ class FlightLog:
     pos: list[np.ndarray] = field(default_factory=list)
     vel: list[np.ndarray] = field(default_factory=list)
     euler: list[np.ndarray] = field(default_factory=list)
-    swing: list[np.ndarray] = field(default_factory=list)  # [α, β, α̇, β̇], NaN when unknown
+    swing: list[np.ndarray] = field(default_factory=list)  # [α, β, α̇, β̇], NaN when unknown (the best measurement)
+    swing_used: list[np.ndarray] = field(default_factory=list)  # the estimate the controller flew on, NaN if none
     payload_pos: list[np.ndarray] = field(default_factory=list)
     ref_pos: list[np.ndarray] = field(default_factory=list)
     ref_vel: list[np.ndarray] = field(default_factory=list)
@@ -55,9 +58,12 @@ class FlightLog:
     envelope_mode: list[str] = field(default_factory=list)
     wall_time_s: float | None = None
 
-    def append(self, t_s: float, pos, vel, euler, swing, payload_pos, cmd: Any | None = None) -> None:
-        """Record one tick; ``cmd`` is a :class:`companion.flight.core.Command` (or None: zeros)."""
+    def append(self, t_s: float, pos, vel, euler, swing, payload_pos, cmd: Any | None = None,
+               swing_used=None) -> None:
+        """Record one tick; ``cmd`` is a :class:`companion.flight.core.Command` (or None: zeros); ``swing_used``
+        the swing estimate the controller flew on (None when it flew on the measurement or on nothing)."""
         self.t.append(float(t_s))
+        self.swing_used.append(_NAN4 if swing_used is None else np.array(swing_used, dtype=np.float64))
         self.pos.append(np.array(pos, dtype=np.float64))
         self.vel.append(np.array(vel, dtype=np.float64))
         self.euler.append(np.array(euler, dtype=np.float64))
@@ -137,6 +143,20 @@ def clearances(log: FlightLog, obstacles, airframe_r_m: float) -> np.ndarray:
             d = np.hypot(pay[pb, 0] - o.x_m, pay[pb, 1] - o.y_m) - o.radius_m
             out[i] = min(out[i], float(np.min(d)))
     return out
+
+
+def estimation_error(log: FlightLog) -> dict[str, Any] | None:
+    """RMS and max of the swing estimate's angle error against the measured swing, over the ticks with both
+    (rad); None when the controller never flew on an estimate or nothing measured the truth."""
+    if not log.swing_used:
+        return None
+    used = log.arr("swing_used")[:, :2]
+    truth = log.arr("swing")[:, :2]
+    both = np.all(np.isfinite(used), axis=1) & np.all(np.isfinite(truth), axis=1)
+    if not np.any(both):
+        return None
+    err = np.hypot(*(used[both] - truth[both]).T)
+    return {"ticks": int(np.sum(both)), "rms_rad": float(np.sqrt(np.mean(err ** 2))), "max_rad": float(np.max(err))}
 
 
 def compute_metrics(log: FlightLog, mission) -> dict[str, Any]:

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from companion.core.mission import Mission
-from companion.report.metrics import FlightLog, compute_metrics
+from companion.report.metrics import FlightLog, compute_metrics, estimation_error
 
 log = logging.getLogger(__name__)
 
@@ -20,6 +20,7 @@ def log_arrays(flog: FlightLog) -> dict[str, np.ndarray]:
     """The per-tick columns under the names :mod:`companion.report.plots` expects."""
     names = {
         "t_s": "t", "pos_ned_m": "pos", "vel_ned_mps": "vel", "euler_rad": "euler", "swing": "swing",
+        "swing_estimate": "swing_used",
         "payload_pos_ned_m": "payload_pos", "ref_pos_ned_m": "ref_pos", "ref_vel_ned_mps": "ref_vel",
         "euler_cmd_rad": "euler_cmd", "thrust_n": "thrust_n", "r_max_m": "r_max_m", "ff_accel_mps2": "ff_accel",
         "force_att_n": "force_att", "force_rep_n": "force_rep",
@@ -61,6 +62,9 @@ def build_report(flog: FlightLog, mission: Mission, extra: dict[str, Any]) -> di
         # afterwards; the plots and the .npz keep every row.
         flown = np.array([bool(p) for p in flog.phase], dtype=bool)
         rep = compute_metrics(flog.select(flown) if flown.any() else flog, mission)
+    err = estimation_error(flog)
+    if err is not None:
+        rep["swing_estimation_error"] = err
     swing_modes = [m for m in flog.envelope_mode if m]
     rep["envelope_modes"] = {m: swing_modes.count(m) for m in sorted(set(swing_modes))}
     rep.update(extra)

@@ -103,9 +103,14 @@ def _header_text(name: str, seq: int, vid_json: str, t_s: float, wall_s: float) 
 def encode_swing(
     seq: int, vehicle_id: str, t_s: float, wall_s: float,
     swing4: Sequence[float] | np.ndarray | None, r_max_m: float, envelope_mode: str,
+    source: str | None = None, truth4: Sequence[float] | None = None, sigma_rad: float | None = None,
+    fade: float | None = None,
 ) -> bytes:
     """One swing sample: α, β (rad), α̇, β̇ (rad/s) or nulls when ``swing4`` is None (no estimate),
-    ``valid``, the envelope radius ``r_max_m`` (m) and ``envelope_mode``."""
+    ``valid``, the envelope radius ``r_max_m`` (m) and ``envelope_mode``; where known also ``source`` (what the
+    swing came from: cable_sensor, estimate, payload_position, none), the vehicle's own measurement ``truth``
+    ([α, β, α̇, β̇], when the swing is an estimate and the vehicle can measure it: the bundled one),
+    the estimate's ``sigma_rad`` (1σ) and ``fade`` (0..1, the feed-forward share it carries)."""
     if swing4 is None:
         sw = '"alpha_rad":null,"beta_rad":null,"alpha_rate_radps":null,"beta_rate_radps":null,"valid":false'
     else:
@@ -114,9 +119,18 @@ def encode_swing(
             f'"alpha_rad":{_num(a)},"beta_rad":{_num(b)},"alpha_rate_radps":{_num(da)},'
             f'"beta_rate_radps":{_num(db)},"valid":true'
         )
+    extra = ""
+    if source is not None:
+        extra += f',"source":{json.dumps(str(source))}'
+    if truth4 is not None:
+        extra += ',"truth":[' + ",".join(_num(x) for x in truth4) + "]"
+    if sigma_rad is not None:
+        extra += f',"sigma_rad":{_num(sigma_rad)}'
+    if fade is not None:
+        extra += f',"fade":{_num(fade)}'
     text = (
         _header_text(SWING, seq, json.dumps(vehicle_id), t_s, wall_s)
-        + f',{sw},"r_max_m":{_num(r_max_m)},"envelope_mode":{json.dumps(str(envelope_mode))}}}'
+        + f',{sw},"r_max_m":{_num(r_max_m)},"envelope_mode":{json.dumps(str(envelope_mode))}{extra}}}'
     )
     return text.encode()
 

@@ -268,11 +268,16 @@ class ZenohTelemetry:
                     last_log = time.monotonic()
                     log.warning("zenoh: %s sample not published: %s (%d so far)", name, exc, self.worker_errors)
 
-    def publish_swing(self, t_s: float, swing4: Vec | None, r_max_m: float, envelope_mode: str) -> bool:
-        """Swing (α, β rad; α̇, β̇ rad/s; None = no estimate), envelope radius (m) and mode; every call."""
+    def publish_swing(self, t_s: float, swing4: Vec | None, r_max_m: float, envelope_mode: str,
+                      source: str | None = None, truth4: Vec | None = None, sigma_rad: float | None = None,
+                      fade: float | None = None) -> bool:
+        """Swing (α, β rad; α̇, β̇ rad/s; None = no estimate), envelope radius (m) and mode; where known its
+        source, the vehicle's own measurement beside an estimate, its 1σ and fade; every call."""
         self._last_t_s = t_s
         sw = None if swing4 is None else tuple(map(float, swing4))
-        return self._emit("swing", ts.encode_swing, t_s, time.time(), sw, r_max_m, envelope_mode)
+        tr = None if truth4 is None else tuple(map(float, truth4))
+        return self._emit("swing", ts.encode_swing, t_s, time.time(), sw, r_max_m, envelope_mode, source, tr,
+                          sigma_rad, fade)
 
     def publish_state(self, t_s: float, pos_ned_m: Vec, vel_ned_mps: Vec, euler_rad: Vec,
                       payload_pos_ned_m: Vec | None) -> bool:
@@ -426,7 +431,14 @@ class ZenohTelemetrySink:
         zt, t = self.zt, float(est.t_s)
         r_max = float(getattr(cmd, "r_max_m", math.nan)) if cmd is not None else math.nan
         mode = str(getattr(cmd, "envelope_mode", "none")) if cmd is not None else "none"
-        zt.publish_swing(t, est.swing, r_max, mode)
+        src = getattr(est, "swing_source", None)
+        truth = sigma = fade = None
+        if src == "estimate":
+            truth = app.state.measured_swing()
+            last = app.swing_feed.last
+            if last is not None:
+                sigma, fade = float(last.sigma_rad), float(last.fade)
+        zt.publish_swing(t, est.swing, r_max, mode, src, truth, sigma, fade)
         payload = None
         if est.swing is not None:
             a, b = float(est.swing[0]), float(est.swing[1])

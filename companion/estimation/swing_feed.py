@@ -1,0 +1,173 @@
+"""The swing estimator in the flight: which autopilot messages feed it, when it starts, and which swing the
+flight core gets (pure: no I/O). The app hands every accepted message to :meth:`SwingFeed.ingest`, the commanded
+thrust to :meth:`SwingFeed.commanded`, and asks :meth:`SwingFeed.choose` for the swing of each tick.
+
+``--swing-input``:
+
+============================  ==================================================================================
+``auto``                      the cable-angle sensor where the vehicle has one (the bundled vehicle), else the
+                              estimator on whatever arrives (IMU, payload fixes, velocity); says which
+``cable_sensor``              only the sensor (DEBUG_FLOAT_ARRAY "SWING")
+``estimate``                  the estimator on everything available, even where a sensor exists (its truth
+                              is then logged beside the estimate, with the error)
+``estimate_imu``              sensorless: the vehicle's own IMU, attitude, velocity and commanded thrust
+``estimate_fixes``            the payload's position fixes (and the vehicle's velocity), no IMU
+``payload_position``          the payload's fixes inverted directly (eqs. 3–4): envelope only, no feed-forward
+``none``                      no swing: full-cable envelope, no feed-forward
+============================  ==================================================================================
+
+The estimator starts at lift-off (the model is of a flying vehicle: on the ground the ground's reaction would be
+read as a force on the airframe): the first tick the vehicle is airborne. Before that the flight core flies on
+the full-cable envelope, as for a vehicle without any swing input.
+
+Message mapping (vehicle unless said): ATTITUDE → attitude; LOCAL_POSITION_NED → velocity (and the position
+history payload positions are taken against); HIGHRES_IMU (m/s²) and SCALED_IMU (mG) → specific force; the
+vehicle's GLOBAL_POSITION_INT → a short history the payload's GLOBAL_POSITION_INT fixes are differenced against
+(ArduPilot's slung-payload convention, interpolated at the fix's time); the payload's LOCAL_POSITION_NED → a
+payload position fix.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from companion.core.model import VehicleParams
+from companion.estimation.estimate import Estimate
+from companion.estimation.swing_estimator import SwingEstimate, SwingEstimator, SwingEstimatorConfig
+from companion.estimation.swing_model import payload_offset_from_global
+
+MG_TO_MPS2 = 9.80665e-3
+ESTIMATOR_INPUTS = ("estimate", "estimate_imu", "estimate_fixes")
+_GLOBAL_HISTORY = 64
+
+
+@dataclass
+class SwingFeed:
+    """One flight's swing input. ``params``: the model the estimator uses (the mission's, with ``[payload]``);
+    ``swing_input``: see the module docstring; ``config``: the estimator's noise model."""
+
+    params: VehicleParams
+    swing_input: str = "auto"
+    config: SwingEstimatorConfig = field(default_factory=SwingEstimatorConfig)
+    estimator: SwingEstimator | None = None
+    last: SwingEstimate | None = None
+    counts: dict[str, int] = field(default_factory=dict)
+    _vglobal_t: list[float] = field(default_factory=list)
+    _vglobal: list[tuple[float, float, float]] = field(default_factory=list)
+
+    @property
+    def wants_estimator(self) -> bool:
+        """Whether this swing input may run the estimator at all (``auto`` only without a cable sensor)."""
+        return self.swing_input in ("auto", *ESTIMATOR_INPUTS)
+
+    @property
+    def use_imu(self) -> bool:
+        return self.swing_input in ("auto", "estimate", "estimate_imu")
+
+    @property
+    def use_fixes(self) -> bool:
+        return self.swing_input in ("auto", "estimate", "estimate_fixes")
+
+    def _count(self, what: str) -> None:
+        self.counts[what] = self.counts.get(what, 0) + 1
+
+    # ------------------------------------------------------------------------------------------ start
+    def maybe_start(self, state: Any) -> None:
+        """Start the estimator at lift-off (airborne and armed), if this swing input wants it and — for
+        ``auto`` — the vehicle has no cable sensor."""
+        if self.estimator is not None or not self.wants_estimator or state.vel_ned_mps is None:
+            return
+        if self.swing_input == "auto" and state.swing_sensor is not None:
+            return
+        if not state.armed or state.on_ground:
+            return
+        self.estimator = SwingEstimator(self.params, self.config, t0_s=state.t_s, vel0_ned_mps=state.vel_ned_mps)
+        if state.euler_rad is not None:
+            self.estimator.set_attitude_euler(state.t_s, state.euler_rad, state.rates_frd_rad_s)
+
+    # ------------------------------------------------------------------------------------------ messages
+    def ingest(self, mtype: str, msg: Any, state: Any) -> None:
+        """One message ``state`` accepted (``mtype`` its type, not ``REJECTED``)."""
+        if mtype == "GLOBAL_POSITION_INT" and msg.get_srcSystem() == state.vehicle_sysid:
+            t = msg.time_boot_ms * 1e-3
+            if not self._vglobal_t or t > self._vglobal_t[-1]:
+                self._vglobal_t.append(t)
+                self._vglobal.append((msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3))
+                if len(self._vglobal_t) > _GLOBAL_HISTORY:
+                    del self._vglobal_t[0], self._vglobal[0]
+            return
+        est = self.estimator
+        if est is None:
+            return
+        src = msg.get_srcSystem()
+        if src == state.vehicle_sysid:
+            if mtype == "ATTITUDE":
+                est.set_attitude_euler(msg.time_boot_ms * 1e-3, state.euler_rad, state.rates_frd_rad_s)
+            elif mtype == "LOCAL_POSITION_NED":
+                est.update_velocity(msg.time_boot_ms * 1e-3, state.vel_ned_mps, state.pos_ned_m)
+            elif mtype == "HIGHRES_IMU" and self.use_imu:
+                a = (msg.xacc, msg.yacc, msg.zacc)
+                if all(math.isfinite(v) for v in a):
+                    est.update_imu(msg.time_usec * 1e-6, a)
+                    self._count("imu")
+            elif mtype == "SCALED_IMU" and self.use_imu:
+                est.update_imu(msg.time_boot_ms * 1e-3,
+                               (msg.xacc * MG_TO_MPS2, msg.yacc * MG_TO_MPS2, msg.zacc * MG_TO_MPS2))
+                self._count("imu")
+        elif src == state.payload_sysid and self.use_fixes:
+            if mtype == "GLOBAL_POSITION_INT":
+                t = msg.time_boot_ms * 1e-3
+                v = self._vehicle_global_at(t)
+                if v is not None:
+                    off = payload_offset_from_global(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3, *v)
+                    if np.all(np.isfinite(off)):
+                        est.update_payload_offset(t, off)
+                        self._count("payload_fix")
+            elif mtype == "LOCAL_POSITION_NED":
+                p = (msg.x, msg.y, msg.z)
+                if all(math.isfinite(c) for c in p) and est.update_payload_position(msg.time_boot_ms * 1e-3, p):
+                    self._count("payload_fix")
+
+    def _vehicle_global_at(self, t: float) -> tuple[float, float, float] | None:
+        """The vehicle's (lat, lon, alt) at ``t``, linearly interpolated; None outside the history (+0.2 s)."""
+        ts = self._vglobal_t
+        if not ts or t < ts[0] or t > ts[-1] + 0.2:
+            return None
+        i = bisect.bisect_right(ts, t)
+        if i >= len(ts):
+            return self._vglobal[-1]
+        if i == 0:
+            return self._vglobal[0]
+        t0, t1 = ts[i - 1], ts[i]
+        w = (t - t0) / (t1 - t0) if t1 > t0 else 0.0
+        a, b = self._vglobal[i - 1], self._vglobal[i]
+        return (a[0] + w * (b[0] - a[0]), a[1] + w * (b[1] - a[1]), a[2] + w * (b[2] - a[2]))
+
+    def commanded(self, t_s: float, thrust_n: float) -> None:
+        """The collective thrust (N) the companion commanded at ``t_s`` (an input of the estimator's model)."""
+        if self.estimator is not None and math.isfinite(thrust_n):
+            self.estimator.set_thrust(t_s, thrust_n)
+
+    # ------------------------------------------------------------------------------------------ choice
+    def choose(self, est: Estimate) -> Estimate:
+        """The tick's estimate with the swing this input gives the flight core (the vehicle state chose among
+        the sensor and the direct payload inversion already)."""
+        if self.estimator is None:
+            self.last = None
+            if self.swing_input in (*ESTIMATOR_INPUTS,) or (self.swing_input == "auto"
+                                                             and est.swing_source != "cable_sensor"):
+                return replace(est, swing=None, swing_source="none")
+            return est
+        if self.swing_input == "auto" and est.swing_source == "cable_sensor":
+            return est
+        se = self.estimator.estimate(est.t_s)
+        self.last = se
+        if not np.all(np.isfinite(se.swing)):
+            return replace(est, swing=None, swing_source="none")
+        return replace(est, swing=se.swing, swing_source="estimate", swing_fade=se.fade,
+                       swing_bound_rad=se.bound_rad)
