@@ -4,9 +4,17 @@ One physics step (default 1 ms): wind of eq. 49 → inner attitude loop (SMC) �
 limits (eq. 13) → RK4 of the 8-DOF model → ground contact. Pure and deterministic; the MAVLink shell in
 ``sim_bridge.vehicle`` drives it.
 
-Ground: the airframe rests on the plane z = 0 (home) while landed; the payload hangs freely below it, as
-if launched from a stand or a roof edge (there is no payload–ground contact). Rotors are ideal (no motor
-lag); rotor thrust is limited to [0, f_max] per rotor.
+Ground: the airframe rests on the plane z = 0 (home) while landed. The payload has ground contact too: it
+starts resting on the ground under the airframe with the cable slack, and while it lies there the airframe
+flies alone (mass M; the payload carries its own weight). When the airframe gets one cable length away the
+cable snaps taut: a plastic (perfectly inelastic) impulse along the cable removes the separating velocity,
+conserving momentum along it, and the coupled 8-DOF model takes over with the swing angles and rates of that
+geometry. A payload that reaches the ground (z ≥ 0) in flight stops there (no bounce, no sliding), and the
+cable goes slack again. Dragging the payload along the ground is therefore a series of such stick/jerk
+events. Rotors are ideal (no motor lag); rotor thrust is limited to [0, f_max] per rotor.
+
+While the cable is slack, the state's α, β hold the direction from the airframe to the payload (0 when the
+payload lies directly below it) and α̇ = β̇ = 0, so the simulated cable-angle sensor stays defined.
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ from companion.core.model import (
     IDX_Z,
     VehicleParams,
     _check_domain,
+    _deriv,
     _rk4,
     euler_rate_matrix,
     payload_offset_ned_m,
@@ -51,13 +60,14 @@ use_kernel_cache(Path(__file__), Path(__file__).with_name("inner_loop.py"))
 
 @njit(cache=True)
 def _physics_steps(
-    x, t, n, dt, p, wind_k, tgt_euler, tgt_euler_rate, rates_only, tgt_rates, thrust, gp, a_mat, a_inv,
-    f_max, armed, landed, f_out, tau_out, d_out,
+    x, t, n, dt, p, p_free, wind_k, tgt_euler, tgt_euler_rate, rates_only, tgt_rates, thrust, gp, a_mat, a_inv,
+    f_max, armed, landed, pl, f_out, tau_out, d_out,
 ):  # pragma: no cover - compiled
-    """``n`` physics steps in place on ``x``: wind → attitude SMC → mixer → RK4 → ground.
+    """``n`` physics steps in place on ``x``: wind → attitude SMC → mixer → RK4 → ground and cable contact.
 
-    Returns (t, landed, ok). ``f_out``, ``tau_out``, ``d_out`` receive the last step's rotor thrusts,
-    body torques and disturbance.
+    ``pl`` = [slack (1.0/0.0), payload x, y, z]: the payload's ground contact, updated in place; while slack
+    the airframe flies with ``p_free`` (the parameters with m = 0). Returns (t, landed, ok). ``f_out``,
+    ``tau_out``, ``d_out`` receive the last step's rotor thrusts, body torques and disturbance.
     """
     inertia = p[3:6]
     tau = np.empty(3)
@@ -65,8 +75,9 @@ def _physics_steps(
     d = np.empty(6)
     w = np.empty(3)
     tilt = np.empty(3)
-    hover = (p[0] + p[1]) * p[2]
     for _ in range(n):
+        slack = pl[0] > 0.5
+        hover = (p[0] + (0.0 if slack else p[1])) * p[2]
         wv = 0.0 if (landed or wind_k == 0.0) else wind_k * eq49_signal(t)
         for i in range(6):
             d[i] = wv
@@ -111,16 +122,17 @@ def _physics_steps(
         tau_out[1] = u[2]
         tau_out[2] = u[3]
         if landed and u[0] <= hover + 1e-9:
-            _hold_on_ground(x, p, dt)
+            _hold_on_ground(x, p, pl)
             t += dt
             continue
         landed = False
-        y = _rk4(x, u, d, p, dt, 1)
+        y = _rk4(x, u, d, p_free if slack else p, dt, 1)
         for i in range(16):
             if not math.isfinite(y[i]):
                 return t, landed, False
         for i in range(16):
             x[i] = y[i]
+        _cable_contact(x, p, pl)
         if x[2] >= 0.0 and x[10] >= 0.0:
             # touch-down: no bounce, no sliding, airframe level
             x[2] = 0.0
@@ -134,29 +146,86 @@ def _physics_steps(
 
 
 @njit(cache=True)
-def _hold_on_ground(x, p, h):  # pragma: no cover - compiled
-    """Airframe held on the ground: the payload swings as a pendulum on a fixed pivot (ξ̈ = 0).
-
-    Semi-implicit Euler on the swing equations with the quadrotor's acceleration set to zero.
-    """
-    m = p[1]
-    g = p[2]
-    ip = p[6]
-    l = p[7]
-    al = x[6]
-    be = x[7]
-    dal = x[14]
-    dbe = x[15]
-    ka = m * l * l * math.cos(be) ** 2 + ip
-    kb = m * l * l + ip
-    dda = (2.0 * m * l * l * math.cos(be) * math.sin(be) * dal * dbe - m * g * l * math.sin(al) * math.cos(be)) / ka
-    ddb = (-m * l * l * math.sin(be) * math.cos(be) * dal * dal - m * g * l * math.cos(al) * math.sin(be)) / kb
-    x[14] = dal + h * dda
-    x[15] = dbe + h * ddb
-    x[6] = al + h * x[14]
-    x[7] = be + h * x[15]
+def _hold_on_ground(x, p, pl):  # pragma: no cover - compiled
+    """Airframe held on the ground (level, at rest). A payload still on a taut cable below the ground plane
+    (only a hand-made initial state can do that) is put down where it is."""
     for i in (3, 4, 8, 9, 10, 11, 12, 13):
         x[i] = 0.0
+    if pl[0] < 0.5:
+        _cable_contact(x, p, pl)
+
+
+@njit(cache=True)
+def _payload_angles(x, pl, l):  # pragma: no cover - compiled
+    """While slack: α, β of the direction airframe → payload (0, 0 when it lies right below), rates 0."""
+    rx = pl[1] - x[0]
+    ry = pl[2] - x[1]
+    rz = pl[3] - x[2]
+    dist = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if dist > 1e-9:
+        x[7] = math.asin(min(1.0, max(-1.0, -ry / dist)))
+        x[6] = math.atan2(rx, rz) if abs(rx) + abs(rz) > 1e-12 else 0.0
+    else:
+        x[6] = 0.0
+        x[7] = 0.0
+    x[14] = 0.0
+    x[15] = 0.0
+    return dist
+
+
+@njit(cache=True)
+def _cable_contact(x, p, pl):  # pragma: no cover - compiled
+    """Switch between the slack cable (payload on the ground) and the taut cable (coupled model).
+
+    Slack → taut when the airframe is one cable length from the payload: a plastic impulse J along the cable
+    unit vector e (airframe → payload) cancels the separating speed s = −v_q·e (payload at rest):
+    J = s·M·m/(M+m), v_q += J/M·e, v_p = −J/m·e; α̇, β̇ from v_p − v_q (perpendicular to e) through the
+    payload Jacobian, whose columns are orthogonal (JᵀJ = l²·diag(cβ², 1)).
+    Taut → slack when the payload point reaches the ground plane z ≥ 0: it stops there.
+    """
+    big_m = p[0]
+    m = p[1]
+    l = p[7]
+    if pl[0] > 0.5:
+        dist = _payload_angles(x, pl, l)
+        if dist < l:
+            return
+        al = x[6]
+        be = x[7]
+        ca = math.cos(al)
+        sa = math.sin(al)
+        cb = math.cos(be)
+        sb = math.sin(be)
+        e0 = sa * cb
+        e1 = -sb
+        e2 = ca * cb
+        s = -(x[8] * e0 + x[9] * e1 + x[10] * e2)
+        vp0 = 0.0
+        vp1 = 0.0
+        vp2 = 0.0
+        if s > 0.0:
+            jm = s * big_m * m / (big_m + m)
+            x[8] += jm / big_m * e0
+            x[9] += jm / big_m * e1
+            x[10] += jm / big_m * e2
+            vp0 = -jm / m * e0
+            vp1 = -jm / m * e1
+            vp2 = -jm / m * e2
+        w0 = vp0 - x[8]
+        w1 = vp1 - x[9]
+        w2 = vp2 - x[10]
+        # columns of J: ∂r/∂α = l[cα cβ, 0, −sα cβ], ∂r/∂β = l[−sα sβ, −cβ, −cα sβ]
+        x[14] = (ca * cb * w0 - sa * cb * w2) / (l * max(cb * cb, 1e-9))
+        x[15] = (-sa * sb * w0 - cb * w1 - ca * sb * w2) / l
+        pl[0] = 0.0
+        return
+    zp = x[2] + l * math.cos(x[6]) * math.cos(x[7])
+    if zp > 0.0:
+        pl[0] = 1.0
+        pl[1] = x[0] + l * math.sin(x[6]) * math.cos(x[7])
+        pl[2] = x[1] - l * math.sin(x[7])
+        pl[3] = 0.0
+        _payload_angles(x, pl, l)
 
 
 class VehicleSim:
@@ -182,8 +251,18 @@ class VehicleSim:
         if self.x.shape != (16,):
             raise ModelError(f"x0: expected shape (16,), got {self.x.shape}")
         self._p = params.packed()
+        self._p_free = self._p.copy()  # the airframe alone, while the payload lies on the ground
+        self._p_free[1] = 0.0
+        self._p_free[6] = max(self._p_free[6], 1e-9)
         self.armed = False
         self.landed = self.x[IDX_Z] >= 0.0 and abs(self.x[8 + IDX_Z]) < 1e-9
+        # payload contact [slack, x, y, z]: a payload below the ground plane in x0 rests on the ground instead
+        self._pl = np.zeros(4)
+        if self.x[IDX_Z] + params.l * math.cos(self.x[6]) * math.cos(self.x[7]) > 0.0:
+            offset = payload_offset_ned_m(self.x[6], self.x[7], params.l)
+            self._pl[:] = (1.0, self.x[0] + offset[0], self.x[1] + offset[1], 0.0)
+            self.x[6] = self.x[7] = self.x[14] = self.x[15] = 0.0
+            _payload_angles(self.x, self._pl, params.l)
         self.target_euler_rad = np.array([0.0, 0.0, self.x[5]])
         self.target_rates_frd_rad_s: np.ndarray | None = None
         self.rates_only = False
@@ -245,9 +324,9 @@ class VehicleSim:
             rates = tgt_euler_rate = self._zeros3
         gp, a_mat, a_inv, f_max = self._kernel_constants()
         t, landed, ok = _physics_steps(
-            self.x, self.t_s, int(n_steps), self.dt_s, self._p, wind_scale_factor(self.wind),
+            self.x, self.t_s, int(n_steps), self.dt_s, self._p, self._p_free, wind_scale_factor(self.wind),
             self.target_euler_rad, tgt_euler_rate, self.rates_only, rates, self.target_thrust_n,
-            gp, a_mat, a_inv, f_max, self.armed, self.landed,
+            gp, a_mat, a_inv, f_max, self.armed, self.landed, self._pl,
             self.rotor_thrust_n, self.torque_nm, self.disturbance,
         )
         self.t_s = t
@@ -311,11 +390,20 @@ class VehicleSim:
         return np.array([self.x[6], self.x[7], self.x[14], self.x[15]])
 
     @property
+    def payload_on_ground(self) -> bool:
+        """True while the payload rests on the ground and the cable is slack."""
+        return bool(self._pl[0] > 0.5)
+
+    @property
     def payload_pos_ned_m(self) -> np.ndarray:
+        if self._pl[0] > 0.5:
+            return self._pl[1:4].copy()
         return self.x[0:3] + payload_offset_ned_m(self.x[6], self.x[7], self.params.l)
 
     @property
     def payload_vel_ned_mps(self) -> np.ndarray:
+        if self._pl[0] > 0.5:
+            return np.zeros(3)
         al, be, dal, dbe = self.x[6], self.x[7], self.x[14], self.x[15]
         ca, sa, cb, sb = math.cos(al), math.sin(al), math.cos(be), math.sin(be)
         l = self.params.l
@@ -327,3 +415,26 @@ class VehicleSim:
     def thrust_vector_ned_n(self) -> np.ndarray:
         """Rotor thrust in NED, −R_F·[0, 0, T] (eq. 11), N."""
         return -rotation_body_to_ned(*self.x[3:6]) @ np.array([0.0, 0.0, self.thrust_n])
+
+    @property
+    def accel_ned_mps2(self) -> np.ndarray:
+        """The airframe's acceleration ξ̈ (NED, m/s²) at the current state under the last step's rotor
+        thrusts, torques and disturbance (zero while it rests on the ground)."""
+        if self.landed:
+            return np.zeros(3)
+        u = np.array([self.thrust_n, *self.torque_nm])
+        out = np.empty(16)
+        _deriv(self.x, u, self.disturbance, self._p_free if self._pl[0] > 0.5 else self._p, out)
+        return out[8:11].copy()
+
+    @property
+    def specific_force_frd_mps2(self) -> np.ndarray:
+        """What an ideal accelerometer on the airframe reads: Rᵀ·(ξ̈ − g·e_z), body FRD, m/s².
+
+        It is the sum of the non-gravitational forces on the airframe (rotor thrust, the cable's pull,
+        the disturbance) divided by M: hovering with the payload hanging still it reads [0, 0, −g], not
+        −(M+m)·g/M, because the cable pulls the airframe down with m·g.
+        """
+        a = self.accel_ned_mps2
+        a[2] -= self.params.g
+        return rotation_body_to_ned(*self.x[3:6]).T @ a

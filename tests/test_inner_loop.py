@@ -88,18 +88,49 @@ def test_thrust_target_clipped_to_rotor_limit():
 
 
 def test_ground_holds_until_thrust_exceeds_weight_then_lands_again():
+    """The payload starts on the ground (slack cable), so the airframe alone weighs M·g: below that it stays
+    down; above (M+m)·g the airframe lifts first, the payload one cable length later; below again both come
+    down and stop on the ground."""
     sim = VehicleSim(P, WindConfig("paper"))
-    assert sim.landed
+    assert sim.landed and sim.payload_on_ground and sim.payload_pos_ned_m.tolist() == [0.0, 0.0, 0.0]
     sim.armed = True
-    sim.set_attitude_target(quat_from_euler(0, 0, 0), 0.9 * P.hover_thrust_n)
+    sim.set_attitude_target(quat_from_euler(0, 0, 0), 0.95 * P.M * P.g)
     sim.step(500)
     assert sim.landed and sim.pos_ned_m[2] == 0.0
     sim.set_attitude_target(quat_from_euler(0, 0, 0), 1.3 * P.hover_thrust_n)
+    sim.step(300)
+    assert not sim.landed and sim.pos_ned_m[2] < -0.05 and sim.payload_on_ground  # airframe first
     sim.step(1000)
-    assert not sim.landed and sim.pos_ned_m[2] < -0.5
+    assert not sim.payload_on_ground and sim.payload_pos_ned_m[2] < -0.5  # then the payload
     sim.set_attitude_target(quat_from_euler(0, 0, 0), 0.8 * P.hover_thrust_n)
-    sim.step(4000)
+    sim.step(6000)
     assert sim.landed and sim.pos_ned_m[2] == 0.0 and np.all(sim.vel_ned_mps == 0.0)
+    assert sim.payload_on_ground and sim.payload_pos_ned_m[2] == 0.0
+
+
+def test_cable_snaps_taut_conserving_momentum_along_it():
+    """Slack → taut is a plastic impulse: momentum along the cable is conserved (up to one step of thrust and
+    gravity), the separating speed vanishes, and the swing rates follow from the geometry."""
+    x0 = np.zeros(16)
+    x0[2] = -0.5  # airframe in the air, payload on the ground below it (slack)
+    sim = VehicleSim(P, WindConfig("none"), x0=x0)
+    assert sim.payload_on_ground and not sim.landed
+    sim.armed = True
+    sim.set_attitude_target(quat_from_euler(0.2, 0.0, 0.0), 1.5 * P.hover_thrust_n)  # climbs and drifts east
+    while sim.payload_on_ground:
+        v_before = sim.vel_ned_mps
+        r = sim.payload_pos_ned_m - sim.pos_ned_m
+        sim.step(1)
+        assert sim.t_s < 3.0
+    e = r / np.linalg.norm(r)
+    p_before = P.M * v_before @ e
+    p_after = P.M * sim.vel_ned_mps @ e + P.m * sim.payload_vel_ned_mps @ e
+    impulse_one_step = sim.max_thrust_n * sim.dt_s
+    assert abs(p_after - p_before) < impulse_one_step
+    rel = sim.payload_vel_ned_mps - sim.vel_ned_mps
+    assert abs(rel @ e) < 0.02 * np.linalg.norm(v_before)  # the cable does not stretch
+    # the airframe drifted east (+y): the payload trails west, offset y = −l·sin β < 0, so β > 0
+    assert sim.swing[1] > 0.05 and (sim.payload_pos_ned_m - sim.pos_ned_m)[1] < 0.0
 
 
 def test_quaternion_roundtrip():
