@@ -12,6 +12,8 @@ from companion.config import dataclass_from_table
 from companion.core.model import VehicleParams, load_vehicle_params
 from companion.core.wind import WindConfig
 from companion.errors import ConfigError
+from companion.mavlink_io.signing import load_key_file
+from sim_bridge.imu import ImuNoise
 from sim_bridge.vehicle import SitlConfig, SitlVehicle
 
 log = logging.getLogger(__name__)
@@ -31,7 +33,10 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--wind", choices=["paper", "none"], default="paper", help="wind model (eq. 49 or none)")
     g.add_argument("--wind-scale", type=float, default=1.0, help="wind scale factor")
     g.add_argument("--thr-hover", type=float, help="MPC_THR_HOVER (default 1/thrust_to_weight = 0.4)")
-    g.add_argument("--offboard-timeout", type=float, default=0.5, help="offboard loss timeout, s (sim time)")
+    g.add_argument("--offboard-timeout", type=float, default=1.0,
+                   help="COM_OF_LOSS_T: offboard setpoint loss timeout, s (sim time; PX4's default 1.0)")
+    g.add_argument("--offboard-loss-hold", type=float, default=5.0,
+                   help="COM_FAIL_ACT_T: after offboard loss hold this long, then land, s (PX4's default 5)")
     g.add_argument("--takeoff-alt", type=float, default=2.5, help="MIS_TAKEOFF_ALT, m above home")
     g.add_argument("--home-lat", type=float, default=47.397742, help="home latitude, deg")
     g.add_argument("--home-lon", type=float, default=8.545594, help="home longitude, deg")
@@ -46,6 +51,15 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--compid", type=int, default=1, help="vehicle component id")
     g.add_argument("--payload-sysid", type=int, help="payload system id (default 2, or 200+i for i>0)")
     g.add_argument("--duration", type=float, help="stop after this many simulated seconds")
+    g.add_argument("--onboard-peer", metavar="HOST:PORT",
+                   help="lock the onboard link to this peer from the start (default: the first sender)")
+    g.add_argument("--gcs-peer", metavar="HOST:PORT", help="lock the GCS link to this peer from the start")
+    g.add_argument("--signing-key", metavar="FILE",
+                   help="MAVLink 2 signing on both links with this key file (64 hex characters, or a passphrase "
+                        "hashed with SHA-256 as MAVProxy does); unsigned, forged and replayed input is rejected")
+    g.add_argument("--imu-noise-scale", type=float, default=1.0,
+                   help="multiplier of the IMU noise and bias random walk (SIM_IMU_NSCALE; 0 = ideal)")
+    g.add_argument("--imu-seed", type=int, default=0, help="seed of the IMU noise generator")
 
 
 def _hostport(text: str, flag: str, shift: int) -> tuple[str, int]:
@@ -70,6 +84,7 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
     if over:
         params = dataclass_from_table(VehicleParams, over, where="--payload-mass/--cable-length:", base=params)
     wind = dataclass_from_table(WindConfig, {"model": args.wind, "scale": args.wind_scale}, where="--wind-scale:")
+    key = load_key_file(args.signing_key) if args.signing_key else None
     cfg = SitlConfig(
         params=params,
         wind=wind,
@@ -77,6 +92,11 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
         control_period_us=int(args.control_period_ms) * 1000,
         thr_hover=args.thr_hover,
         offboard_timeout_s=args.offboard_timeout,
+        fail_act_t_s=args.offboard_loss_hold,
+        onboard_peer=_hostport(args.onboard_peer, "--onboard-peer", 0) if args.onboard_peer else None,
+        gcs_peer=_hostport(args.gcs_peer, "--gcs-peer", 0) if args.gcs_peer else None,
+        signing_key=key,
+        imu=ImuNoise(scale=args.imu_noise_scale, seed=args.imu_seed),
         takeoff_alt_m=args.takeoff_alt,
         home=(args.home_lat, args.home_lon, args.home_alt),
         onboard_bind=(args.address, args.onboard_port if args.onboard_port is not None else 14580 + i),

@@ -31,6 +31,54 @@ THRUST_IGNORE = 64
 ATTITUDE_IGNORE = 128
 TICK_ONLY_MASK = 1 | 2 | 4 | THRUST_IGNORE | ATTITUDE_IGNORE
 
+# SET_POSITION_TARGET_LOCAL_NED.type_mask bits (POSITION_TARGET_TYPEMASK)
+POS_IGNORE = (1, 2, 4)
+VEL_IGNORE = (8, 16, 32)
+ACC_IGNORE = (64, 128, 256)
+FORCE_SET = 512
+YAW_IGNORE = 1024
+YAW_RATE_IGNORE = 2048
+_NAN = math.nan
+
+
+def parse_position_target(msg: Any, yaw_now_rad: float) -> tuple[str | None, tuple | None]:
+    """Check a SET_POSITION_TARGET_LOCAL_NED as PX4's mavlink_receiver reads it.
+
+    Returns (rejection kind or None, (position, velocity, acceleration, yaw, yaw rate)) with NED arrays in
+    which NaN means "not controlled on this axis" (ignored by type_mask, or sent as NaN, as PX4 treats it).
+    MAV_FRAME_LOCAL_NED is taken as is; MAV_FRAME_BODY_NED (velocity/acceleration only) is rotated by the
+    current heading ``yaw_now_rad``. Rejections: ``nonfinite`` (±inf), ``bad_setpoint`` (another frame,
+    FORCE_SET with an acceleration, or nothing to control).
+    """
+    mask = int(msg.type_mask)
+    raw = [float(v) for v in (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, msg.afx, msg.afy, msg.afz)]
+    yaw = _NAN if mask & YAW_IGNORE else float(msg.yaw)
+    yaw_rate = _NAN if mask & YAW_RATE_IGNORE else float(msg.yaw_rate)
+    if any(math.isinf(v) for v in (*raw, yaw, yaw_rate)):
+        return "nonfinite", None
+    frame = int(msg.coordinate_frame)
+    if frame == M.MAV_FRAME_LOCAL_NED:
+        pos = np.array([_NAN if mask & b else v for b, v in zip(POS_IGNORE, raw[0:3], strict=True)])
+        vel = np.array([_NAN if mask & b else v for b, v in zip(VEL_IGNORE, raw[3:6], strict=True)])
+        acc = np.array([_NAN if mask & b else v for b, v in zip(ACC_IGNORE, raw[6:9], strict=True)])
+    elif frame == M.MAV_FRAME_BODY_NED:
+        c, s = math.cos(yaw_now_rad), math.sin(yaw_now_rad)
+        pos = np.full(3, _NAN)
+        vel = np.full(3, _NAN)
+        acc = np.full(3, _NAN)
+        if not mask & (8 | 16 | 32):
+            vel = np.array([c * raw[3] - s * raw[4], s * raw[3] + c * raw[4], raw[5]])
+        if not mask & (64 | 128 | 256):
+            acc = np.array([c * raw[6] - s * raw[7], s * raw[6] + c * raw[7], raw[8]])
+    else:
+        return "bad_setpoint", None
+    has_acc = not np.all(np.isnan(acc))
+    if has_acc and mask & FORCE_SET:
+        return "bad_setpoint", None
+    if np.all(np.isnan(pos)) and np.all(np.isnan(vel)) and not has_acc:
+        return "bad_setpoint", None
+    return None, (pos, vel, acc, yaw, yaw_rate)
+
 
 def parse_attitude_target(msg: Any) -> tuple[str | None, np.ndarray | None, np.ndarray | None, float | None]:
     """Check a SET_ATTITUDE_TARGET; returns (rejection kind or None, q, body rates, normalized thrust).
@@ -115,6 +163,9 @@ def _dispatch(v: Any, link: Any, cmd: int, p: list[float], after: list) -> tuple
         if not v.can_send(msgid):
             return DENIED, f"Message {msgid} not available"
         after.append(lambda: v.send_message(msgid, link))
+        return ACCEPTED, ""
+    if cmd == M.MAV_CMD_GET_HOME_POSITION:  # deprecated in favour of REQUEST_MESSAGE(242); PX4 still answers
+        after.append(lambda: v.send_message(M.MAVLINK_MSG_ID_HOME_POSITION, link))
         return ACCEPTED, ""
     if cmd == M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
         if round(p[0]) != 1:

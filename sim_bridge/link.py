@@ -5,7 +5,15 @@ datagrams): bytes before a frame marker are *garbage*, a MAVLink 1 frame (0xFE) 
 than what is left is *truncated*, unknown incompatibility flags or a signed frame is *bad_flags*, then
 :func:`companion.mavlink_io.codec.decode_lite` (pymavlink's ``MAVLink.decode``, precompiled) checks CRC and
 length (*bad_crc*) and knows the id (*unknown_id*). Only decoded MAVLink 2 messages reach the handler.
-The link answers whoever talked to it last.
+
+Peer lock (as PX4's UDP link: it takes the first client and keeps it): telemetry goes to the configured remote
+until someone talks; the first sender (or ``peer``, if configured) becomes the link's peer for good. Datagrams
+from any other address are dropped whole and counted as *foreign_sender*; they never re-target the link.
+
+Signing (optional, :mod:`companion.mavlink_io.signing`): every outgoing frame is signed; incoming unsigned
+frames are *unsigned* (except RADIO_STATUS, ADSB_VEHICLE and COLLISION, as PX4), bad signatures
+*bad_signature*, old timestamps *replay*. With signing on, a datagram from another address is accepted when
+its frames verify (a peer that restarted on a new port); the first verified frame re-targets the link.
 """
 
 from __future__ import annotations
@@ -18,7 +26,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.mavlink_io.codec import FrameError, decode_lite
+from companion.mavlink_io import signing
+from companion.mavlink_io.codec import FrameError, decode_lite, frame_msgid
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +43,23 @@ REJECT_KINDS = (
     "bad_quaternion",
     "thrust_range",
     "bad_param",
+    "bad_setpoint",
+    "foreign_sender",
+    "unsigned",
+    "bad_signature",
+    "replay",
 )
+
+#: message ids accepted unsigned on a signing link (PX4's list in mavlink_sign_control.cpp)
+UNSIGNED_OK = frozenset({mavlink2.MAVLINK_MSG_ID_RADIO_STATUS, mavlink2.MAVLINK_MSG_ID_ADSB_VEHICLE,
+                         mavlink2.MAVLINK_MSG_ID_COLLISION})
+_CRC_EXTRA_EXTRA = {300: 217}  # PROTOCOL_VERSION, missing from pymavlink's common dialect
+
+
+def crc_extra_of(msgid: int) -> int:
+    """CRC extra byte of a message id we send (KeyError if unknown)."""
+    cls = mavlink2.mavlink_map.get(msgid)
+    return cls.crc_extra if cls is not None else _CRC_EXTRA_EXTRA[msgid]
 
 BATCH_MAX_BYTES = 1400  # stay below a typical Ethernet MTU
 _V2_HEADER = 10
@@ -76,9 +101,16 @@ class MavUdpLink(asyncio.DatagramProtocol):
         compid: int,
         counters: RejectCounters,
         on_message: Callable[[MavUdpLink, mavlink2.MAVLink_message], None],
+        peer: tuple[str, int] | None = None,
+        link_id: int = 0,
     ) -> None:
         self.name = name
-        self.remote = remote
+        self.remote = peer or remote
+        self.locked = peer is not None
+        self.link_id = link_id
+        self.signer: signing.LinkSigner | None = None
+        self.verifier: signing.SigningVerifier | None = None
+        self.last_signed = False  # whether the message being handled arrived signed and verified
         self.counters = counters
         self.on_message = on_message
         self.transport: asyncio.DatagramTransport | None = None
@@ -100,14 +132,35 @@ class MavUdpLink(asyncio.DatagramProtocol):
         # e.g. ICMP port unreachable when nobody listens on the remote: normal for a SITL
         self.tx_errors += 1
 
+    def set_signing(self, verifier: signing.SigningVerifier | None) -> None:
+        """Turn signing on with ``verifier``'s key (shared by the vehicle's links) or off (None)."""
+        self.verifier = verifier
+        self.signer = None if verifier is None else signing.LinkSigner(verifier.key, self.link_id)
+
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.remote = (addr[0], addr[1])
-        for msg in self._frames(data):
+        addr = (addr[0], addr[1])
+        foreign = self.locked and addr != self.remote
+        if foreign and self.verifier is None:
+            self.counters.reject("foreign_sender", f"datagram from {addr[0]}:{addr[1]} on {self.name} "
+                                 f"(locked to {self.remote[0]}:{self.remote[1]})")
+            return
+        msgs = self._frames(data)
+        if foreign:  # signing on: only verified frames get here; they prove the peer moved
+            if not msgs:
+                self.counters.reject("foreign_sender", f"unverified datagram from {addr[0]}:{addr[1]}")
+                return
+            log.warning("%s: signed peer moved from %s:%d to %s:%d", self.name, *self.remote, *addr)
+        if not self.locked or foreign:
+            self.remote = addr
+            self.locked = True
+        for msg, signed in msgs:
             self.rx_messages += 1
+            self.last_signed = signed
             try:
                 self.on_message(self, msg)
             except Exception:  # a handler bug must not kill the vehicle; say it loudly
                 log.exception("error while handling %s", msg.get_type())
+        self.last_signed = False
 
     # sending ------------------------------------------------------------------------------------------
     def begin_batch(self) -> None:
@@ -123,7 +176,12 @@ class MavUdpLink(asyncio.DatagramProtocol):
             self._sendto(buf)
 
     def send_bytes(self, buf: bytes) -> None:
-        """Send raw bytes to the current remote (silently dropped before the socket exists)."""
+        """Send one frame (or raw bytes) to the peer (silently dropped before the socket exists); signed
+        when signing is on."""
+        if self.signer is not None and buf and buf[0] == mavlink2.PROTOCOL_MARKER_V2:
+            msgid = buf[7] | (buf[8] << 8) | (buf[9] << 16)
+            buf = self.signer.sign(bytes(buf), crc_extra_of(msgid))
+            self.verifier.note_sent(self.signer.timestamp)
         if self._batch is not None:
             if len(self._batch) + len(buf) > BATCH_MAX_BYTES:
                 self._sendto(self._batch)
@@ -142,8 +200,9 @@ class MavUdpLink(asyncio.DatagramProtocol):
                 self.tx_errors += 1
 
     # framing ------------------------------------------------------------------------------------------
-    def _frames(self, data: bytes) -> list[mavlink2.MAVLink_message]:
-        out: list[mavlink2.MAVLink_message] = []
+    def _frames(self, data: bytes) -> list[tuple[mavlink2.MAVLink_message, bool]]:
+        """Decoded messages of one datagram with whether each arrived signed (and verified)."""
+        out: list[tuple[mavlink2.MAVLink_message, bool]] = []
         i = 0
         n = len(data)
         garbage = False
@@ -172,8 +231,20 @@ class MavUdpLink(asyncio.DatagramProtocol):
                 break
             frame = data[i : i + total]
             i += total
-            if flags != 0:
-                self.counters.reject("bad_flags", f"incompat_flags 0x{flags:02x} (signing not supported)")
+            signed = False
+            if flags == signing.IFLAG_SIGNED and self.verifier is not None:
+                kind = self.verifier.check(frame)
+                if kind is not None:
+                    self.counters.reject(kind, f"signed frame from system {frame[5]} on {self.name}")
+                    continue
+                frame = frame[: -signing.SIGNATURE_LEN]
+                signed = True
+            elif flags != 0:
+                self.counters.reject("bad_flags", f"incompat_flags 0x{flags:02x}"
+                                     + ("" if self.verifier is not None else " (signing is off)"))
+                continue
+            elif self.verifier is not None and frame_msgid(frame) not in UNSIGNED_OK:
+                self.counters.reject("unsigned", f"unsigned frame (id {frame_msgid(frame)}) on signed {self.name}")
                 continue
             try:
                 msg = decode_lite(frame)
@@ -183,7 +254,7 @@ class MavUdpLink(asyncio.DatagramProtocol):
             except Exception as exc:  # struct.error, a constructor refusing a value, ...: never fatal
                 self.counters.reject("bad_crc", f"{exc} on {self.name}")
                 continue
-            out.append(msg)
+            out.append((msg, signed))
         if garbage:
             self.counters.reject("garbage", f"bytes outside MAVLink frames on {self.name}")
         return out
@@ -197,10 +268,12 @@ async def open_link(
     compid: int,
     counters: RejectCounters,
     on_message: Callable[[MavUdpLink, mavlink2.MAVLink_message], None],
+    peer: tuple[str, int] | None = None,
+    link_id: int = 0,
 ) -> MavUdpLink:
     """Bind a UDP socket at ``bind`` and return the link (raises OSError if the port is taken)."""
     loop = asyncio.get_running_loop()
     _, proto = await loop.create_datagram_endpoint(
-        lambda: MavUdpLink(name, remote, sysid, compid, counters, on_message), local_addr=bind
+        lambda: MavUdpLink(name, remote, sysid, compid, counters, on_message, peer, link_id), local_addr=bind
     )
     return proto

@@ -135,14 +135,22 @@ def build_param_table(
     takeoff_alt_m: float,
     gains,
     counters: dict[str, int],
+    obl_action: int = 0,
+    fail_act_t_s: float = 5.0,
+    imu_noise_scale: float = 1.0,
 ) -> ParamTable:
     """The vehicle's table: tunables, inner-loop gains, read-only rejection counters ``RJ_<KIND>``."""
     params = [
         Param("MPC_THR_HOVER", thr_hover, 0.05, 0.95, doc="normalized thrust that hovers (thrust = n·T_hover/this)"),
         Param("COM_OF_LOSS_T", offboard_timeout_s, 0.01, 60.0, doc="offboard setpoint loss timeout, s (sim time)"),
+        Param("COM_OBL_RC_ACT", obl_action, 0, 4, is_int=True,
+              doc="offboard loss action, PX4's values 0 position, 1 altitude, 2 manual, 3 return, 4 land; no RC "
+                  "here, so each holds for COM_FAIL_ACT_T and then lands (5 hold, 6 terminate, 7 disarm refused)"),
+        Param("COM_FAIL_ACT_T", fail_act_t_s, 0.0, 25.0, doc="hold this long after offboard loss, then land, s"),
         Param("MIS_TAKEOFF_ALT", takeoff_alt_m, 0.5, 100.0, doc="takeoff altitude above home, m"),
         Param("SIM_WIND_MODEL", 1.0 if wind_model == "paper" else 0.0, 0, 1, is_int=True, doc="0 none, 1 eq. 49"),
         Param("SIM_WIND_SCALE", wind_scale, 0.0, 10.0, doc="wind scale factor (1 = the paper)"),
+        Param("SIM_IMU_NSCALE", imu_noise_scale, 0.0, 100.0, doc="IMU noise and bias-walk multiplier (0 ideal)"),
         Param("SIM_PLD_MASS", payload_mass_kg, 0.001, 10.0, reboot=True, doc="payload mass m, kg (next start)"),
         Param("SIM_CABLE_LEN", cable_length_m, 0.05, 20.0, reboot=True, doc="cable length l, m (next start)"),
         *gain_params(gains),

@@ -1,8 +1,12 @@
-"""The bundled vehicle's internal position controller (POSCTL hold, AUTO.LOITER/TAKEOFF/LAND).
+"""The bundled vehicle's internal position controller (POSCTL hold, AUTO.LOITER/TAKEOFF/LAND, and OFFBOARD
+position/velocity setpoints from SET_POSITION_TARGET_LOCAL_NED).
 
 A plain cascaded P-position / P-velocity loop, like PX4's multicopter position controller without the
-integrators: position error → velocity setpoint (clipped) → acceleration setpoint (clipped) → thrust vector
-→ attitude quaternion + collective thrust for :class:`sim_bridge.physics.VehicleSim`. Pure: numpy only.
+integrators: position error → velocity setpoint (+ velocity feed-forward, clipped) → acceleration setpoint
+(+ acceleration feed-forward, clipped) → thrust vector → attitude quaternion + collective thrust for
+:class:`sim_bridge.physics.VehicleSim`. Per axis, as PX4's trajectory_setpoint: a NaN position means "do not
+control the position on this axis" and the velocity (then the acceleration) is used alone; an axis with none
+of the three holds zero velocity. Pure: numpy only.
 It is "enough to take off, hold and land", not a payload-aware controller (that is the companion's job).
 Frames: NED (z down), quaternions [w, x, y, z] rotating body FRD into NED.
 """
@@ -54,15 +58,59 @@ def position_hold_target(
     ``max_descent_mps`` (if given) replaces ``gains.vmax_down_mps``: AUTO.LAND puts the target far below
     and lets this limit set the descent speed.
     """
-    err = np.asarray(target_pos_ned_m, dtype=float) - np.asarray(pos_ned_m, dtype=float)
-    v_sp = np.array([gains.kp_xy * err[0], gains.kp_xy * err[1], gains.kp_z * err[2]])
+    return position_control_target(pos_ned_m, vel_ned_mps, target_pos_ned_m, _NAN3, _NAN3, yaw_rad,
+                                   total_mass_kg, g_mps2, gains, max_descent_mps)
+
+
+_NAN3 = np.full(3, np.nan)
+
+
+def position_control_target(
+    pos_ned_m: np.ndarray,
+    vel_ned_mps: np.ndarray,
+    pos_sp_ned_m: np.ndarray,
+    vel_sp_ned_mps: np.ndarray,
+    acc_sp_ned_mps2: np.ndarray,
+    yaw_rad: float,
+    total_mass_kg: float,
+    g_mps2: float,
+    gains: PositionHoldGains,
+    max_descent_mps: float | None = None,
+) -> tuple[np.ndarray, float]:
+    """Attitude quaternion [w,x,y,z] and thrust (N) for a position / velocity / acceleration setpoint (NED).
+
+    Per axis: position given → v_sp = kp·error + velocity (feed-forward, if given); else velocity given →
+    v_sp = velocity; else v_sp = 0 unless only an acceleration is given (then it is flown open loop).
+    Velocities are clipped to the gains' limits, accelerations to ±0.8 g vertically; the horizontal force
+    to the tilt limit. The acceleration setpoint (if given) is added as feed-forward.
+    """
+    pos = np.asarray(pos_ned_m, dtype=float)
+    vel = np.asarray(vel_ned_mps, dtype=float)
+    p_sp = np.asarray(pos_sp_ned_m, dtype=float)
+    v_ff = np.asarray(vel_sp_ned_mps, dtype=float)
+    a_ff = np.asarray(acc_sp_ned_mps2, dtype=float)
+    kp = (gains.kp_xy, gains.kp_xy, gains.kp_z)
+    kv = (gains.kv_xy, gains.kv_xy, gains.kv_z)
+    v_sp = np.zeros(3)
+    open_loop = [False, False, False]
+    for i in range(3):
+        if math.isfinite(p_sp[i]):
+            v_sp[i] = kp[i] * (p_sp[i] - pos[i]) + (v_ff[i] if math.isfinite(v_ff[i]) else 0.0)
+        elif math.isfinite(v_ff[i]):
+            v_sp[i] = v_ff[i]
+        elif math.isfinite(a_ff[i]):
+            open_loop[i] = True
     vxy = math.hypot(v_sp[0], v_sp[1])
     if vxy > gains.vmax_xy_mps:
         v_sp[:2] *= gains.vmax_xy_mps / vxy
     vdown = gains.vmax_down_mps if max_descent_mps is None else max_descent_mps
     v_sp[2] = min(max(v_sp[2], -gains.vmax_up_mps), vdown)
-    dv = v_sp - np.asarray(vel_ned_mps, dtype=float)
-    a_sp = np.array([gains.kv_xy * dv[0], gains.kv_xy * dv[1], gains.kv_z * dv[2]])
+    a_sp = np.zeros(3)
+    for i in range(3):
+        if not open_loop[i]:
+            a_sp[i] = kv[i] * (v_sp[i] - vel[i])
+        if math.isfinite(a_ff[i]):
+            a_sp[i] += a_ff[i]
     a_sp[2] = min(max(a_sp[2], -0.8 * g_mps2), 0.8 * g_mps2)
     # thrust vector (N, NED) f = m (a − g e_z); its horizontal part is limited by the tilt limit
     f = total_mass_kg * np.array([a_sp[0], a_sp[1], a_sp[2] - g_mps2])

@@ -28,6 +28,9 @@ MSG_ATTITUDE_TARGET = mavlink2.MAVLINK_MSG_ID_ATTITUDE_TARGET
 MSG_EXTENDED_SYS_STATE = mavlink2.MAVLINK_MSG_ID_EXTENDED_SYS_STATE
 MSG_AUTOPILOT_VERSION = mavlink2.MAVLINK_MSG_ID_AUTOPILOT_VERSION
 MSG_DEBUG_FLOAT_ARRAY = mavlink2.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY
+MSG_HOME_POSITION = mavlink2.MAVLINK_MSG_ID_HOME_POSITION
+MSG_HIGHRES_IMU = mavlink2.MAVLINK_MSG_ID_HIGHRES_IMU
+MSG_SCALED_IMU = mavlink2.MAVLINK_MSG_ID_SCALED_IMU
 MSG_PROTOCOL_VERSION = 300  # not in pymavlink's common dialect; packed by ProtocolVersionMessage
 
 SWING_NAME = b"SWING"
@@ -45,17 +48,39 @@ _WGS84_A = 6378137.0
 _WGS84_E2 = 6.69437999014e-3
 
 
-def default_intervals_us(control_period_us: int) -> dict[int, int]:
-    """Default telemetry intervals (µs of simulated time) of the vehicle system."""
+def default_intervals_us(control_period_us: int, mode: str = "onboard") -> dict[int, int]:
+    """Default telemetry intervals (µs of simulated time) of the vehicle system on one link.
+
+    ``mode`` "onboard" (the companion's link) or "normal" (the ground-station link), after PX4's stream
+    lists of the same names in mavlink_main.cpp (v1.15): HIGHRES_IMU 50 Hz, SYS_STATUS and
+    EXTENDED_SYS_STATE 5 Hz and HOME_POSITION 0.5 Hz on onboard; normal mode has PX4's slower rates and no
+    IMU stream. Onboard keeps faster position/attitude-target rates than PX4 (50 Hz, for the companion) and
+    the simulator's cable-angle sensor every control period.
+    """
+    if mode == "normal":
+        return {
+            MSG_HEARTBEAT: 1_000_000,
+            MSG_SYS_STATUS: 1_000_000,
+            MSG_ATTITUDE: 66_667,
+            MSG_ATTITUDE_QUATERNION: 100_000,
+            MSG_LOCAL_POSITION_NED: 1_000_000,
+            MSG_GLOBAL_POSITION_INT: 200_000,
+            MSG_EXTENDED_SYS_STATE: 1_000_000,
+            MSG_ATTITUDE_TARGET: 500_000,
+            MSG_HOME_POSITION: 2_000_000,
+            MSG_DEBUG_FLOAT_ARRAY: max(control_period_us, 100_000),
+        }
     return {
         MSG_HEARTBEAT: 1_000_000,
-        MSG_SYS_STATUS: 1_000_000,
+        MSG_SYS_STATUS: 200_000,
         MSG_ATTITUDE: 10_000,
         MSG_ATTITUDE_QUATERNION: 20_000,
         MSG_LOCAL_POSITION_NED: 20_000,
         MSG_GLOBAL_POSITION_INT: 20_000,
         MSG_EXTENDED_SYS_STATE: 200_000,
         MSG_ATTITUDE_TARGET: 20_000,
+        MSG_HOME_POSITION: 2_000_000,
+        MSG_HIGHRES_IMU: 20_000,
         MSG_DEBUG_FLOAT_ARRAY: control_period_us,
     }
 
@@ -171,7 +196,8 @@ def hot_payload(msgid: int, v: Any) -> tuple[int, bytes] | None:
                                                                          w[2])
     if msgid == MSG_GLOBAL_POSITION_INT:
         return mf.CRC_GLOBAL_POSITION_INT, _global_payload(t_ms, sim.pos_ned_m, sim.vel_ned_mps,
-                                                           float(sim.euler_rad[2]), v.home)
+                                                           float(sim.euler_rad[2]), v.origin,
+                                                           v.home_local_ned_m[2])
     if msgid == MSG_ATTITUDE_TARGET:
         q = quat_from_euler(*sim.target_euler_rad)
         r = sim.target_rates_frd_rad_s if sim.target_rates_frd_rad_s is not None else _ZERO3
@@ -179,6 +205,11 @@ def hot_payload(msgid: int, v: Any) -> tuple[int, bytes] | None:
             t_ms, q[0], q[1], q[2], q[3], r[0], r[1], r[2], v.normalized_thrust(sim.target_thrust_n), 0)
     if msgid == MSG_SYSTEM_TIME:
         return mf.CRC_SYSTEM_TIME, mf.P_SYSTEM_TIME.pack(0, t_ms & 0xFFFFFFFF)
+    if msgid == MSG_HIGHRES_IMU:
+        acc, gyro, mag, press_hpa, alt_m, temp_c = v.imu_sample()
+        return CRC_HIGHRES_IMU, P_HIGHRES_IMU.pack(
+            v.t_us, acc[0], acc[1], acc[2], gyro[0], gyro[1], gyro[2], mag[0], mag[1], mag[2], press_hpa, 0.0,
+            alt_m, temp_c, HIGHRES_FIELDS, 0)
     if msgid == MSG_EXTENDED_SYS_STATE:
         return mf.CRC_EXTENDED_SYS_STATE, mf.P_EXTENDED_SYS_STATE.pack(mavlink2.MAV_VTOL_STATE_UNDEFINED,
                                                                        v.landed_state)
@@ -205,9 +236,21 @@ def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any,
             mavlink2.MAV_STATE_ACTIVE if v.armed else mavlink2.MAV_STATE_STANDBY,
         )
     elif msgid == MSG_SYS_STATUS:
-        sensors = 0x3FFFFF & ~(0x20000 | 0x10000 | 0x100 | 0x80)  # no RC, no laser, no optical flow, no vision
-        mav.sys_status_send(sensors, sensors, sensors, 0, 16000, -1, 100, 0, min(v.counters.total, 65535),
+        present, enabled, health = sys_status_bits(v.prearm_ok)
+        # no battery (PX4 without one: voltage UINT16_MAX, current -1, remaining -1); load 10 %
+        mav.sys_status_send(present, enabled, health, 100, 65535, -1, -1, 0, min(v.counters.total, 65535),
                             0, 0, 0, 0)
+    elif msgid == MSG_HOME_POSITION:
+        h = v.home_local_ned_m
+        lat, lon, alt = ned_to_geodetic(h, *v.origin)
+        mav.home_position_send(round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0), float(h[0]), float(h[1]),
+                               float(h[2]), list(quat_from_euler(0.0, 0.0, v.home_yaw_rad)), 0.0, 0.0, 0.0,
+                               v.home_time_us)
+    elif msgid == MSG_SCALED_IMU:
+        acc, gyro, mag, _, _, temp_c = v.imu_sample()
+        mav.scaled_imu_send(v.t_us // 1000 & 0xFFFFFFFF, *(_i16(a / G_STD * 1000.0) for a in acc),
+                            *(_i16(w * 1000.0) for w in gyro), *(_i16(b * 1000.0) for b in mag),
+                            _i16(temp_c * 100.0))
     elif msgid == MSG_AUTOPILOT_VERSION:
         mav.autopilot_version_send(CAPABILITIES, SW_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0,
                                    v.sysid)
@@ -219,28 +262,62 @@ def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any,
 
 
 def send_payload_messages(mav: mavlink2.MAVLink, v: Any, heartbeat: bool) -> None:
-    """The payload system's HEARTBEAT (if ``heartbeat``), GLOBAL_POSITION_INT and LOCAL_POSITION_NED."""
+    """The payload as ArduPilot's SITL slung payload (SIM_SlungPayload.cpp) announces itself: HEARTBEAT (if
+    ``heartbeat``) with type AIRSHIP, autopilot INVALID, base_mode 0, status 0; GLOBAL_POSITION_INT (altitude
+    above home in relative_alt, heading 0) and ATTITUDE (all zero: a point mass); plus our LOCAL_POSITION_NED
+    of the payload point (same local frame as the vehicle's)."""
     sim = v.sim
     t_ms = v.t_us // 1000
     if heartbeat:
-        mf.send_heartbeat(mav, mavlink2.MAV_TYPE_GENERIC, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0,
-                          mavlink2.MAV_STATE_ACTIVE)
+        mf.send_heartbeat(mav, mavlink2.MAV_TYPE_AIRSHIP, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
     p, vel = sim.payload_pos_ned_m, sim.payload_vel_ned_mps
-    _send_global(mav, t_ms, p, vel, 0.0, v.home)
+    mf.send_payload(mav, mf.ID_GLOBAL_POSITION_INT, mf.CRC_GLOBAL_POSITION_INT,
+                    _global_payload(t_ms, p, vel, 0.0, v.origin, v.home_local_ned_m[2]))
+    mf.send_attitude(mav, t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     mf.send_local_position_ned(mav, t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
 
 
-def _send_global(mav, t_ms: int, p, vel, yaw_rad: float, home: tuple[float, float, float]) -> None:
-    mf.send_payload(mav, mf.ID_GLOBAL_POSITION_INT, mf.CRC_GLOBAL_POSITION_INT,
-                    _global_payload(t_ms, p, vel, yaw_rad, home))
+# SYS_STATUS, as PX4's SYS_STATUS stream fills it from its health report: a component is *present* if the
+# vehicle has it, *healthy* unless it reports an error (also when absent), *enabled* if present or unhealthy;
+# MAV_SYS_STATUS_PREARM_CHECK is set in health only, when arming is possible in the current mode.
+_S = mavlink2
+SENSORS_PRESENT = (_S.MAV_SYS_STATUS_SENSOR_3D_GYRO | _S.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+                   | _S.MAV_SYS_STATUS_SENSOR_3D_MAG | _S.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+                   | _S.MAV_SYS_STATUS_SENSOR_GPS | _S.MAV_SYS_STATUS_AHRS)
+SENSORS_REPORTED = (SENSORS_PRESENT | _S.MAV_SYS_STATUS_SENSOR_BATTERY | _S.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+                    | _S.MAV_SYS_STATUS_RECOVERY_SYSTEM | _S.MAV_SYS_STATUS_OBSTACLE_AVOIDANCE
+                    | _S.MAV_SYS_STATUS_SENSOR_RC_RECEIVER | _S.MAV_SYS_STATUS_SENSOR_DIFFERENTIAL_PRESSURE)
 
 
-def _global_payload(t_ms: int, p, vel, yaw_rad: float, home: tuple[float, float, float]) -> bytes:
-    lat, lon, alt = ned_to_geodetic(p, *home)
+def sys_status_bits(prearm_ok: bool) -> tuple[int, int, int]:
+    """(present, enabled, health) of SYS_STATUS for a healthy simulated vehicle."""
+    health = SENSORS_REPORTED | (_S.MAV_SYS_STATUS_PREARM_CHECK if prearm_ok else 0)
+    enabled = SENSORS_PRESENT | (SENSORS_REPORTED & ~health)
+    return SENSORS_PRESENT, enabled, health
+
+
+# HIGHRES_IMU: hand-packed (hot path, 50 Hz), byte-identical to pymavlink (tests/test_mavlink_fast.py)
+CRC_HIGHRES_IMU = 93
+P_HIGHRES_IMU = struct.Struct("<Q13fHB")
+HIGHRES_FIELDS = 0x1FFF & ~(0x400)  # accel, gyro, mag, abs pressure, pressure alt, temperature (no diff pressure)
+G_STD = 9.80665
+EARTH_FIELD_NED_GAUSS = np.array([0.21, 0.015, 0.43])  # about Zurich (the default home)
+
+
+def isa_pressure_hpa(alt_amsl_m: float) -> float:
+    """International Standard Atmosphere pressure (hPa) at an altitude (m), troposphere."""
+    return 1013.25 * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
+
+
+def _global_payload(t_ms: int, p, vel, yaw_rad: float, origin: tuple[float, float, float],
+                    home_z_m: float = 0.0) -> bytes:
+    """GLOBAL_POSITION_INT payload; ``origin`` is the local frame's geodetic origin, ``home_z_m`` the home's
+    local z (relative_alt is the altitude above home, as PX4's)."""
+    lat, lon, alt = ned_to_geodetic(p, *origin)
     hdg = round(math.degrees(yaw_rad) * 100.0) % 36000
     return mf.P_GLOBAL_POSITION_INT.pack(
         t_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0),
-        round(-float(p[2]) * 1000.0),
+        round((home_z_m - float(p[2])) * 1000.0),
         _i16(vel[0] * 100.0), _i16(vel[1] * 100.0), _i16(vel[2] * 100.0), hdg,
     )
 
@@ -250,4 +327,4 @@ def _i16(x: float) -> int:
 
 
 _ZERO3 = (0.0, 0.0, 0.0)
-_STREAMABLE = {MSG_SYSTEM_TIME, MSG_AUTOPILOT_VERSION}
+_STREAMABLE = {MSG_SYSTEM_TIME, MSG_AUTOPILOT_VERSION, MSG_HIGHRES_IMU, MSG_SCALED_IMU, MSG_HOME_POSITION}

@@ -1,6 +1,7 @@
 """The bundled SITL vehicle: VehicleSim physics behind two PX4-like MAVLink 2 UDP links.
 
-Owns flight modes, the offboard rule, arming, land detection, telemetry scheduling and the two clocks:
+Owns flight modes, the offboard rule and its loss failsafe, arming, home, land detection, telemetry
+scheduling, MAVLink signing set-up and the two clocks:
 real time (physics on a monotonic wall clock) and lockstep (one control period per SET_ATTITUDE_TARGET
 from the onboard link, then the due telemetry, then SYSTEM_TIME as end-of-step marker). See docs/sitl.md.
 """
@@ -8,7 +9,6 @@ from the onboard link, then the due telemetry, then SYSTEM_TIME as end-of-step m
 from __future__ import annotations
 
 import asyncio
-import collections
 import contextlib
 import dataclasses
 import logging
@@ -21,21 +21,29 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.autopilots import px4_modes
-from companion.core.model import VehicleParams
+from companion.core.model import VehicleParams, rotation_body_to_ned
+from companion.core.rotations import wrap_pi
 from companion.core.wind import WindConfig
 from companion.errors import ModelError
+from companion.mavlink_io.signing import SigningVerifier
 from sim_bridge import commands, telemetry
+from sim_bridge.imu import ImuModel, ImuNoise
 from sim_bridge.link import MavUdpLink, RejectCounters, open_link
 from sim_bridge.params import build_param_table, gains_from_params
 from sim_bridge.physics import InnerLoopGains, RotorConfig, VehicleSim
-from sim_bridge.position_hold import PositionHoldGains, position_hold_target
+from sim_bridge.position_hold import PositionHoldGains, position_control_target
 
 log = logging.getLogger(__name__)
 M = mavlink2
+_NAN3 = np.full(3, np.nan)
 
 DISARM_LAND_S = 2.0  # PX4's COM_DISARM_LAND: disarm after this long on the ground after a flight
 MARKER_RESEND_S = 0.2  # lockstep: re-send SYSTEM_TIME after this much wall time without an answer
 TAKEOFF_DONE_M = 0.15  # AUTO.TAKEOFF switches to AUTO.LOITER within this distance of the takeoff altitude
+# OFFBOARD position/velocity setpoints fly with PX4's multicopter limits: MPC_XY_VEL_MAX 12 m/s,
+# MPC_Z_VEL_MAX_UP 3 m/s, MPC_Z_VEL_MAX_DN 1.5 m/s, MPC_TILTMAX_AIR 45°
+OFFBOARD_GAINS = PositionHoldGains(vmax_xy_mps=12.0, vmax_up_mps=3.0, vmax_down_mps=1.5,
+                                   tilt_max_rad=math.radians(45.0))
 
 
 @dataclass(frozen=True)
@@ -49,7 +57,9 @@ class SitlConfig:
     control_period_us: int = 4000
     physics_dt_us: int = 1000
     thr_hover: float | None = None  # default 1 / thrust_to_weight
-    offboard_timeout_s: float = 0.5
+    offboard_timeout_s: float = 1.0  # COM_OF_LOSS_T (PX4 v1.15 default)
+    obl_action: int = 0  # COM_OBL_RC_ACT
+    fail_act_t_s: float = 5.0  # COM_FAIL_ACT_T: hold after offboard loss, then land
     takeoff_alt_m: float = 2.5
     home: tuple[float, float, float] = (47.397742, 8.545594, 488.0)
     onboard_bind: tuple[str, int] = ("127.0.0.1", 14580)
@@ -59,9 +69,13 @@ class SitlConfig:
     sysid: int = 1
     compid: int = M.MAV_COMP_ID_AUTOPILOT1
     payload_sysid: int = 2
-    payload_compid: int = M.MAV_COMP_ID_AUTOPILOT1
+    payload_compid: int = M.MAV_COMP_ID_USER11  # 35, as ArduPilot's SIM_SlungPayload
     payload_interval_us: int = 100_000
     duration_s: float | None = None
+    onboard_peer: tuple[str, int] | None = None  # lock the link to this peer from the start
+    gcs_peer: tuple[str, int] | None = None
+    signing_key: bytes | None = None
+    imu: ImuNoise = field(default_factory=ImuNoise)
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for inconsistent settings."""
@@ -74,6 +88,13 @@ class SitlConfig:
             raise ValueError("payload_sysid: must differ from the vehicle's sysid")
         if not 0.05 <= (self.thr_hover or 0.4) <= 0.95:
             raise ValueError("thr_hover: must be in [0.05, 0.95]")
+        if not 0 <= self.obl_action <= 4:
+            raise ValueError("obl_action: COM_OBL_RC_ACT must be 0..4 (5 hold, 6 terminate, 7 disarm: refused)")
+        if not 0.0 <= self.fail_act_t_s <= 25.0:
+            raise ValueError("fail_act_t: must be in [0, 25] s")
+        if self.signing_key is not None and len(self.signing_key) != 32:
+            raise ValueError("signing_key: must be 32 bytes")
+        self.imu.validate()
 
 
 class SitlVehicle:
@@ -82,14 +103,19 @@ class SitlVehicle:
     def __init__(self, cfg: SitlConfig) -> None:
         self.cfg = cfg
         self.sysid = cfg.sysid
-        self.home = cfg.home
+        self.origin = cfg.home  # geodetic origin of the local NED frame (the first home)
+        self.home_local_ned_m = np.zeros(3)  # home: moved to where the vehicle arms on the ground, as PX4
+        self.home_yaw_rad = 0.0
+        self.home_time_us = 0
         self.counters = RejectCounters()
         self.params = build_param_table(
             thr_hover=cfg.thr_hover or 1.0 / cfg.rotor.thrust_to_weight,
             offboard_timeout_s=cfg.offboard_timeout_s, wind_model=cfg.wind.model, wind_scale=cfg.wind.scale,
             payload_mass_kg=cfg.params.m, cable_length_m=cfg.params.l, takeoff_alt_m=cfg.takeoff_alt_m,
-            gains=InnerLoopGains(), counters=self.counters.counts,
+            gains=InnerLoopGains(), counters=self.counters.counts, obl_action=cfg.obl_action,
+            fail_act_t_s=cfg.fail_act_t_s, imu_noise_scale=cfg.imu.scale,
         )
+        self.imu = ImuModel(dataclasses.replace(cfg.imu, sample_dt_s=cfg.control_period_us * 1e-6))
         self.params.on_change = self._param_changed
         self.sim = self._new_sim(cfg.params, 0.0)
         self.hold_gains = PositionHoldGains()
@@ -97,8 +123,13 @@ class SitlVehicle:
         self.mode = px4_modes.AUTO_LOITER
         self.hold_pos_ned_m = np.zeros(3)
         self.hold_yaw_rad = 0.0
-        self._sp_times_us: collections.deque[int] = collections.deque()
+        self._sp_time_us: int | None = None  # newest offboard setpoint (attitude or position), sim time
+        self._sp_kind: str | None = None  # "attitude" or "position"
         self._last_sp: tuple[np.ndarray | None, float | None, np.ndarray | None] | None = None
+        self._pos_sp: tuple | None = None  # (pos, vel, acc NED with NaN = free, yaw, yaw rate)
+        self._yaw_sp_rad = 0.0
+        self._failsafe_since_us: int | None = None
+        self._failsafe_mode: px4_modes.Px4Mode | None = None
         self._airborne = False
         self._landed_since_us: int | None = None
         self._next_payload_us = 0
@@ -161,6 +192,28 @@ class SitlVehicle:
     def hover_thrust_n(self) -> float:
         return self.sim.params.hover_thrust_n
 
+    @property
+    def prearm_ok(self) -> bool:
+        """Whether arming is possible now (SYS_STATUS PREARM_CHECK health bit; always true when armed)."""
+        return self.armed or self.mode != px4_modes.OFFBOARD or self._stream_ok()
+
+    @property
+    def carried_mass_kg(self) -> float:
+        """What the rotors lift: M + m, or M while the payload rests on the ground (what PX4's hover-thrust
+        estimator would learn)."""
+        p = self.sim.params
+        return p.M if self.sim.payload_on_ground else p.M + p.m
+
+    def imu_sample(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, float]:
+        """(accelerometer m/s² FRD, gyro rad/s FRD, magnetometer gauss FRD, pressure hPa, pressure altitude m,
+        temperature °C) at the current simulated time."""
+        sim = self.sim
+        self.imu.scale = self.params.value("SIM_IMU_NSCALE")
+        acc, gyro = self.imu.sample(self.t_us, sim.specific_force_frd_mps2, sim.body_rates_frd_rad_s)
+        mag = rotation_body_to_ned(*sim.euler_rad).T @ telemetry.EARTH_FIELD_NED_GAUSS
+        alt = self.origin[2] - float(sim.x[2])
+        return acc, gyro, mag, telemetry.isa_pressure_hpa(alt), alt, 15.0 - 0.0065 * alt
+
     def normalized_thrust(self, thrust_n: float) -> float:
         """Newtons → PX4's normalized thrust (MPC_THR_HOVER at hover)."""
         return thrust_n * self.params.value("MPC_THR_HOVER") / self.hover_thrust_n
@@ -182,7 +235,8 @@ class SitlVehicle:
 
     def can_send(self, msgid: int) -> bool:
         return msgid in telemetry.default_intervals_us(1) or msgid in (
-            telemetry.MSG_AUTOPILOT_VERSION, telemetry.MSG_PROTOCOL_VERSION, telemetry.MSG_SYSTEM_TIME)
+            telemetry.MSG_AUTOPILOT_VERSION, telemetry.MSG_PROTOCOL_VERSION, telemetry.MSG_SYSTEM_TIME,
+            telemetry.MSG_SCALED_IMU)
 
     def send_message(self, msgid: int, link: MavUdpLink) -> None:
         telemetry.send_vehicle_message(msgid, link.mav, self)
@@ -212,6 +266,10 @@ class SitlVehicle:
         self.sim.armed = True
         self._airborne = not self.sim.landed
         self._landed_since_us = None
+        if self.sim.landed:  # PX4 sets home where it arms on the ground
+            self.home_local_ned_m = self.sim.pos_ned_m
+            self.home_yaw_rad = float(self.sim.euler_rad[2])
+            self.home_time_us = self.t_us
         if self.mode != px4_modes.OFFBOARD:
             self._hold_here()
         self.statustext(M.MAV_SEVERITY_INFO, "Armed")
@@ -238,12 +296,13 @@ class SitlVehicle:
             return commands.ACCEPTED, ""
         if mode == px4_modes.OFFBOARD:
             if not self._stream_ok():
-                return commands.DENIED, "Offboard denied: no setpoint stream (>2 Hz)"
-            if self._last_sp is not None:
+                return commands.DENIED, "Offboard denied: no setpoint stream"
+            self._yaw_sp_rad = float(self.sim.euler_rad[2])
+            if self._sp_kind == "attitude" and self._last_sp is not None:
                 self.sim.set_attitude_target(*self._sp_newtons(self._last_sp))
         elif mode == px4_modes.AUTO_TAKEOFF:
             self._hold_here()
-            self.hold_pos_ned_m[2] = -self.params.value("MIS_TAKEOFF_ALT")
+            self.hold_pos_ned_m[2] = float(self.home_local_ned_m[2]) - self.params.value("MIS_TAKEOFF_ALT")
         elif mode != px4_modes.AUTO_LAND:
             self._hold_here()
         else:
@@ -257,11 +316,12 @@ class SitlVehicle:
         if not self.armed:
             return commands.DENIED, "Takeoff denied: arm first"
         alt = self.params.value("MIS_TAKEOFF_ALT")
-        if math.isfinite(alt_amsl_m) and alt_amsl_m > self.home[2]:
-            alt = alt_amsl_m - self.home[2]
+        home_amsl = self.origin[2] - float(self.home_local_ned_m[2])
+        if math.isfinite(alt_amsl_m) and alt_amsl_m > home_amsl:
+            alt = alt_amsl_m - home_amsl
         res, why = self.set_mode(px4_modes.AUTO_TAKEOFF)
         if res == commands.ACCEPTED:
-            self.hold_pos_ned_m[2] = -alt
+            self.hold_pos_ned_m[2] = float(self.home_local_ned_m[2]) - alt
         return res, why
 
     def reboot(self) -> tuple[int, str]:
@@ -280,12 +340,8 @@ class SitlVehicle:
 
     # ------------------------------------------------------------------ offboard setpoints
     def _stream_ok(self) -> bool:
-        now = self.t_us
-        while self._sp_times_us and self._sp_times_us[0] < now - 1_000_000:
-            self._sp_times_us.popleft()
-        recent = len(self._sp_times_us) > 2
-        fresh = bool(self._sp_times_us) and now - self._sp_times_us[-1] <= self._timeout_us()
-        return recent and fresh
+        """PX4's offboard rule (offboardCheck.cpp): one setpoint no older than COM_OF_LOSS_T is enough."""
+        return self._sp_time_us is not None and self.t_us - self._sp_time_us <= self._timeout_us()
 
     def _timeout_us(self) -> int:
         return round(self.params.value("COM_OF_LOSS_T") * 1e6)
@@ -301,9 +357,8 @@ class SitlVehicle:
             self.counters.reject(kind, "SET_ATTITUDE_TARGET")
             return
         if q is not None or rates is not None or thrust is not None:
-            self._sp_times_us.append(self.t_us)
-            if len(self._sp_times_us) > 4096:
-                self._sp_times_us.popleft()
+            self._sp_time_us = self.t_us
+            self._sp_kind = "attitude"
             self._last_sp = (q, thrust, rates)
             if self.mode == px4_modes.OFFBOARD:
                 self.sim.set_attitude_target(*self._sp_newtons(self._last_sp))
@@ -317,12 +372,49 @@ class SitlVehicle:
             for lk in links:
                 lk.flush()
 
+    def on_position_target(self, msg) -> None:
+        """SET_POSITION_TARGET_LOCAL_NED: an offboard setpoint (stream and flight) as in PX4."""
+        kind, sp = commands.parse_position_target(msg, float(self.sim.euler_rad[2]))
+        if kind is not None:
+            self.counters.reject(kind, "SET_POSITION_TARGET_LOCAL_NED")
+            return
+        if self._sp_kind != "position":
+            self._yaw_sp_rad = float(self.sim.euler_rad[2])
+        self._sp_time_us = self.t_us
+        self._sp_kind = "position"
+        self._pos_sp = sp
+
+    def on_setup_signing(self, link: MavUdpLink, msg) -> None:
+        """SETUP_SIGNING (as PX4's MavlinkSignControl): a 32-byte key and initial timestamp for every link;
+        an all-zero key with timestamp 0 turns signing off. Only messages that passed the link's checks get
+        here: from its locked peer, and signed with the current key when signing is on. No reply (none is
+        defined)."""
+        key = bytes(msg.secret_key)
+        ts = int(msg.initial_timestamp)
+        if not any(key) and ts == 0:
+            for lk in self._links():
+                lk.set_signing(None)
+            self.statustext(M.MAV_SEVERITY_NOTICE, "MAVLink signing disabled (SETUP_SIGNING)")
+            return
+        self._enable_signing(key, ts)
+        self.statustext(M.MAV_SEVERITY_NOTICE, "MAVLink signing key set (SETUP_SIGNING)")
+
+    def _enable_signing(self, key: bytes, initial_timestamp: int = 0) -> None:
+        verifier = SigningVerifier(key)
+        verifier.newest = initial_timestamp
+        for lk in self._links():
+            lk.set_signing(verifier)
+            lk.signer.timestamp = initial_timestamp
+
     # ------------------------------------------------------------------ one control period
     def advance(self) -> None:
         """Fly one control period: internal controller, physics, mode logic, due telemetry."""
         sim = self.sim
-        if self.mode != px4_modes.OFFBOARD and sim.armed:
-            self._internal_control()
+        if sim.armed:
+            if self.mode != px4_modes.OFFBOARD:
+                self._internal_control()
+            elif self._sp_kind == "position":
+                self._offboard_position_control()
         try:
             sim.step(self.cfg.control_period_us // self.cfg.physics_dt_us)
         except (ModelError, FloatingPointError) as exc:  # e.g. flipped to pitch 90°: crash, restart at home
@@ -346,8 +438,8 @@ class SitlVehicle:
         if self.mode == px4_modes.AUTO_LAND:
             target[2] = sim.pos_ned_m[2] + 5.0
             descent = 0.7
-        q, thrust = position_hold_target(sim.pos_ned_m, sim.vel_ned_mps, target, self.hold_yaw_rad,
-                                         sim.params.total_mass, sim.params.g, self.hold_gains, descent)
+        q, thrust = position_control_target(sim.pos_ned_m, sim.vel_ned_mps, target, _NAN3, _NAN3, self.hold_yaw_rad,
+                                            self.carried_mass_kg, sim.params.g, self.hold_gains, descent)
         near_ground = sim.pos_ned_m[2] > -0.02 and sim.vel_ned_mps[2] > -0.1
         if (sim.landed or near_ground) and (self.mode == px4_modes.AUTO_LAND or target[2] > -0.3):
             # Ground contact (PX4's land detector): idle thrust, so the payload's tug cannot keep the airframe
@@ -355,14 +447,41 @@ class SitlVehicle:
             thrust = 0.5 * self.hover_thrust_n
         sim.set_attitude_target(q, thrust)
 
+    def _offboard_position_control(self) -> None:
+        """Fly the newest SET_POSITION_TARGET_LOCAL_NED through the position controller (PX4's limits)."""
+        sim = self.sim
+        pos, vel, acc, yaw, yaw_rate = self._pos_sp
+        if math.isfinite(yaw):
+            self._yaw_sp_rad = yaw
+        elif math.isfinite(yaw_rate):
+            self._yaw_sp_rad = wrap_pi(self._yaw_sp_rad + yaw_rate * self.cfg.control_period_us * 1e-6)
+        q, thrust = position_control_target(sim.pos_ned_m, sim.vel_ned_mps, pos, vel, acc, self._yaw_sp_rad,
+                                            self.carried_mass_kg, sim.params.g, OFFBOARD_GAINS)
+        z = sim.pos_ned_m[2]
+        wants_up = ((math.isfinite(pos[2]) and pos[2] < z - 0.3) or (math.isfinite(vel[2]) and vel[2] < -0.1)
+                    or (math.isfinite(acc[2]) and acc[2] < -0.5))
+        if (sim.landed or (z > -0.02 and sim.vel_ned_mps[2] > -0.1)) and not wants_up:
+            thrust = 0.5 * self.hover_thrust_n  # on the ground and not asked to climb: idle, as PX4's land detector
+        sim.set_attitude_target(q, thrust)
+
     def _after_step(self) -> None:
         sim = self.sim
-        if self.mode == px4_modes.OFFBOARD and (
-            not self._sp_times_us or self.t_us - self._sp_times_us[-1] > self._timeout_us()
-        ):
+        if self.mode == px4_modes.OFFBOARD and not self._stream_ok():
+            act = round(self.params.value("COM_OBL_RC_ACT"))
+            hold = px4_modes.POSCTL if act <= 2 else px4_modes.AUTO_LOITER
             self._hold_here()
-            self.mode = px4_modes.POSCTL
-            self.statustext(M.MAV_SEVERITY_WARNING, "Offboard setpoints lost: switching to POSCTL hold")
+            self.mode = hold
+            self._failsafe_since_us, self._failsafe_mode = self.t_us, hold
+            self.statustext(M.MAV_SEVERITY_WARNING, f"Offboard setpoints lost: switching to {hold.name} hold, "
+                            f"landing in {self.params.value('COM_FAIL_ACT_T'):g} s")
+        if self._failsafe_since_us is not None:
+            if self.mode != self._failsafe_mode or not sim.armed:
+                self._failsafe_since_us = None  # the user took over (or it is over)
+            elif self.t_us - self._failsafe_since_us >= self.params.value("COM_FAIL_ACT_T") * 1e6:
+                self._failsafe_since_us = None
+                self._hold_here()
+                self.mode = px4_modes.AUTO_LAND
+                self.statustext(M.MAV_SEVERITY_CRITICAL, "Failsafe: offboard setpoints lost, landing")
         if self.mode == px4_modes.AUTO_TAKEOFF and sim.armed and abs(
             sim.pos_ned_m[2] - self.hold_pos_ned_m[2]) < TAKEOFF_DONE_M:
             self.mode = px4_modes.AUTO_LOITER
@@ -391,6 +510,10 @@ class SitlVehicle:
         t = msg.get_type()
         if t == "SET_ATTITUDE_TARGET":
             self.on_attitude_target(link, msg)
+        elif t == "SET_POSITION_TARGET_LOCAL_NED":
+            self.on_position_target(msg)
+        elif t == "SETUP_SIGNING":
+            self.on_setup_signing(link, msg)
         elif t == "COMMAND_LONG":
             commands.handle_command(self, link, msg, is_int=False)
         elif t == "COMMAND_INT":
@@ -456,13 +579,13 @@ class SitlVehicle:
         warm.armed = True
         warm.step(2)
         self.onboard = await open_link("onboard", cfg.onboard_bind, cfg.onboard_remote, cfg.sysid, cfg.compid,
-                                       self.counters, self.on_message)
+                                       self.counters, self.on_message, cfg.onboard_peer, link_id=0)
         self.gcs = await open_link("gcs", cfg.gcs_bind, cfg.gcs_remote, cfg.sysid, cfg.compid,
-                                   self.counters, self.on_message)
+                                   self.counters, self.on_message, cfg.gcs_peer, link_id=1)
         self.onboard.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us))
-        gcs_rates = telemetry.default_intervals_us(cfg.control_period_us)
-        gcs_rates[telemetry.MSG_DEBUG_FLOAT_ARRAY] = max(cfg.control_period_us, 100_000)
-        self.gcs.scheduler = telemetry.RateScheduler(gcs_rates)
+        self.gcs.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us, "normal"))
+        if cfg.signing_key is not None:
+            self._enable_signing(cfg.signing_key)
         self._payload_mavs = [lk.sender(cfg.payload_sysid, cfg.payload_compid) for lk in self._links()]
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):

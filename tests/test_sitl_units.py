@@ -71,7 +71,7 @@ def _frames(data: bytes):
     counters = RejectCounters()
     link = MavUdpLink("test", ("127.0.0.1", 9), 1, 1, counters, lambda lk, m: None)
     msgs = link._frames(data)
-    return [m.get_type() for m in msgs], {k: v for k, v in counters.counts.items() if v}
+    return [m.get_type() for m, _ in msgs], {k: v for k, v in counters.counts.items() if v}
 
 
 def test_framing_counts_each_kind_and_keeps_good_frames():

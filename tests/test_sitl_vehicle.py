@@ -62,14 +62,22 @@ def test_heartbeat_type_autopilot_and_mode(vehicle):
     assert hb.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
     assert hb.custom_mode == LOITER_MODE
     assert hb.get_srcComponent() == M.MAV_COMP_ID_AUTOPILOT1
-    # the payload is its own system (id 2) with positions
-    assert c.wait_for("HEARTBEAT", sysid=2).autopilot == M.MAV_AUTOPILOT_INVALID
-    for _ in range(30):
+    # the payload announces itself as ArduPilot's SITL slung payload does: system 2, component 35 (USER11),
+    # HEARTBEAT type AIRSHIP / autopilot INVALID (not an autopilot), GLOBAL_POSITION_INT and ATTITUDE at 10 Hz
+    phb = c.wait_for("HEARTBEAT", sysid=2)
+    assert (phb.autopilot, phb.type, phb.base_mode, phb.system_status) == (M.MAV_AUTOPILOT_INVALID,
+                                                                            M.MAV_TYPE_AIRSHIP, 0, 0)
+    assert phb.get_srcComponent() == M.MAV_COMP_ID_USER11 == 35
+    seen: dict[str, list[int]] = {}
+    c.on_message = lambda m: seen.setdefault(m.get_type(), []).append(m.time_boot_ms) if (
+        m.get_srcSystem() == 2 and m.get_type() in ("GLOBAL_POSITION_INT", "ATTITUDE")) else None
+    t0 = c.sim_time_ms
+    for _ in range(250):  # 1 s
         c.step(type_mask=TICK)
-    pl = c.last["LOCAL_POSITION_NED"]
+    for kind in ("GLOBAL_POSITION_INT", "ATTITUDE"):
+        assert len([t for t in seen[kind] if t0 <= t < t0 + 1000]) == 10, kind
     gp = c.wait_for("GLOBAL_POSITION_INT", sysid=2, timeout_s=2.0)
-    assert gp.relative_alt < -500  # the payload hangs 1 m below the airframe on the ground
-    assert pl is not None
+    assert gp.relative_alt == 0  # it rests on the ground before take-off (no longer 1 m below it)
 
 
 def test_arm_disarm_acked_and_forced_disarm(vehicle):
@@ -104,6 +112,22 @@ def test_offboard_refused_without_stream_accepted_with_one_and_rolls_15deg(vehic
     assert abs(math.degrees(c.last["ATTITUDE"].roll) - 15.0) < 1.0
     assert c.last["ATTITUDE_TARGET"].thrust == pytest.approx(0.42, abs=1e-6)
     assert c.last["HEARTBEAT"].custom_mode == OFFBOARD_MODE
+
+
+def test_offboard_entry_on_one_fresh_setpoint_as_px4(vehicle):
+    """PX4 (offboardCheck.cpp) needs one setpoint younger than COM_OF_LOSS_T (default 1.0 s), not a rate."""
+    c = vehicle()
+    c.mav.param_request_read_send(1, 1, b"COM_OF_LOSS_T", -1)
+    assert c.wait_for("PARAM_VALUE", lambda m: m.param_id == "COM_OF_LOSS_T").param_value == pytest.approx(1.0)
+    c.step(thrust=0.0)  # exactly one setpoint
+    assert c.set_mode(6) == M.MAV_RESULT_ACCEPTED
+    assert c.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_HEARTBEAT) == M.MAV_RESULT_ACCEPTED
+    assert c.wait_for("HEARTBEAT").custom_mode == OFFBOARD_MODE
+    c2 = vehicle()  # a setpoint older than COM_OF_LOSS_T is not enough
+    c2.step(thrust=0.0)
+    for _ in range(260):  # 1.04 s without setpoints
+        c2.step(type_mask=TICK)
+    assert c2.set_mode(6) == M.MAV_RESULT_DENIED
 
 
 def test_setpoint_loss_switches_to_hold_within_timeout(vehicle):
