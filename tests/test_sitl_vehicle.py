@@ -147,6 +147,29 @@ def test_setpoint_loss_switches_to_hold_within_timeout(vehicle):
     assert c.last["HEARTBEAT"].base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
 
 
+def test_offboard_loss_holds_then_lands_and_disarms(vehicle):
+    """Issue 9: never hover forever. COM_OF_LOSS_T 1 s → POSCTL hold; COM_FAIL_ACT_T later → AUTO.LAND."""
+    c = vehicle("--offboard-loss-hold", "2.0")
+    assert c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_HEARTBEAT, 4000) == M.MAV_RESULT_ACCEPTED
+    _offboard_hover(c)
+    z = vz = 0.0
+    for _ in range(750):  # 3 s: climb towards 2 m
+        c.step(thrust=min(0.9, max(0.05, 0.4 + 0.12 * (z + 2.0) + 0.12 * vz)))
+        z, vz = c.last["LOCAL_POSITION_NED"].z, c.last["LOCAL_POSITION_NED"].vz
+    t_last = c.sim_time_ms
+    modes: dict[int, int] = {}
+    while c.sim_time_ms - t_last < 12_000:
+        c.step(type_mask=TICK)  # the companion is gone: time goes on, no setpoints
+        modes.setdefault(c.last["HEARTBEAT"].custom_mode, c.sim_time_ms - t_last)
+        if not c.last["HEARTBEAT"].base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED:
+            break
+    assert 1000 <= modes[POSCTL_MODE] <= 1008
+    assert 3000 <= modes[(4 << 16) | (6 << 24)] <= 3008  # AUTO.LAND after the 2 s hold
+    assert not c.last["HEARTBEAT"].base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED  # landed and disarmed
+    assert c.last["LOCAL_POSITION_NED"].z == pytest.approx(0.0, abs=1e-6)
+    assert any("landing" in t for t in c.statustexts)
+
+
 def test_param_set_then_read_round_trip(vehicle):
     c = vehicle()
     c.mav.param_set_send(1, 1, b"COM_OF_LOSS_T", 0.8, M.MAV_PARAM_TYPE_REAL32)
@@ -243,8 +266,9 @@ def _scripted_flight() -> list[tuple]:
                 r = 0.1 * math.sin(k * 0.02)
                 c.step(q=(math.cos(r / 2), math.sin(r / 2), 0.0, 0.0), thrust=0.44)
                 lp, at, sw = c.last["LOCAL_POSITION_NED"], c.last["ATTITUDE"], c.last["DEBUG_FLOAT_ARRAY"]
+                imu = c.last["HIGHRES_IMU"]  # with the default (seeded) noise and bias model
                 trace.append((c.sim_time_ms, lp.time_boot_ms, lp.x, lp.y, lp.z, lp.vz, at.time_boot_ms, at.roll,
-                              at.pitch, sw.time_usec, *sw.data[:5]))
+                              at.pitch, sw.time_usec, *sw.data[:5], imu.time_usec, imu.xacc, imu.zacc, imu.xgyro))
     finally:
         assert stop_vehicle(proc) == 0
     return trace
@@ -257,6 +281,7 @@ def test_lockstep_runs_are_bit_identical():
     assert a == b
     assert a[-1][0] == 5 * 4 + 400 * 4  # one control period per answer
     assert a[-1][4] < -0.1  # it did fly
+    assert len({row[-3] for row in a}) >= 30  # 50 Hz IMU samples, noisy, and the same in both runs
 
 
 def test_broken_vehicle_file_exits_2_naming_file_and_key(tmp_path):
