@@ -121,12 +121,13 @@ def position_control_target(
         f[:2] *= fxy_max / fxy
     thrust_n = float(np.linalg.norm(f))
     # body z axis (down) opposite to the thrust vector; attitude from it and the yaw
-    b3 = -f / thrust_n
-    c = np.array([math.cos(yaw_rad), math.sin(yaw_rad), 0.0])
-    b2 = np.cross(b3, c)
-    b2 /= np.linalg.norm(b2)
-    b1 = np.cross(b2, b3)
-    phi = math.atan2(b2[2], b3[2])
-    theta = -math.asin(max(-1.0, min(1.0, b1[2])))
-    psi = math.atan2(b1[1], b1[0])
+    b3x, b3y, b3z = -f[0] / thrust_n, -f[1] / thrust_n, -f[2] / thrust_n
+    cx, cy = math.cos(yaw_rad), math.sin(yaw_rad)
+    b2x, b2y, b2z = -b3z * cy, b3z * cx, b3x * cy - b3y * cx  # b3 × c with c = [cos ψ, sin ψ, 0]
+    n2 = math.sqrt(b2x * b2x + b2y * b2y + b2z * b2z)
+    b2x, b2y, b2z = b2x / n2, b2y / n2, b2z / n2
+    b1x, b1y, b1z = b2y * b3z - b2z * b3y, b2z * b3x - b2x * b3z, b2x * b3y - b2y * b3x  # b2 × b3
+    phi = math.atan2(b2z, b3z)
+    theta = -math.asin(max(-1.0, min(1.0, b1z)))
+    psi = math.atan2(b1y, b1x)
     return quat_from_euler(phi, theta, psi), thrust_n
