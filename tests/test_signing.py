@@ -233,3 +233,21 @@ def test_setup_signing_turns_signing_on_and_off():
             assert math.isfinite(_read_param(c, "MPC_THR_HOVER"))
     finally:
         assert stop_vehicle(proc) == 0
+
+
+def test_configured_peer_is_locked_from_the_start():
+    """--onboard-peer: the vehicle talks only to that address, even if someone else talks first."""
+    with MavClient(0) as owner:
+        peer_port = owner.sock.getsockname()[1]
+        proc, port, _ = spawn_vehicle("--lockstep", "--wind", "none", "--onboard-peer", f"127.0.0.1:{peer_port}")
+        try:
+            owner.vehicle_addr = ("127.0.0.1", port)
+            with MavClient(port) as first:
+                first.heartbeat()
+                first.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # arm: dropped
+                assert owner.wait_marker(5.0) == 0  # the markers went to the configured peer all along
+                assert [m for m in first.poll(0.3) if m.get_type() != "BAD_DATA"] == []
+                assert not _armed(owner)
+                assert _read_param(owner, "RJ_FOREIGN_SENDE") >= 2
+        finally:
+            assert stop_vehicle(proc) == 0
