@@ -130,9 +130,11 @@ def test_flies_without_the_cable_sensor(tmp_path, swing_input, envelope):
     sources, envelopes = rep["swing_sources"], rep["envelope_modes"]
     assert set(sources) <= {swing_input, "none"} and sources[swing_input] > 1000
     assert set(envelopes) <= {envelope, "full_cable"} and envelopes[envelope] > 1000
-    # the payload now starts on the ground right under the airframe: on the first tick its offset is zero and
-    # gives no angles (no swing source, full-cable envelope) -- once, before take-off
-    assert sources.get("none", 0) + envelopes.get("full_cable", 0) <= (2 if swing_input != "none" else 1e9)
+    # the payload now starts on the ground right under the airframe: on the first ticks its offset is zero and
+    # gives no angles (no swing source, full-cable envelope), a handful before take-off
+    if swing_input != "none":
+        assert sources.get("none", 0) <= 0.01 * sum(sources.values())
+        assert envelopes.get("full_cable", 0) <= 0.01 * sum(envelopes.values())
     assert rep["max_swing_rad"] is not None  # the log still records the measured swing
     if swing_input == "none":
         assert "no swing input" in proc.stderr
