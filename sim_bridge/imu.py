@@ -58,6 +58,17 @@ class ImuModel:
         self.gyro_bias = np.zeros(3)
         self._t_us: int | None = None
         self._last: tuple[np.ndarray, np.ndarray] | None = None
+        self._normals = np.empty((0, 6))  # standard normal draws, taken from the generator in blocks
+        self._next = 0
+
+    def _draw6(self) -> np.ndarray:
+        """Six standard normal numbers (drawn 256 rows at a time: the same sequence, far fewer calls)."""
+        if self._next >= len(self._normals):
+            self._normals = self._rng.standard_normal((256, 6))
+            self._next = 0
+        row = self._normals[self._next]
+        self._next += 1
+        return row
 
     def sample(self, t_us: int, specific_force_frd_mps2: np.ndarray,
                rates_frd_rad_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -70,10 +81,10 @@ class ImuModel:
         if k > 0.0:
             if self._t_us is not None and t_us > self._t_us:
                 dt = (t_us - self._t_us) * 1e-6
-                walk = self._rng.standard_normal(6) * math.sqrt(dt)
+                walk = self._draw6() * math.sqrt(dt)
                 self.accel_bias += k * n.accel_bias_random_walk * walk[:3]
                 self.gyro_bias += k * n.gyro_bias_random_walk * walk[3:]
-            white = self._rng.standard_normal(6) / math.sqrt(n.sample_dt_s)
+            white = self._draw6() / math.sqrt(n.sample_dt_s)
             acc = specific_force_frd_mps2 + self.accel_bias + k * n.accel_noise_density * white[:3]
             gyro = rates_frd_rad_s + self.gyro_bias + k * n.gyro_noise_density * white[3:]
         else:

@@ -61,13 +61,14 @@ use_kernel_cache(Path(__file__), Path(__file__).with_name("inner_loop.py"))
 @njit(cache=True)
 def _physics_steps(
     x, t, n, dt, p, p_free, wind_k, tgt_euler, tgt_euler_rate, rates_only, tgt_rates, thrust, gp, a_mat, a_inv,
-    f_max, armed, landed, pl, f_out, tau_out, d_out,
+    f_max, armed, landed, pl, f_out, tau_out, d_out, a_out,
 ):  # pragma: no cover - compiled
     """``n`` physics steps in place on ``x``: wind → attitude SMC → mixer → RK4 → ground and cable contact.
 
     ``pl`` = [slack (1.0/0.0), payload x, y, z]: the payload's ground contact, updated in place; while slack
     the airframe flies with ``p_free`` (the parameters with m = 0). Returns (t, landed, ok). ``f_out``,
-    ``tau_out``, ``d_out`` receive the last step's rotor thrusts, body torques and disturbance.
+    ``tau_out``, ``d_out`` receive the last step's rotor thrusts, body torques and disturbance, ``a_out`` the
+    airframe's acceleration ξ̈ at the final state under them (0 on the ground), for the IMU.
     """
     inertia = p[3:6]
     tau = np.empty(3)
@@ -142,6 +143,14 @@ def _physics_steps(
         t += dt
     for i in range(6):
         d_out[i] = d[i]
+    if landed:
+        for i in range(3):
+            a_out[i] = 0.0
+    else:
+        k = np.empty(16)
+        _deriv(x, u, d, p_free if pl[0] > 0.5 else p, k)
+        for i in range(3):
+            a_out[i] = k[8 + i]
     return t, landed, True
 
 
@@ -270,6 +279,7 @@ class VehicleSim:
         self.rotor_thrust_n = np.zeros(4)
         self.torque_nm = np.zeros(3)
         self.disturbance = np.zeros(6)
+        self._accel = np.zeros(3)  # ξ̈ after the last step (the kernel writes it)
         self._zeros3 = np.zeros(3)
         self._consts_key: tuple | None = None
         self._consts: tuple = ()
@@ -327,7 +337,7 @@ class VehicleSim:
             self.x, self.t_s, int(n_steps), self.dt_s, self._p, self._p_free, wind_scale_factor(self.wind),
             self.target_euler_rad, tgt_euler_rate, self.rates_only, rates, self.target_thrust_n,
             gp, a_mat, a_inv, f_max, self.armed, self.landed, self._pl,
-            self.rotor_thrust_n, self.torque_nm, self.disturbance,
+            self.rotor_thrust_n, self.torque_nm, self.disturbance, self._accel,
         )
         self.t_s = t
         self.landed = landed
@@ -422,10 +432,7 @@ class VehicleSim:
         thrusts, torques and disturbance (zero while it rests on the ground)."""
         if self.landed:
             return np.zeros(3)
-        u = np.array([self.thrust_n, *self.torque_nm])
-        out = np.empty(16)
-        _deriv(self.x, u, self.disturbance, self._p_free if self._pl[0] > 0.5 else self._p, out)
-        return out[8:11].copy()
+        return self._accel.copy()
 
     @property
     def specific_force_frd_mps2(self) -> np.ndarray:

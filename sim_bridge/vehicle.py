@@ -578,8 +578,6 @@ class SitlVehicle:
         warm = self._new_sim(self.sim.params, 0.0)  # load the compiled kernels before the clock starts
         warm.armed = True
         warm.step(2)
-        warm.landed = False  # and the model's derivative, called from Python for the IMU once airborne: loading
-        _ = warm.specific_force_frd_mps2  # it at lift-off stalled a real-time vehicle by ~1 s on a loaded machine
         self.onboard = await open_link("onboard", cfg.onboard_bind, cfg.onboard_remote, cfg.sysid, cfg.compid,
                                        self.counters, self.on_message, cfg.onboard_peer, link_id=0)
         self.gcs = await open_link("gcs", cfg.gcs_bind, cfg.gcs_remote, cfg.sysid, cfg.compid,
