@@ -209,8 +209,11 @@ class SitlVehicle:
         temperature °C) at the current simulated time."""
         sim = self.sim
         self.imu.scale = self.params.value("SIM_IMU_NSCALE")
-        acc, gyro = self.imu.sample(self.t_us, sim.specific_force_frd_mps2, sim.body_rates_frd_rad_s)
-        mag = rotation_body_to_ned(*sim.euler_rad).T @ telemetry.EARTH_FIELD_NED_GAUSS
+        r_t = rotation_body_to_ned(*sim.x[3:6]).T  # NED → body, once for accelerometer and magnetometer
+        a = sim.accel_ned_mps2
+        a[2] -= sim.params.g
+        acc, gyro = self.imu.sample(self.t_us, r_t @ a, sim.body_rates_frd_rad_s)  # = specific_force_frd_mps2
+        mag = r_t @ telemetry.EARTH_FIELD_NED_GAUSS
         alt = self.origin[2] - float(sim.x[2])
         return acc, gyro, mag, telemetry.isa_pressure_hpa(alt), alt, 15.0 - 0.0065 * alt
 
