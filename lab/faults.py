@@ -490,6 +490,65 @@ def companion_killed_vehicle_failsafe(workdir: Path, *, vehicle: str = "bundled"
             "disarmed_s": t_disarm, "max_descent_mps": vz_max, "max_altitude_m": -z_min}
 
 
+def _vehicle_port(fly: Proc) -> int:
+    """The bundled vehicle's onboard port, from its command line in the ``-v`` log of ``fly --sitl``."""
+    fly.wait_for("starting the bundled vehicle")
+    for _, line in fly.lines:
+        if "--onboard-port" in line:
+            return int(line.split("--onboard-port")[1].split()[0])
+    raise RuntimeError("no --onboard-port in the log")
+
+
+def signed_forced_disarm(workdir: Path, *, n: int = 20) -> dict[str, Any]:
+    """With MAVLink signing on both ends, a local attacker sends forced disarms to the vehicle and spoofed
+    telemetry to the companion, unsigned and signed with a wrong key, mid-flight: all must be dropped and counted,
+    and the flight must go on as if nothing happened."""
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    from companion.mavlink_io import signing
+
+    key_file = workdir / "signing.key"
+    if not key_file.exists():
+        signing.write_new_key_file(key_file)
+    run_dir = workdir / "signed-forced-disarm"
+    fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh", "--no-recording", "--signing-key", str(key_file)))
+    try:
+        veh_port, comp_port = _vehicle_port(fly), _companion_port(fly)
+        fly.wait_for("takeover → mission")
+
+        class _Out:
+            def __init__(self) -> None:
+                self.frames: list[bytes] = []
+
+            def write(self, b: bytes) -> None:
+                self.frames.append(bytes(b))
+
+        out = _Out()
+        mav = mavlink2.MAVLink(out, srcSystem=255, srcComponent=190)
+        spoof = mavlink2.MAVLink(out, srcSystem=1, srcComponent=1)
+        wrong = signing.LinkSigner(bytes(range(32)), link_id=7)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for _ in range(n):
+                out.frames.clear()
+                mav.command_long_send(1, 1, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196, 0, 0, 0, 0, 0)
+                spoof.heartbeat_send(2, 12, 0, 0, 3)  # "disarmed, in another mode"
+                cmd, hb = out.frames
+                s.sendto(cmd, ("127.0.0.1", veh_port))
+                s.sendto(wrong.sign(cmd, mavlink2.MAVLink_command_long_message.crc_extra), ("127.0.0.1", veh_port))
+                s.sendto(hb, ("127.0.0.1", comp_port))
+                s.sendto(wrong.sign(hb, mavlink2.MAVLink_heartbeat_message.crc_extra), ("127.0.0.1", comp_port))
+                time.sleep(0.01)
+        code = fly.finish(180)
+    finally:
+        fly.kill_all()
+    rep = read_report(run_dir)
+    sitl_log = (run_dir / "sitl.log").read_text(errors="replace") if (run_dir / "sitl.log").exists() else ""
+    return {"exit_code": code, "outcome": rep["outcome"], "final_phase": rep["final_phase"],
+            "companion_rejected": rep["link"]["rejected"], "disarmed_in_flight": "Disarmed (forced)" in sitl_log,
+            "vehicle_rejected_unsigned": "rejected input (unsigned" in sitl_log,
+            "vehicle_rejected_bad_signature": "rejected input (bad_signature" in sitl_log, "sent": 4 * n}
+
+
 SCENARIOS = {
     "vehicle_killed": vehicle_killed,
     "fuzz": fuzz,
@@ -497,6 +556,7 @@ SCENARIOS = {
     "companion_killed_report": companion_killed_report,
     "zenoh_flood": zenoh_flood,
     "jitter": jitter,
+    "signed_forced_disarm": signed_forced_disarm,
 }
 
 

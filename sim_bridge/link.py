@@ -27,7 +27,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.mavlink_io import signing
-from companion.mavlink_io.codec import FrameError, decode_lite, frame_msgid
+from companion.mavlink_io.codec import FrameError, crc_extra_of, decode_lite, frame_msgid
 
 log = logging.getLogger(__name__)
 
@@ -53,13 +53,6 @@ REJECT_KINDS = (
 #: message ids accepted unsigned on a signing link (PX4's list in mavlink_sign_control.cpp)
 UNSIGNED_OK = frozenset({mavlink2.MAVLINK_MSG_ID_RADIO_STATUS, mavlink2.MAVLINK_MSG_ID_ADSB_VEHICLE,
                          mavlink2.MAVLINK_MSG_ID_COLLISION})
-_CRC_EXTRA_EXTRA = {300: 217}  # PROTOCOL_VERSION, missing from pymavlink's common dialect
-
-
-def crc_extra_of(msgid: int) -> int:
-    """CRC extra byte of a message id we send (KeyError if unknown)."""
-    cls = mavlink2.mavlink_map.get(msgid)
-    return cls.crc_extra if cls is not None else _CRC_EXTRA_EXTRA[msgid]
 
 BATCH_MAX_BYTES = 1400  # stay below a typical Ethernet MTU
 _V2_HEADER = 10

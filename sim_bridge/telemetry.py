@@ -180,8 +180,12 @@ def hot_payload(msgid: int, v: Any) -> tuple[int, bytes] | None:
     t_ms = v.t_us // 1000
     if msgid == MSG_DEBUG_FLOAT_ARRAY:
         s = sim.swing
+        # data[4]: the cable's length while it is taut; while the payload rests on the ground (cable slack) the
+        # airframe-payload distance, shorter: a slack cable has no swing angle worth the name
+        reach = sim.params.l if not sim.payload_on_ground else float(
+            np.linalg.norm(sim.payload_pos_ned_m - sim.pos_ned_m))
         return mf.CRC_DEBUG_FLOAT_ARRAY, mf.P_SWING.pack(v.t_us, SWING_ARRAY_ID, SWING_NAME, s[0], s[1], s[2], s[3],
-                                                         sim.params.l)
+                                                         reach)
     if msgid == MSG_ATTITUDE:
         e = sim.euler_rad
         w = sim.body_rates_frd_rad_s

@@ -70,3 +70,13 @@ def test_50_ms_jitter_and_reordering_do_not_make_it_diverge(workdir):
     assert r["collisions"] == 0
     # honest: the goal is claimed only with the outcome that says so
     assert r["reached_goal"] == (r["outcome"] == "completed"), r
+
+
+def test_with_signing_forged_and_unsigned_disarms_and_spoofs_are_ignored(workdir):
+    r = faults.signed_forced_disarm(workdir, n=20)
+    assert r["exit_code"] == 0 and r["outcome"] == "completed" and r["final_phase"] == "landed", r
+    assert not r["disarmed_in_flight"]
+    assert r["vehicle_rejected_unsigned"] and r["vehicle_rejected_bad_signature"], r
+    # the companion's own port: the spoofed heartbeats come from a foreign address (dropped before the signature
+    # is even looked at); everything that did reach the vehicle was unsigned or signed with another key
+    assert r["companion_rejected"].get("foreign_sender", 0) >= 40, r

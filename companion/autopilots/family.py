@@ -55,6 +55,7 @@ class AutopilotFamily:
     followups: Callable[[Mapping[str, float], SetupOptions], tuple[tuple[ConfigureItem, ...], str | None]] = field(
         default=lambda answers, opts: ((), None))
     notes: str = ""
+    prearm_bit: bool = True  # readiness from SYS_STATUS health's MAV_SYS_STATUS_PREARM_CHECK (PX4, ArduPilot)
 
     def mode_params(self, what: str) -> list[float]:
         """DO_SET_MODE params [base_mode, custom_mode, custom_sub_mode] for ``offboard``, ``hold`` or ``land``."""

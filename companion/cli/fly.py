@@ -32,6 +32,7 @@ from companion.control.params import ControllerConfig, load_controller_config
 from companion.core.mission import Mission, load_mission
 from companion.errors import ConfigError, LinkError
 from companion.flight.app import FlightApp, FlyOptions
+from companion.mavlink_io.signing import load_key_file
 from companion.report.run_folder import write_run
 from companion.zenoh_io.session import zenoh_config_from_args
 from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry, ZenohTelemetrySink
@@ -160,6 +161,7 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
         ready_timeout_s=args.ready_timeout, land_on_abort=not args.no_land_on_abort,
         tlog_path=run_dir / "flight.tlog", run_dir=run_dir, allow_param_writes=not args.no_param_writes,
         start_here=args.start_here,
+        signing_key=None if args.signing_key is None else load_key_file(args.signing_key),
         inject_tick_error_at_s=_env_float("SLUNGPILOT_INJECT_TICK_ERROR_AT_S"),
     )
     if opts.rate_hz <= 0 or opts.rate_hz > 2000:
@@ -196,6 +198,8 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
             period_args = ["--control-period-ms", str(round(1000.0 / opts.rate_hz))]
             if args.instance:
                 period_args += ["--instance", str(args.instance)]
+            if args.signing_key is not None:
+                period_args += ["--signing-key", str(args.signing_key)]
             sitl = await stack.enter_async_context(
                 SitlProcess(mission, run_dir, lockstep=opts.lockstep, extra_args=period_args)
             )

@@ -62,6 +62,11 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                    help="fly the mission from where the vehicle stands (its start point moved under it); without "
                         "it, mission coordinates are relative to home and a vehicle more than 1 m from the "
                         "mission's start is refused")
+    p.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
+                   help="MAVLink 2 signing with the key in FILE (64 hex characters, or a passphrase hashed as MAVProxy "
+                        "does; `slungpilot keygen FILE` makes one): everything sent is signed, unsigned, forged and "
+                        "replayed frames are dropped and counted; with --sitl the bundled vehicle gets the same key. "
+                        "docs/companion.md: sharing it with PX4/ArduPilot (SETUP_SIGNING)")
     p.add_argument("--no-param-writes", action="store_true",
                    help="never change an autopilot parameter: refuse the vehicle instead (ArduCopter needs "
                         "GUID_OPTIONS bit 3, which the companion otherwise sets; see docs/autopilots.md)")

@@ -184,6 +184,26 @@ def _add_report(sub: Any) -> None:
     report.set_defaults(func=_cmd_report)
 
 
+def _add_keygen(sub: Any) -> None:
+    keygen = sub.add_parser(
+        "keygen", help=COMMANDS["keygen"],
+        description="Write a new random 32-byte MAVLink 2 signing key as 64 hex characters into FILE (readable by "
+                    "its owner only). Use it with `fly --signing-key FILE` (and `sitl --signing-key FILE`), and give "
+                    "the same key to the autopilot with SETUP_SIGNING (docs/companion.md).")
+    keygen.add_argument("file", type=Path, metavar="FILE", help="where to write the key (must not exist)")
+    keygen.set_defaults(func=_cmd_keygen)
+
+
+def _cmd_keygen(args: argparse.Namespace) -> int:
+    from companion.mavlink_io.signing import write_new_key_file
+
+    if args.file.exists():
+        raise ConfigError(f"{args.file}: exists already; keys are not overwritten")
+    write_new_key_file(args.file)
+    print(f"wrote a new signing key to {args.file}")
+    return 0
+
+
 def _add_missions(sub: Any) -> None:
     missions = sub.add_parser("missions", help=COMMANDS["missions"],
                               description="The missions that ship with slungpilot, by name, with where they fly.")
@@ -221,6 +241,7 @@ COMMANDS = {
     "evaluate": "fly N random forests per planner in parallel and summarise success, collisions, times",
     "report": "rebuild a run folder's report, summary and plots from its journal (e.g. after kill -9)",
     "missions": "list the shipped missions (use their names with fly --mission)",
+    "keygen": "write a new MAVLink 2 signing key file (for fly/sitl --signing-key)",
     "replay": "open a run folder's recording.rrd in Rerun's viewer (web viewer on 127.0.0.1 without a display)",
     "view": "show every vehicle on the Zenoh network live in Rerun's viewer",
     "bench": "print performance numbers (model, sitl, fly, zenoh, faults, view)",
@@ -229,7 +250,8 @@ _ADDERS: dict[str, Callable[[Any], None]] = {
     "fly": _add_fly, "sitl": _add_sitl, "listen": _add_zenoh_tool("listen"),
     "obstacles": _add_zenoh_tool("obstacles"), "zenoh-router": _add_zenoh_tool("zenoh-router"),
     "experiments": _add_lab("experiments"), "evaluate": _add_lab("evaluate"), "report": _add_report,
-    "missions": _add_missions, "bench": _add_bench, "replay": _add_viz_tool("replay"), "view": _add_viz_tool("view"),
+    "missions": _add_missions, "keygen": _add_keygen, "bench": _add_bench, "replay": _add_viz_tool("replay"),
+    "view": _add_viz_tool("view"),
 }
 
 

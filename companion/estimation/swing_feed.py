@@ -16,9 +16,11 @@ thrust to :meth:`SwingFeed.commanded`, and asks :meth:`SwingFeed.choose` for the
 ``none``                      no swing: full-cable envelope, no feed-forward
 ============================  ==================================================================================
 
-The estimator starts at lift-off (the model is of a flying vehicle: on the ground the ground's reaction would be
-read as a force on the airframe): the first tick the vehicle is airborne. Before that the flight core flies on
-the full-cable envelope, as for a vehicle without any swing input.
+The estimator starts once the payload hangs: the vehicle airborne and a cable's length above where it stood (the
+model is of a flying vehicle with a taut cable: on the ground the ground's reaction, and with a slack cable the
+missing pull, would be read as forces). Before that the flight core flies on the full-cable envelope, as for a
+vehicle without any swing input; payload fixes nearer than the cable's length (a payload on the ground) are
+skipped.
 
 Message mapping (vehicle unless said): ATTITUDE → attitude; LOCAL_POSITION_NED → velocity (and the position
 history payload positions are taken against); HIGHRES_IMU (m/s²) and SCALED_IMU (mG) → specific force; the
@@ -42,6 +44,9 @@ from companion.estimation.swing_estimator import SwingEstimate, SwingEstimator, 
 from companion.estimation.swing_model import payload_offset_from_global
 
 MG_TO_MPS2 = 9.80665e-3
+SLACK_FRACTION = 0.95  # a payload fix nearer than this fraction of the cable: the payload lies on the ground
+START_SWING_SIGMA_RAD = 0.15  # 1σ of the swing when the estimator starts (just after the cable went taut)
+SLACK_MARGIN_M = 0.1  # the estimator starts this far above a cable's length over the ground it stood on
 ESTIMATOR_INPUTS = ("estimate", "estimate_imu", "estimate_fixes")
 _GLOBAL_HISTORY = 64
 
@@ -57,6 +62,7 @@ class SwingFeed:
     estimator: SwingEstimator | None = None
     last: SwingEstimate | None = None
     counts: dict[str, int] = field(default_factory=dict)
+    _ground_z: float | None = None  # where the vehicle stood (local NED z, m), seen while on the ground
     _vglobal_t: list[float] = field(default_factory=list)
     _vglobal: list[tuple[float, float, float]] = field(default_factory=list)
 
@@ -84,9 +90,16 @@ class SwingFeed:
             return
         if self.swing_input == "auto" and state.swing_sensor is not None:
             return
+        if state.on_ground and state.pos_ned_m is not None:
+            self._ground_z = float(state.pos_ned_m[2])
         if not state.armed or state.on_ground:
             return
-        self.estimator = SwingEstimator(self.params, self.config, t0_s=state.t_s, vel0_ned_mps=state.vel_ned_mps)
+        if self._ground_z is not None and state.pos_ned_m is not None and \
+                float(state.pos_ned_m[2]) > self._ground_z - (self.params.l + SLACK_MARGIN_M):
+            return  # not a cable's length up yet: the payload may still lie on the ground
+        # the cable has just snapped taut: the payload may already swing, so the start is uncertain
+        self.estimator = SwingEstimator(self.params, self.config, t0_s=state.t_s, vel0_ned_mps=state.vel_ned_mps,
+                                        swing_sigma0_rad=START_SWING_SIGMA_RAD)
         if state.euler_rad is not None:
             self.estimator.set_attitude_euler(state.t_s, state.euler_rad, state.rates_frd_rad_s)
 
@@ -125,12 +138,21 @@ class SwingFeed:
                 v = self._vehicle_global_at(t)
                 if v is not None:
                     off = payload_offset_from_global(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3, *v)
-                    if np.all(np.isfinite(off)):
-                        est.update_payload_offset(t, off)
-                        self._count("payload_fix")
+                    if not np.all(np.isfinite(off)):
+                        return
+                    if float(np.linalg.norm(off)) < SLACK_FRACTION * self.params.l:
+                        self._count("slack_fix")
+                        return
+                    est.update_payload_offset(t, off)
+                    self._count("payload_fix")
             elif mtype == "LOCAL_POSITION_NED":
                 p = (msg.x, msg.y, msg.z)
-                if all(math.isfinite(c) for c in p) and est.update_payload_position(msg.time_boot_ms * 1e-3, p):
+                if not all(math.isfinite(c) for c in p):
+                    return
+                if state.pos_ned_m is not None and math.dist(p, state.pos_ned_m) < SLACK_FRACTION * self.params.l:
+                    self._count("slack_fix")
+                    return
+                if est.update_payload_position(msg.time_boot_ms * 1e-3, p):
                     self._count("payload_fix")
 
     def _vehicle_global_at(self, t: float) -> tuple[float, float, float] | None:

@@ -23,7 +23,8 @@ flight sequence then holds) but never becomes a setpoint.
 Swing input, in order of preference:
 
 1. the cable-angle sensor: ``DEBUG_FLOAT_ARRAY`` named ``"SWING"`` (data = [α, β, α̇, β̇, l]) from the
-   vehicle — used while it is fresher than ``swing_max_age_s`` (default 0.05 s of vehicle time);
+   vehicle — used while it is fresher than ``swing_max_age_s`` (default 0.05 s of vehicle time); a data[4]
+   shorter than the cable says the payload rests on the ground with the cable slack: no swing (zeros);
 2. the payload's own position stream (``LOCAL_POSITION_NED`` from the payload system, as ArduPilot's
    slung-payload simulation sends it), inverted through eqs. 3–4 — used while fresher than 0.3 s;
 3. none: the estimate carries ``swing=None``; the flight core then flies without feed-forward and with
@@ -59,6 +60,9 @@ MAV_SYS_STATUS_PREARM_CHECK = 0x10000000
 PX4_MAIN_MODE_NAMES = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD", 7: "STABILIZED"}
 PX4_AUTO_SUB_MODE_NAMES = {1: "READY", 2: "TAKEOFF", 3: "LOITER", 4: "MISSION", 5: "RTL", 6: "LAND"}
 BACKWARDS_TOL_S = 0.5
+SLACK_FRACTION = 0.95  # a payload nearer than this fraction of the cable's length lies on the ground (no swing)
+_ZERO4 = np.zeros(4)
+_ZERO4.flags.writeable = False
 FORWARD_TOL_S = 1.0
 
 
@@ -155,11 +159,13 @@ class VehicleState:
         """The vehicle's last STATUSTEXT ("" if it said nothing)."""
         return self.statustext[-1] if self.statustext else ""
 
-    def ready_to_arm(self) -> bool:
-        """The autopilot's own readiness: SYS_STATUS's pre-arm check bit where the autopilot reports it (PX4,
-        ArduPilot), else its HEARTBEAT state (STANDBY or ACTIVE)."""
-        if self.sys_status_seen and self.sensors_present & MAV_SYS_STATUS_PREARM_CHECK:
-            return bool(self.sensors_health & MAV_SYS_STATUS_PREARM_CHECK)
+    def ready_to_arm(self, prearm_bit: bool = True) -> bool:
+        """The autopilot's own readiness. PX4 and ArduPilot set SYS_STATUS's pre-arm check bit in *health* once
+        arming is allowed (PX4 v1.15 never in *present*: streams/SYS_STATUS.hpp; MAVSDK reads health alone), so
+        with ``prearm_bit`` that bit decides (no SYS_STATUS yet: not ready); without it, the HEARTBEAT state
+        (STANDBY or ACTIVE)."""
+        if prearm_bit:
+            return self.sys_status_seen and bool(self.sensors_health & MAV_SYS_STATUS_PREARM_CHECK)
         return self.system_status in (3, 4)
 
     # ------------------------------------------------------------------------------------------ ingest
@@ -255,8 +261,11 @@ class VehicleState:
             name = msg.name.rstrip("\x00") if isinstance(msg.name, str) else msg.name
             if name == "SWING" and len(msg.data) >= 4:
                 d0, d1, d2, d3 = (float(x) for x in msg.data[:4])
+                reach = float(msg.data[4]) if len(msg.data) >= 5 else self.cable_length_m
                 if isfinite(d0) and isfinite(d1) and isfinite(d2) and isfinite(d3):
-                    self.swing_sensor = np.array((d0, d1, d2, d3))
+                    # data[4] shorter than the cable: the payload rests on the ground, the cable is slack
+                    slack = isfinite(reach) and reach < SLACK_FRACTION * self.cable_length_m
+                    self.swing_sensor = _ZERO4 if slack else np.array((d0, d1, d2, d3))
                     self.swing_sensor_t_s = msg.time_usec * 1e-6
                 else:
                     self.counts["SWING_nonfinite"] += 1
@@ -305,6 +314,13 @@ class VehicleState:
             return None
         if self.vel_ned_mps is None or self.t_s - self.payload_t_s > self.payload_max_age_s:
             return None
+        return self._payload_swing()
+
+    def _payload_swing(self) -> np.ndarray | None:
+        """Swing angles from the payload's position; zero while it rests on the ground (nearer than the cable)."""
+        assert self.pos_ned_m is not None and self.payload_pos_ned_m is not None
+        if math.dist(self.pos_ned_m, self.payload_pos_ned_m) < SLACK_FRACTION * self.cable_length_m:
+            return _ZERO4
         try:
             return swing_from_payload(self.pos_ned_m, self.payload_pos_ned_m, self.vel_ned_mps,
                                       self.payload_vel_ned_mps, self.cable_length_m)
@@ -333,14 +349,8 @@ class VehicleState:
             and self.payload_vel_ned_mps is not None
             and self.t_s - self.payload_t_s <= self.payload_max_age_s
         ):
-            try:
-                swing = swing_from_payload(
-                    self.pos_ned_m, self.payload_pos_ned_m, self.vel_ned_mps, self.payload_vel_ned_mps,
-                    self.cable_length_m,
-                )
-                source = "payload_position"
-            except ValueError:
-                swing = None
+            swing = self._payload_swing()
+            source = "payload_position" if swing is not None else "none"
         if swing is not None and not np.all(np.isfinite(swing)):
             swing, source = None, "none"
         return Estimate(

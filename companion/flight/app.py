@@ -114,6 +114,7 @@ class FlyOptions:
     provisional: Callable[[FlightApp], dict[str, Any]] | None = None  # the journal's provisional report
     allow_param_writes: bool = True  # False: refuse a vehicle whose parameters would have to change (ArduPilot)
     start_here: bool = False  # fly the mission from where the vehicle stands (its start moved there)
+    signing_key: bytes | None = None  # MAVLink 2 signing: sign everything sent, accept only signed frames
     # Fault injection for the fault suite: from this vehicle time (s) on, every tick that would compute a setpoint
     # raises (``SLUNGPILOT_INJECT_TICK_ERROR_AT_S`` sets it for ``slungpilot fly``). None in normal use.
     inject_tick_error_at_s: float | None = None
@@ -172,7 +173,8 @@ class FlightApp:
         self.swing_feed = SwingFeed(mission.companion_params(), opts.swing_input)
         self.swing_sources: dict[str, int] = {}
         self._last_swing_source = ""
-        self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path, sock=opts.sock)
+        self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path, sock=opts.sock,
+                                signing_key=opts.signing_key)
         self.link.on_datagram_done = self._on_datagram_done
         self.profile = opts.profile or profile_by_name("px4", opts.hover_thrust_norm)
         self.core = FlightCore(mission, gains=opts.gains, profile=self.profile)
@@ -421,7 +423,8 @@ class FlightApp:
                 hb_wall = max(hb_wall, self.link.last_rx_wall)
         return Observation(
             now_s=st.t_s if self.opts.lockstep else wall, wall_s=wall, heartbeat_wall_s=hb_wall,
-            telemetry_wall_s=tel_wall, telemetry_ready=st.ready(), vehicle_ready=st.ready_to_arm(),
+            telemetry_wall_s=tel_wall, telemetry_ready=st.ready(),
+            vehicle_ready=st.ready_to_arm(self.profile.family.prearm_bit),
             armed=st.armed, mode=st.mode, on_ground=st.on_ground, heartbeats=st.heartbeats,
             estimate_ok=est is not None, core_result=self.core.result, tick_errors_in_row=self._tick_errors_in_row,
             abort=self.abort_reason, mission_timeout_s=self.mission.timeout_s, last_words=st.last_words,

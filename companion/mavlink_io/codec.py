@@ -335,3 +335,12 @@ def decode_lite(frame: bytes) -> Any:
             f = list(t[tip : tip + ln])
         d[name] = f
     return m
+
+
+_CRC_EXTRA_EXTRA = {300: 217}  # PROTOCOL_VERSION, missing from pymavlink's common dialect
+
+
+def crc_extra_of(msgid: int) -> int:
+    """CRC extra byte of a message id (KeyError if neither pymavlink's common dialect nor we know it)."""
+    cls = mavlink2.mavlink_map.get(msgid)
+    return cls.crc_extra if cls is not None else _CRC_EXTRA_EXTRA[msgid]

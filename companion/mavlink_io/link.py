@@ -39,8 +39,9 @@ from urllib.parse import urlparse
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.errors import ConfigError, LinkError
+from companion.mavlink_io import signing
 from companion.mavlink_io.codec import STX_V2 as _STX_V2
-from companion.mavlink_io.codec import decode_lite
+from companion.mavlink_io.codec import crc_extra_of, decode_lite
 
 log = logging.getLogger(__name__)
 
@@ -114,8 +115,12 @@ class MavlinkLink:
         src_component: int = MAV_COMP_ID_ONBOARD_COMPUTER,
         tlog: Path | None = None,
         sock: socket.socket | None = None,
+        signing_key: bytes | None = None,
     ) -> None:
         self.url = LinkUrl.parse(url)
+        # MAVLink 2 signing (companion.mavlink_io.signing): every frame out signed, every frame in checked
+        self.verifier = None if signing_key is None else signing.SigningVerifier(signing_key)
+        self.signer = None if signing_key is None else signing.LinkSigner(signing_key, link_id=0)
         self._sock = sock  # an already bound socket to use instead of binding the URL's port (udpin)
         self.handler = handler
         self.mav = mavlink2.MAVLink(self, srcSystem=src_system, srcComponent=src_component)
@@ -210,10 +215,14 @@ class MavlinkLink:
 
     # pymavlink calls this to send a packed frame
     def write(self, frame: bytes) -> None:
-        """File-like hook for pymavlink: send one frame to the remote (dropped before we know it)."""
+        """File-like hook for pymavlink: send one frame to the remote (dropped before we know it); signed when
+        signing is on."""
         if self._loop is None or self._remote is None:
             return
         frame = bytes(frame)
+        if self.signer is not None and frame[:1] == b"\xfd":
+            frame = self.signer.sign(frame, crc_extra_of(frame[7] | (frame[8] << 8) | (frame[9] << 16)))
+            self.verifier.note_sent(self.signer.timestamp)
         try:
             self._sock.sendto(frame, self._remote)
         except (BlockingIOError, InterruptedError):
@@ -239,7 +248,7 @@ class MavlinkLink:
             return
         self.last_sender = addr
         self.last_rx_wall = time.monotonic()
-        msgs = self._split_fast(data)
+        msgs = self._split_signed(data) if self.verifier is not None else self._split_fast(data)
         if msgs is None:  # anything unusual: pymavlink's own parser, exactly as it always did
             self._on_datagram_pymavlink(data, addr)
             return
@@ -276,6 +285,36 @@ class MavlinkLink:
                 return None
             out.append((frame, msg))
             i = end
+        return out
+
+    def _split_signed(self, data: bytes) -> list[tuple[bytes, Any]]:
+        """With signing on: the datagram's frames whose signature and timestamp check out (signature stripped);
+        unsigned, forged and replayed frames and anything unframed are counted and dropped."""
+        out = []
+        i, n = 0, len(data)
+        while i < n:
+            if data[i] != _STX_V2 or i + _MIN_FRAME > n:
+                self._count("unsigned" if data[i] == 0xFE else "garbage")
+                return out
+            flags = data[i + 2]
+            total = _MIN_FRAME + data[i + 1] + (signing.SIGNATURE_LEN if flags & signing.IFLAG_SIGNED else 0)
+            frame = data[i : i + total]
+            i += total
+            if len(frame) < total:
+                self._count("truncated")
+                return out
+            if flags != signing.IFLAG_SIGNED:
+                self._count("unsigned" if flags == 0 else "bad_flags")
+                continue
+            kind = self.verifier.check(frame)
+            if kind is not None:
+                self._count(kind, f"signed frame from system {frame[5]}")
+                continue
+            frame = frame[: -signing.SIGNATURE_LEN]
+            try:
+                out.append((frame, decode_lite(frame)))
+            except Exception as exc:  # bad CRC or unknown id inside a valid signature: count, never raise
+                self._count("undecodable", repr(exc)[:120])
         return out
 
     def _on_datagram_pymavlink(self, data: bytes, addr: tuple[str, int]) -> None:

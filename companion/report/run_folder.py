@@ -61,8 +61,9 @@ def build_report(flog: FlightLog, mission: Mission, extra: dict[str, Any]) -> di
         # Metrics describe the mission the companion flew (climb, cruise, hold), not the autopilot's own landing
         # afterwards; the plots and the .npz keep every row.
         flown = np.array([bool(p) for p in flog.phase], dtype=bool)
-        rep = compute_metrics(flog.select(flown) if flown.any() else flog, mission)
-    err = estimation_error(flog)
+        mission_log = flog.select(flown) if flown.any() else flog
+        rep = compute_metrics(mission_log, mission)
+    err = estimation_error(mission_log) if len(flog) else None
     if err is not None:
         rep["swing_estimation_error"] = err
     swing_modes = [m for m in flog.envelope_mode if m]
