@@ -80,3 +80,15 @@ def test_with_signing_forged_and_unsigned_disarms_and_spoofs_are_ignored(workdir
     # the companion's own port: the spoofed heartbeats come from a foreign address (dropped before the signature
     # is even looked at); everything that did reach the vehicle was unsigned or signed with another key
     assert r["companion_rejected"].get("foreign_sender", 0) >= 40, r
+
+
+def test_companion_killed_the_bundled_vehicle_holds_then_lands(workdir):
+    """kill -9 of the companion in flight (real time): the vehicle's own failsafe, PX4's way — hold after
+    COM_OF_LOSS_T (1 s), land after COM_FAIL_ACT_T (5 s), disarm on the ground. Never a fall, never hovering on."""
+    r = faults.companion_killed_vehicle_failsafe(workdir, vehicle="bundled", watch_s=40.0)
+    modes = [name for _, name in r["mode_changes_s"]]
+    assert any(m.endswith("(other)") or m.endswith("(hold)") for m in modes), r  # left OFFBOARD for a hold
+    assert any(m.endswith("(land)") for m in modes), r
+    assert r["left_offboard_s"] is not None and r["left_offboard_s"] <= 2.5, r  # 1 s + the next 1 Hz HEARTBEAT
+    assert r["landed_s"] is not None and r["disarmed_s"] is not None and r["disarmed_s"] < 30.0, r
+    assert r["max_descent_mps"] < 1.5, r
