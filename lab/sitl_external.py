@@ -58,8 +58,12 @@ def start_px4_sih(workdir: Path, instance: int, *, speed_factor: float = 1.0) ->
                             stdin=subprocess.DEVNULL, start_new_session=True)
 
 
+ARDUCOPTER_HOME = "-35.363261,149.165230,584,353"  # ArduPilot's CMAC default
+
+
 def start_arducopter(workdir: Path, port: int, *, instance: int = 0, payload: bool = True, mass_kg: float = 0.25,
-                     cable_m: float = 1.0, speedup: float = 1.0) -> subprocess.Popen:
+                     cable_m: float = 1.0, speedup: float = 1.0, home: str = ARDUCOPTER_HOME,
+                     payload_drag: float = 1.0) -> subprocess.Popen:
     """ArduCopter SITL (quad) sending MAVLink 2 to 127.0.0.1:``port``, system id 1+I; with ``payload`` its
     simulated slung payload (system 2, component 35; only instance 0 can have one: it dials SERIAL2 of -I0)."""
     root, why = find_arducopter()
@@ -71,12 +75,13 @@ def start_arducopter(workdir: Path, port: int, *, instance: int = 0, payload: bo
     parm = run / "simulation.parm"
     lines = [f"SIM_SLUP_ENABLE {1 if payload else 0}"]
     if payload:
-        lines += [f"SIM_SLUP_WEIGHT {mass_kg:g}", f"SIM_SLUP_LINELEN {cable_m:g}", "SIM_SLUP_SYSID 2"]
+        lines += [f"SIM_SLUP_WEIGHT {mass_kg:g}", f"SIM_SLUP_LINELEN {cable_m:g}", "SIM_SLUP_SYSID 2",
+                  f"SIM_SLUP_DRAG {payload_drag:g}"]
     parm.write_text("\n".join(lines) + "\n")
     defaults = f"{root / 'Tools/autotest/default_params/copter.parm'},{parm}"
     log = (run / "arducopter.log").open("w")
     return subprocess.Popen([str(root / "build/sitl/bin/arducopter"), "--model", "quad", "--speedup", f"{speedup:g}",
-                             "-I", str(instance), "--wipe", "--home", "-35.363261,149.165230,584,353", "--defaults",
+                             "-I", str(instance), "--wipe", "--home", home, "--defaults",
                              defaults, "--sysid", str(1 + instance), "--serial0", f"udpclient:127.0.0.1:{port}"],
                             cwd=run, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                             start_new_session=True)

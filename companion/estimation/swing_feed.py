@@ -63,6 +63,7 @@ class SwingFeed:
     last: SwingEstimate | None = None
     counts: dict[str, int] = field(default_factory=dict)
     _ground_z: float | None = None  # where the vehicle stood (local NED z, m), seen while on the ground
+    payload_offset: tuple[float, np.ndarray] | None = None  # (t, payload − airframe NED m) of the newest fix
     _vglobal_t: list[float] = field(default_factory=list)
     _vglobal: list[tuple[float, float, float]] = field(default_factory=list)
 
@@ -114,10 +115,12 @@ class SwingFeed:
                 if len(self._vglobal_t) > _GLOBAL_HISTORY:
                     del self._vglobal_t[0], self._vglobal[0]
             return
+        src = msg.get_srcSystem()
+        if src == state.payload_sysid and mtype == "GLOBAL_POSITION_INT":
+            self._payload_global(msg)
         est = self.estimator
         if est is None:
             return
-        src = msg.get_srcSystem()
         if src == state.vehicle_sysid:
             if mtype == "ATTITUDE":
                 est.set_attitude_euler(msg.time_boot_ms * 1e-3, state.euler_rad, state.rates_frd_rad_s)
@@ -134,17 +137,14 @@ class SwingFeed:
                 self._count("imu")
         elif src == state.payload_sysid and self.use_fixes:
             if mtype == "GLOBAL_POSITION_INT":
-                t = msg.time_boot_ms * 1e-3
-                v = self._vehicle_global_at(t)
-                if v is not None:
-                    off = payload_offset_from_global(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3, *v)
-                    if not np.all(np.isfinite(off)):
-                        return
-                    if float(np.linalg.norm(off)) < SLACK_FRACTION * self.params.l:
-                        self._count("slack_fix")
-                        return
-                    est.update_payload_offset(t, off)
-                    self._count("payload_fix")
+                po = self.payload_offset
+                if po is None or po[0] != msg.time_boot_ms * 1e-3:
+                    return  # not differenced (no vehicle position at its time)
+                if float(np.linalg.norm(po[1])) < SLACK_FRACTION * self.params.l:
+                    self._count("slack_fix")
+                    return
+                est.update_payload_offset(po[0], po[1])
+                self._count("payload_fix")
             elif mtype == "LOCAL_POSITION_NED":
                 p = (msg.x, msg.y, msg.z)
                 if not all(math.isfinite(c) for c in p):
@@ -154,6 +154,17 @@ class SwingFeed:
                     return
                 if est.update_payload_position(msg.time_boot_ms * 1e-3, p):
                     self._count("payload_fix")
+
+    def _payload_global(self, msg: Any) -> None:
+        """A payload GLOBAL_POSITION_INT (ArduPilot's convention) as an offset from the airframe, against the
+        vehicle's own GLOBAL_POSITION_INT at the fix's time; kept in :attr:`payload_offset`."""
+        t = msg.time_boot_ms * 1e-3
+        v = self._vehicle_global_at(t)
+        if v is None:
+            return
+        off = payload_offset_from_global(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3, *v)
+        if np.all(np.isfinite(off)):
+            self.payload_offset = (t, off)
 
     def _vehicle_global_at(self, t: float) -> tuple[float, float, float] | None:
         """The vehicle's (lat, lon, alt) at ``t``, linearly interpolated; None outside the history (+0.2 s)."""

@@ -302,6 +302,14 @@ class VehicleState:
             log.info("vehicle says: %s", text)
         return mtype
 
+    def set_payload_fix(self, t_s: float, payload_pos_ned_m: np.ndarray, payload_vel_ned_mps: np.ndarray) -> None:
+        """A payload position (local NED, m) and velocity (m/s) at ``t_s`` worked out elsewhere (ArduPilot's
+        payload GLOBAL_POSITION_INT differenced against the vehicle's: companion.estimation.swing_feed)."""
+        if np.all(np.isfinite(payload_pos_ned_m)) and np.all(np.isfinite(payload_vel_ned_mps)):
+            self.payload_pos_ned_m = np.asarray(payload_pos_ned_m, dtype=np.float64)
+            self.payload_vel_ned_mps = np.asarray(payload_vel_ned_mps, dtype=np.float64)
+            self.payload_t_s = float(t_s)
+
     def ready(self) -> bool:
         """True once position, velocity and attitude have all been received."""
         return self.pos_ned_m is not None and self.euler_rad is not None
