@@ -442,7 +442,7 @@ def companion_killed_vehicle_failsafe(workdir: Path, *, vehicle: str = "bundled"
                               "--ready-timeout", "120", *extra))
     events: list[tuple[float, str]] = []
     try:
-        fly.wait_for("takeover → mission", timeout_s=180)
+        fly.wait_for("→ mission", timeout_s=180)
         time.sleep(after_s)
         fly.proc.kill()
         t_kill = time.monotonic()

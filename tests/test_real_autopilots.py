@@ -93,3 +93,22 @@ def test_arducopter_without_param_writes_is_refused_with_what_to_set(arducopter,
     assert out.returncode == 4
     assert rep["outcome"] == "refused" and "GUID_OPTIONS" in rep["outcome_detail"]
     assert "Set GUID_OPTIONS to 8" in out.stderr
+
+
+@needs_px4
+def test_px4_lands_by_itself_when_the_companion_is_killed(tmp_path):
+    from lab.faults import companion_killed_vehicle_failsafe
+
+    r = companion_killed_vehicle_failsafe(tmp_path, vehicle="px4", instance=6, watch_s=60.0)
+    print(json.dumps(r, indent=1))
+    assert r["left_offboard_s"] is not None and r["left_offboard_s"] <= 2.5  # COM_OF_LOSS_T 1 s
+    assert r["landed_s"] is not None and r["disarmed_s"] is not None and r["max_descent_mps"] < 1.5
+
+
+@needs_arducopter
+def test_arducopter_lands_by_itself_when_the_companion_is_killed(tmp_path):
+    from lab.faults import companion_killed_vehicle_failsafe
+
+    r = companion_killed_vehicle_failsafe(tmp_path, vehicle="ardupilot", watch_s=60.0)
+    print(json.dumps(r, indent=1))
+    assert r["landed_s"] is not None and r["disarmed_s"] is not None and r["max_descent_mps"] < 1.5
