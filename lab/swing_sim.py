@@ -130,7 +130,9 @@ class TruthRecorder:
             t0, x0 = self._prev
             f = (x[8:11] - x0[8:11]) / (t - t0) - sim.params.g * G_E
         self._prev = (t, x)
-        return TruthSample(t, x, math.nan, f, not sim.landed, sim.thrust_n)
+        # 'airborne' for the estimator: the payload hangs on a taut cable (while it rests on the ground the cable
+        # is slack and its angles are no swing; the companion skips those too)
+        return TruthSample(t, x, math.nan, f, not sim.landed and not sim.payload_on_ground, sim.thrust_n)
 
     @staticmethod
     def commanded(s: TruthSample, thrust_n: float) -> TruthSample:

@@ -31,10 +31,10 @@ def forest():
 
 
 @pytest.mark.parametrize("path,target", [
-    ("fixes+vel", 0.02),  # measured 0.0092: payload fixes with the vehicle's own velocity (every autopilot sends it)
-    ("fused", 0.02),  # measured 0.0052
-    ("imu+vel", 0.03),  # measured 0.0032: sensorless (IMU, attitude, commanded thrust, velocity)
-    ("imu", 0.03),  # measured 0.0060: the IMU path alone, without the velocity
+    ("fixes+vel", 0.02),  # measured 0.0096: payload fixes with the vehicle's own velocity (every autopilot sends it)
+    ("fused", 0.02),  # measured 0.0049
+    ("imu+vel", 0.03),  # measured 0.0026: sensorless (IMU, attitude, commanded thrust, velocity)
+    ("imu", 0.03),  # measured 0.0047: the IMU path alone, without the velocity
 ])
 def test_estimation_error_meets_issue_11_targets(forest, path, target):
     truth, _ = forest
@@ -42,11 +42,11 @@ def test_estimation_error_meets_issue_11_targets(forest, path, target):
     assert e.rms <= target, e
     assert e.within_3sigma >= 0.98  # the covariance does not claim more than it knows
     assert e.ticks > 3000 and e.updates > 100
-    assert d.est is not None and d.est.dropped_late <= 1  # a fix taken before lift-off, arriving after it
+    assert d.est is not None and d.est.dropped_late <= 2  # fixes taken before the cable went taut, arriving after
 
 
 def test_fixes_alone_miss_the_fixes_target_but_stay_usable(forest):
-    """Payload fixes without any vehicle data but attitude and thrust: 0.0233 rad, above the 0.02 target (the force
+    """Payload fixes without any vehicle data but attitude and thrust: 0.0234 rad, above the 0.02 target (the force
     on the airframe is then only seen through the swing itself); kept as a regression bound."""
     e, _ = replay_estimator(forest[0], sensors_for("fixes"))
     assert 0.015 < e.rms <= 0.03 and e.within_3sigma >= 0.98
@@ -54,7 +54,7 @@ def test_fixes_alone_miss_the_fixes_target_but_stay_usable(forest):
 
 def test_sensorless_with_px4_sih_accelerometer_noise(forest):
     """SIH's accelerometer noise is 17–60× Gazebo's (0.5, 1.7, 1.4 m/s² per sample); with the velocity the
-    sensorless path still meets 0.03 rad (measured 0.0108)."""
+    sensorless path still meets 0.03 rad (measured 0.0100)."""
     sensors = replace(sensors_for("imu+vel"), imu=ImuNoise.px4_sih())
     e, _ = replay_estimator(forest[0], sensors)
     assert e.rms <= 0.03 and e.within_3sigma >= 0.98
@@ -70,9 +70,9 @@ def test_feedforward_on_the_estimate_flies_the_forest(forest, path, max_swing):
     log = fly_inprocess(FOREST, swing_source="estimate", estimator=d)
     r = compute_metrics(log, FOREST)
     modes = log.envelope_mode
-    first = modes.index("swing")  # on the ground (before lift-off) there is no estimate: full cable
-    assert first < 100 and set(modes[first:]) == {"swing"}  # from lift-off on the estimate stood in throughout
+    first = modes.index("swing")  # until the cable is taut there is no estimate: full cable
+    assert first < 400 and set(modes[first:]) == {"swing"}  # from lift-off on the estimate stood in throughout
     assert r["reached_goal"] and r["collisions"] == 0
-    assert r["max_swing_rad"] <= max_swing
+    assert r["max_swing_rad"] <= max_swing, r["max_swing_rad"]
     assert r["time_to_goal_s"] <= cable["time_to_goal_s"] + 0.05
     assert r["min_clearance_m"] >= cable["min_clearance_m"] - 0.02
