@@ -1,0 +1,451 @@
+"""From a route to a timed motion: smoothing within the free space, then the fastest speed along it.
+
+1. **Smoothing** (:func:`smooth_path`). The shortest route hugs the inflated discs with curvature 1/radius
+   on every arc: flown at the lateral-acceleration bound that means crawling. The route is resampled every
+   ``ds`` metres and relaxed as an elastic band: repeated proximal steps
+   x ← argmin |D2·x|² + w·|x − x_prev|² (D2: second differences, i.e. curvature; a pentadiagonal linear
+   system) with the start, the goal and — when moving — the next point along the current heading fixed,
+   each followed by moving points that fell into a disc radially back to its surface. Points only ever
+   leave a disc radially, so the band keeps the route's homotopy class, and it turns on the widest radii
+   the free space allows.
+2. **Timing** (:func:`speed_profile`). Along the smoothed path (a C² cubic spline in arc length, clamped to
+   the current heading) the speed is limited by the lateral acceleration, v <= sqrt(a_max/κ), by ``v_max``,
+   and the tangential acceleration by what the friction circle leaves, sqrt(a_max² − (v²κ)²): a backward
+   pass from rest at the goal and a forward pass from the current speed (the time-optimal profile of a point
+   mass with bounded acceleration along a fixed path). The acceleration of the resulting motion stays
+   within ``a_max`` in norm, which is what bounds the swing (see :mod:`companion.planning.shaping`).
+3. **Sampling** (:func:`sample_motion`): position, velocity and acceleration at uniform times.
+
+Compiled kernels (numba, cached); the Python wrappers only shape arrays.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from companion.core.kernel_cache import use_kernel_cache
+
+use_kernel_cache(Path(__file__))
+
+
+@njit(cache=True)
+def _resample(p, ds):  # pragma: no cover - compiled
+    n = p.shape[0]
+    s = np.zeros(n)
+    for i in range(1, n):
+        s[i] = s[i - 1] + math.hypot(p[i, 0] - p[i - 1, 0], p[i, 1] - p[i - 1, 1])
+    total = s[-1]
+    m = max(2, math.ceil(total / ds) + 1) if total > 1e-9 else 1
+    out = np.empty((m, 2))
+    if m == 1:
+        out[0] = p[0]
+        return out
+    j = 0
+    for k in range(m):
+        sk = total * k / (m - 1)
+        while j < n - 2 and s[j + 1] < sk:
+            j += 1
+        seg = s[j + 1] - s[j]
+        t = 0.0 if seg <= 1e-12 else min(1.0, max(0.0, (sk - s[j]) / seg))
+        out[k, 0] = p[j, 0] + t * (p[j + 1, 0] - p[j, 0])
+        out[k, 1] = p[j, 1] + t * (p[j + 1, 1] - p[j, 1])
+    return out
+
+
+@njit(cache=True)
+def _solve_penta(a0, a1, a2, b):  # pragma: no cover - compiled
+    """Solve the symmetric positive-definite pentadiagonal system (diagonals a0, a1, a2; rhs b (n, 2))."""
+    n = len(a0)
+    # LDLᵀ without pivoting (SPD), banded
+    d = np.zeros(n)
+    l1 = np.zeros(n)
+    l2 = np.zeros(n)
+    for i in range(n):
+        v = a0[i]
+        if i >= 1:
+            v -= l1[i - 1] * l1[i - 1] * d[i - 1]
+        if i >= 2:
+            v -= l2[i - 2] * l2[i - 2] * d[i - 2]
+        d[i] = v
+        if i + 1 < n:
+            w = a1[i]
+            if i >= 1:
+                w -= l2[i - 1] * l1[i - 1] * d[i - 1]
+            l1[i] = w / v
+        if i + 2 < n:
+            l2[i] = a2[i] / v
+    y = b.copy()
+    for i in range(n):
+        if i >= 1:
+            y[i] -= l1[i - 1] * y[i - 1]
+        if i >= 2:
+            y[i] -= l2[i - 2] * y[i - 2]
+    for i in range(n):
+        y[i] /= d[i]
+    for i in range(n - 1, -1, -1):
+        if i + 1 < n:
+            y[i] -= l1[i] * y[i + 1]
+        if i + 2 < n:
+            y[i] -= l2[i] * y[i + 2]
+    return y
+
+
+@njit(cache=True)
+def _corridor(ref, nrm, cx, cy, r, d_max, skip):  # pragma: no cover - compiled
+    """Free offsets [lo, hi] along each normal line through ref[k] (the interval that contains 0)."""
+    n = ref.shape[0]
+    lo = np.full(n, -d_max)
+    hi = np.full(n, d_max)
+    for k in range(n):
+        for j in range(len(r)):
+            if skip[j]:
+                continue
+            ox, oy = ref[k, 0] - cx[j], ref[k, 1] - cy[j]
+            b = ox * nrm[k, 0] + oy * nrm[k, 1]
+            c = ox * ox + oy * oy - r[j] * r[j]
+            disc = b * b - c
+            if disc <= 0.0:
+                continue
+            sq = math.sqrt(disc)
+            d1, d2 = -b - sq, -b + sq
+            if d2 <= 1e-9:
+                lo[k] = max(lo[k], d2)
+            elif d1 >= -1e-9:
+                hi[k] = min(hi[k], d1)
+            else:  # the reference point is inside this disc: stay put
+                lo[k] = max(lo[k], 0.0)
+                hi[k] = min(hi[k], 0.0)
+        if lo[k] > hi[k]:
+            lo[k] = hi[k] = 0.0
+    return lo, hi
+
+
+@njit(cache=True)
+def _min_curvature(ref, nrm, lo, hi, n_fixed_start, tgt1x, tgt1y, w_head, rounds):  # pragma: no cover
+    """Offsets d minimising Σ|x[i−1] − 2x[i] + x[i+1]|² (x = ref + d·n) within [lo, hi] (active set)."""
+    n = ref.shape[0]
+    h0 = np.zeros(n)
+    h1 = np.zeros(n)
+    h2 = np.zeros(n)
+    g = np.zeros(n)
+    cf = np.array([1.0, -2.0, 1.0])
+    for i in range(1, n - 1):  # residual i couples i−1, i, i+1 with coefficients 1, −2, 1
+        rx = ref[i - 1, 0] - 2.0 * ref[i, 0] + ref[i + 1, 0]
+        ry = ref[i - 1, 1] - 2.0 * ref[i, 1] + ref[i + 1, 1]
+        for a in range(3):
+            ka = i - 1 + a
+            g[ka] += cf[a] * (rx * nrm[ka, 0] + ry * nrm[ka, 1])
+            h0[ka] += cf[a] * cf[a]
+            for b in range(a + 1, 3):
+                kb = i - 1 + b
+                v = cf[a] * cf[b] * (nrm[ka, 0] * nrm[kb, 0] + nrm[ka, 1] * nrm[kb, 1])
+                if kb - ka == 1:
+                    h1[ka] += v
+                else:
+                    h2[ka] += v
+    if n_fixed_start >= 2 and w_head > 0.0:
+        h0[1] += w_head
+        g[1] += w_head * ((ref[1, 0] - tgt1x) * nrm[1, 0] + (ref[1, 1] - tgt1y) * nrm[1, 1])
+    state = np.zeros(n, np.int64)  # 0 free, 1 at lo, 2 at hi, 3 pinned at 0
+    state[0] = 3
+    state[n - 1] = 3
+    d = np.zeros(n)
+    for _ in range(rounds):
+        a0 = h0 + 1e-9
+        a1 = h1.copy()
+        a2 = h2.copy()
+        rhs = np.zeros((n, 2))
+        for k in range(n):
+            rhs[k, 0] = -g[k]
+        for k in range(n):
+            if state[k] == 0:
+                continue
+            val = 0.0 if state[k] == 3 else (lo[k] if state[k] == 1 else hi[k])
+            for j in range(max(0, k - 2), min(n, k + 3)):
+                if j == k or state[j] != 0:
+                    continue
+                m = min(j, k)
+                coef = h1[m] if abs(j - k) == 1 else h2[m]
+                rhs[j, 0] -= coef * val
+            a0[k] = 1.0
+            rhs[k, 0] = val
+            if k >= 1:
+                a1[k - 1] = 0.0
+            if k + 1 < n:
+                a1[k] = 0.0
+            if k >= 2:
+                a2[k - 2] = 0.0
+            if k + 2 < n:
+                a2[k] = 0.0
+        y = _solve_penta(a0, a1, a2, rhs)
+        changed = False
+        for k in range(n):
+            if state[k] == 0:
+                if y[k, 0] < lo[k] - 1e-9:
+                    state[k] = 1
+                    changed = True
+                elif y[k, 0] > hi[k] + 1e-9:
+                    state[k] = 2
+                    changed = True
+            d[k] = y[k, 0] if state[k] == 0 else (0.0 if state[k] == 3 else (lo[k] if state[k] == 1 else hi[k]))
+        if not changed:
+            # release bounds whose gradient points back into the interval
+            for k in range(1, n - 1):
+                if state[k] == 1 or state[k] == 2:
+                    gk = g[k] + h0[k] * d[k]
+                    if k >= 1:
+                        gk += h1[k - 1] * d[k - 1]
+                    if k + 1 < n:
+                        gk += h1[k] * d[k + 1]
+                    if k >= 2:
+                        gk += h2[k - 2] * d[k - 2]
+                    if k + 2 < n:
+                        gk += h2[k] * d[k + 2]
+                    if (state[k] == 1 and gk < -1e-9) or (state[k] == 2 and gk > 1e-9):
+                        state[k] = 0
+                        changed = True
+            if not changed:
+                break
+    return d
+
+
+def resample(points: np.ndarray, ds_m: float) -> np.ndarray:
+    """The polyline ``points`` (n, 2) resampled at uniform arc length (about ``ds_m``), ends kept."""
+    return _resample(np.ascontiguousarray(points, dtype=np.float64), float(ds_m))
+
+
+def smooth_path(points: np.ndarray, centers: np.ndarray, radii: np.ndarray, *, ds_m: float = 0.4,
+                heading: np.ndarray | None = None, d_max_m: float = 4.0, w_heading: float = 50.0,
+                rounds: int = 30) -> np.ndarray:
+    """Minimum-curvature path in the route's corridor (see module docstring); points (n, 2) about ``ds_m``
+    apart, from the route's start to its goal.
+
+    Each point of the resampled route may move along the route's normal within the free interval between
+    the discs (at most ``d_max_m``); the offsets minimise Σ|x[i−1] − 2x[i] + x[i+1]|², a pentadiagonal
+    quadratic programme with bounds solved by an active set. ``heading`` (unit (2,)) pulls the first step
+    along the current velocity (weight ``w_heading``). Discs that contain the start or the goal do not bound
+    (the route search shrank them there).
+    """
+    ref = resample(points, ds_m)
+    n = len(ref)
+    if n < 4:
+        return ref
+    c = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
+    r = np.ascontiguousarray(np.asarray(radii, dtype=np.float64).reshape(-1))
+    tan = np.empty_like(ref)
+    tan[1:-1] = ref[2:] - ref[:-2]
+    tan[0] = ref[1] - ref[0]
+    tan[-1] = ref[-1] - ref[-2]
+    tan /= np.maximum(np.hypot(tan[:, 0], tan[:, 1]), 1e-12)[:, None]
+    nrm = np.ascontiguousarray(np.stack([-tan[:, 1], tan[:, 0]], axis=1))
+    skip = np.zeros(len(r), np.bool_)
+    for e in (0, n - 1):
+        skip |= np.hypot(c[:, 0] - ref[e, 0], c[:, 1] - ref[e, 1]) < r - 1e-6
+    lo, hi = _corridor(ref, nrm, np.ascontiguousarray(c[:, 0]), np.ascontiguousarray(c[:, 1]), r, float(d_max_m),
+                       skip)
+    if heading is not None:
+        tgt = ref[0] + float(np.hypot(*(ref[1] - ref[0]))) * np.asarray(heading, dtype=np.float64)
+        nfix, tx, ty = 2, float(tgt[0]), float(tgt[1])
+    else:
+        nfix, tx, ty = 1, 0.0, 0.0
+    d = _min_curvature(ref, nrm, lo, hi, nfix, tx, ty, float(w_heading), int(rounds))
+    return ref + d[:, None] * nrm
+
+
+@njit(cache=True)
+def _spline(s, y, d0x, d0y, clamped):  # pragma: no cover - compiled
+    """Second derivatives M (n, 2) of the C² cubic spline through y (n, 2) at knots s; start slope (d0x, d0y)
+    when ``clamped``, natural otherwise; natural at the end."""
+    n = len(s)
+    mm = np.zeros((n, 2))
+    if n < 3 and not clamped:
+        return mm
+    sub = np.zeros(n)
+    dia = np.zeros(n)
+    sup = np.zeros(n)
+    rhs = np.zeros((n, 2))
+    h0 = s[1] - s[0]
+    if clamped:
+        dia[0] = 2.0 * h0
+        sup[0] = h0
+        rhs[0, 0] = 6.0 * ((y[1, 0] - y[0, 0]) / h0 - d0x)
+        rhs[0, 1] = 6.0 * ((y[1, 1] - y[0, 1]) / h0 - d0y)
+    else:
+        dia[0] = 1.0
+    for k in range(1, n - 1):
+        hp, hn = s[k] - s[k - 1], s[k + 1] - s[k]
+        sub[k] = hp
+        dia[k] = 2.0 * (hp + hn)
+        sup[k] = hn
+        for c in range(2):
+            rhs[k, c] = 6.0 * ((y[k + 1, c] - y[k, c]) / hn - (y[k, c] - y[k - 1, c]) / hp)
+    dia[n - 1] = 1.0
+    # Thomas algorithm
+    for k in range(1, n):
+        f = sub[k] / dia[k - 1]
+        dia[k] -= f * sup[k - 1]
+        rhs[k, 0] -= f * rhs[k - 1, 0]
+        rhs[k, 1] -= f * rhs[k - 1, 1]
+    mm[n - 1, 0] = rhs[n - 1, 0] / dia[n - 1]
+    mm[n - 1, 1] = rhs[n - 1, 1] / dia[n - 1]
+    for k in range(n - 2, -1, -1):
+        mm[k, 0] = (rhs[k, 0] - sup[k] * mm[k + 1, 0]) / dia[k]
+        mm[k, 1] = (rhs[k, 1] - sup[k] * mm[k + 1, 1]) / dia[k]
+    return mm
+
+
+@njit(cache=True)
+def _spline_eval(s, y, mm, q, out):  # pragma: no cover - compiled
+    """Position, first and second derivative at each q: out (len(q), 6) = [x, y, x', y', x'', y'']."""
+    n = len(s)
+    k = 0
+    for i in range(len(q)):
+        sq = min(max(q[i], s[0]), s[n - 1])
+        if sq < s[k]:
+            k = 0
+        while k < n - 2 and s[k + 1] < sq:
+            k += 1
+        h = s[k + 1] - s[k]
+        a = s[k + 1] - sq
+        b = sq - s[k]
+        for c in range(2):
+            m0, m1 = mm[k, c], mm[k + 1, c]
+            c0 = y[k, c] / h - m0 * h / 6.0
+            c1 = y[k + 1, c] / h - m1 * h / 6.0
+            out[i, c] = m0 * a * a * a / (6.0 * h) + m1 * b * b * b / (6.0 * h) + c0 * a + c1 * b
+            out[i, 2 + c] = -m0 * a * a / (2.0 * h) + m1 * b * b / (2.0 * h) - c0 + c1
+            out[i, 4 + c] = m0 * a / h + m1 * b / h
+
+
+@njit(cache=True)
+def _profile(kappa, h, v0, a, v_max, a_brake):  # pragma: no cover - compiled
+    """Speeds at stations h apart with curvature kappa: time-optimal under |a| <= a (see module docstring)."""
+    n = len(kappa)
+    v = np.empty(n)
+    for i in range(n):
+        v[i] = min(v_max, math.sqrt(a / max(kappa[i], 1e-9)))
+    v[n - 1] = 0.0
+    for i in range(n - 2, -1, -1):
+        lat = v[i + 1] * v[i + 1] * kappa[i + 1]
+        at = math.sqrt(max(a * a - lat * lat, 0.0))
+        v[i] = min(v[i], math.sqrt(v[i + 1] * v[i + 1] + 2.0 * at * h))
+    vb = v.copy()
+    v[0] = v0
+    for i in range(n - 1):
+        vi = v[i]
+        if vi > vb[i] + 1e-9:
+            v[i + 1] = max(min(vb[i + 1], vi), math.sqrt(max(vi * vi - 2.0 * a_brake * h, 0.0)))
+        else:
+            lat = vi * vi * kappa[i]
+            at = math.sqrt(max(a * a - lat * lat, 0.0))
+            v[i + 1] = min(vb[i + 1], math.sqrt(vi * vi + 2.0 * at * h))
+    return v
+
+
+@dataclass(frozen=True, slots=True)
+class Profile:
+    """A timed path: spline knots ``knots_s`` (m) and points ``knots_xy`` (n, 2) with second derivatives
+    ``knots_m``; stations ``s`` (m), speeds ``v`` (m/s) there, times ``t`` (s) and constant tangential
+    accelerations ``a_t`` (m/s²) per interval; ``duration_s``; ``length_m``."""
+
+    knots_s: np.ndarray
+    knots_xy: np.ndarray
+    knots_m: np.ndarray
+    s: np.ndarray
+    v: np.ndarray
+    t: np.ndarray
+    a_t: np.ndarray
+    duration_s: float
+    length_m: float
+
+    def curve(self, s: np.ndarray) -> np.ndarray:
+        """[x, y, x', y', x'', y''] (k, 6) of the path at arc lengths ``s`` (m)."""
+        q = np.ascontiguousarray(np.atleast_1d(s), dtype=np.float64)
+        out = np.empty((len(q), 6))
+        _spline_eval(self.knots_s, self.knots_xy, self.knots_m, q, out)
+        return out
+
+
+def speed_profile(points: np.ndarray, v0_mps: float, *, a_max_mps2: float, v_max_mps: float,
+                  heading: np.ndarray | None = None, ds_m: float = 0.1, a_brake_mps2: float | None = None,
+                  ) -> Profile:
+    """Fastest motion along ``points`` (n, 2) from speed ``v0_mps`` to rest at the end (see module docstring).
+
+    ``heading`` clamps the spline's initial direction. If the current speed is too high for the bend ahead,
+    the forward pass brakes with up to ``a_brake_mps2`` (default ``a_max_mps2``) until back under the limit.
+    """
+    p = np.ascontiguousarray(points, dtype=np.float64)
+    seg = np.hypot(*np.diff(p, axis=0).T)
+    keep = np.r_[True, seg > 1e-9]
+    p = np.ascontiguousarray(p[keep])
+    sk = np.r_[0.0, np.cumsum(np.hypot(*np.diff(p, axis=0).T))]
+    length = float(sk[-1])
+    if len(p) < 2 or length < 1e-6:
+        z = np.zeros(1)
+        pk = np.repeat(p[:1], 2, axis=0)
+        return Profile(np.array([0.0, 1.0]), pk, np.zeros((2, 2)), z, z, z, np.zeros(0), 0.0, 0.0)
+    hd = (0.0, 0.0) if heading is None else (float(heading[0]), float(heading[1]))
+    mm = _spline(sk, p, hd[0], hd[1], heading is not None)
+    n = max(3, math.ceil(length / ds_m) + 1)
+    s = np.linspace(0.0, length, n)
+    ev = np.empty((n, 6))
+    _spline_eval(sk, p, mm, s, ev)
+    sp = np.maximum(np.hypot(ev[:, 2], ev[:, 3]), 1e-9)
+    kappa = np.abs(ev[:, 2] * ev[:, 5] - ev[:, 3] * ev[:, 4]) / sp**3
+    kappa = np.maximum(kappa, np.maximum(np.r_[kappa[1:], kappa[-1]], np.r_[kappa[0], kappa[:-1]]))
+    v = _profile(kappa, s[1] - s[0], float(v0_mps), float(a_max_mps2), float(v_max_mps),
+                 float(a_brake_mps2 if a_brake_mps2 is not None else a_max_mps2))
+    vm = v[:-1] + v[1:]
+    dt = np.where(vm > 1e-9, 2.0 * (s[1] - s[0]) / np.maximum(vm, 1e-9), 0.0)
+    t = np.r_[0.0, np.cumsum(dt)]
+    a_t = np.where(dt > 0.0, (v[1:] - v[:-1]) / np.maximum(dt, 1e-12), 0.0)
+    return Profile(sk, p, mm, s, v, t, a_t, float(t[-1]), length)
+
+
+@njit(cache=True)
+def _sample(t_knots, s_knots, v_knots, a_knots, duration, times, out_s):  # pragma: no cover - compiled
+    """Arc length, speed and tangential acceleration at ``times``: out_s (k, 3)."""
+    j = 0
+    nk = len(t_knots)
+    for i in range(len(times)):
+        t = times[i]
+        if t >= duration or nk < 2:
+            out_s[i, 0], out_s[i, 1], out_s[i, 2] = s_knots[nk - 1], 0.0, 0.0
+            continue
+        t = max(t, 0.0)
+        while j < nk - 2 and t_knots[j + 1] <= t:
+            j += 1
+        tau = t - t_knots[j]
+        at = a_knots[j]
+        out_s[i, 0] = min(s_knots[j] + v_knots[j] * tau + 0.5 * at * tau * tau, s_knots[nk - 1])
+        out_s[i, 1] = max(v_knots[j] + at * tau, 0.0)
+        out_s[i, 2] = at
+
+
+def sample_motion(prof: Profile, times_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position (m), velocity (m/s), acceleration (m/s²), each (k, 2), of the profile at ``times_s``
+    (increasing; clamped to [0, duration]; at rest at the end)."""
+    times = np.ascontiguousarray(times_s, dtype=np.float64)
+    sv = np.empty((len(times), 3))
+    _sample(prof.t, prof.s, prof.v, prof.a_t, prof.duration_s, times, sv)
+    ev = prof.curve(sv[:, 0])
+    p = ev[:, 0:2]
+    v = ev[:, 2:4] * sv[:, 1:2]
+    a = ev[:, 4:6] * (sv[:, 1:2] ** 2) + ev[:, 2:4] * sv[:, 2:3]
+    return p, v, a
+
+
+def path_clear(points: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> float:
+    """Smallest clearance (m) of the polyline's vertices and segment midpoints to the discs (negative: inside)."""
+    c = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
+    if len(c) == 0:
+        return math.inf
+    p = np.asarray(points)
+    pts = np.concatenate([p, 0.5 * (p[1:] + p[:-1])])
+    d = np.hypot(pts[:, None, 0] - c[None, :, 0], pts[:, None, 1] - c[None, :, 1]) - np.asarray(radii)[None, :]
+    return float(d.min())

@@ -1,0 +1,395 @@
+"""The ``shaped`` planner: a route through the inflated free space, flown as a swing-free timed reference.
+
+Every replan cycle (``replan_rate_hz``, 20 Hz by default) from the *unshaped* motion's state a few steps
+ahead of now (so the reference being flown never jumps, see :mod:`companion.planning.timeline`):
+
+1. **Free space.** Each obstacle below which the payload can pass becomes a disc of radius
+   r_o + Δd + R_env + margin around its predicted position. The envelope R_env is the farther of the airframe
+   circle r_uav + L_uav carried a_max/ω² ahead of the payload path by the shaping (see below), and the
+   payload at the largest swing the plan allows — the nominal bound atan(a_max/g), plus the measured
+   deviation from the nominal swing, plus ``swing_sigma_k`` standard deviations of the swing estimate's
+   uncertainty (``PlanInput.swing_sigma_rad``, 0 for the cable sensor) — or the whole cable without swing
+   sensing. The margin is ``track_margin_m`` plus the recent peak tracking error.
+2. **Routes.** The shortest route around the discs (:mod:`companion.planning.route`) and, to find faster
+   ones through wider gaps, the routes around the discs inflated by k·``route_extra_m``; each is relaxed
+   into a smooth path in the real free space and timed at the acceleration bound
+   (:mod:`companion.planning.path`). Candidates are compared by *time*, not length.
+3. **Moving obstacles** (``vx_mps``/``vy_mps``) are predicted at constant velocity over the plan, with a ring
+   that grows with the look-ahead (``predict_growth_mps``). Each candidate's shaped reference is checked
+   against them at the time it gets there (:mod:`companion.planning.clearance`); where it would meet one,
+   the obstacle's swept positions around that time (a capsule of discs) join the free-space model and the
+   routes are searched again (at most three rounds).
+4. **Shaping.** The chosen motion (bang-bang acceleration, |a| <= a_max) is smoothed by a three-stage
+   moving-average cascade and mapped through the pendulum notch p_q = p_L + a_L/ω²
+   (:mod:`companion.planning.shaping`): the payload follows the planned path with swing |a_L|/g and no
+   residual swing when it stops; ω is the model's (acceleration-controlled support).
+5. **Keeping a plan.** A valid current plan is replaced only by one faster by ``replan_hysteresis_s``.
+   If no candidate is valid (a moving obstacle in the way), the planner brakes along its heading and waits.
+6. **No route.** If no route exists even at the bare safety ring r_o + Δd + r_uav + L_uav around the static
+   obstacles (a goal fenced in), the planner brakes, and after ``no_route_confirm_s`` of consistent failure
+   declares ``no_route`` (``PlanOutput.no_route``) and holds where it stopped; it does not circle.
+
+The reference rows carry the airframe position, velocity, acceleration and jerk and the nominal swing the
+payload has along them, which the flight core uses to keep the anti-swing feed-forward from fighting the
+planned swing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.core.model import VehicleParams
+from companion.core.obstacles import Obstacle
+from companion.planning.base import PlanInput, PlanOutput, ReferenceSample
+from companion.planning.clearance import Predicted, clearance
+from companion.planning.params import PlannerParams
+from companion.planning.path import Profile, sample_motion, smooth_path, speed_profile
+from companion.planning.route import find_route
+from companion.planning.shaping import box_widths, pendulum_omega_rad_s
+from companion.planning.timeline import Timeline
+
+LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps ahead of now
+CAPSULE_STEP_M = 0.3
+_ZERO2 = np.zeros(2)
+_ZERO2.flags.writeable = False
+
+
+@dataclass(frozen=True, slots=True)
+class Candidate:
+    """A timed route: ``profile`` from the replan state to the goal (or a stop), its ``duration_s``, the extra
+    inflation it was found with (m), and whether it ends at the goal."""
+
+    profile: Profile
+    duration_s: float
+    extra_m: float
+    reaches_goal: bool
+    kind: str = "route"
+
+
+class ShapedPlanner:
+    """Route + swing-free timed reference (see module docstring). Keeps its plan between calls."""
+
+    name = "shaped"
+    time_parameterised = True
+
+    def __init__(self, params: PlannerParams, vehicle: VehicleParams | None = None) -> None:
+        self.params = params
+        self.vehicle = vehicle
+        self.tl: Timeline | None = None
+        self.omega = 0.0
+        self.next_replan_s = -math.inf
+        self.mode = "track"
+        self.no_route = False
+        self.no_route_since_s: float | None = None
+        self.plan_end_k = 0
+        self.plan_reaches_goal = False
+        self.err_peak_m = 0.0
+        self._err_t = -math.inf
+        self.dev_peak_rad = 0.0
+        self._dev_t = -math.inf
+        self._last_nominal = (0.0, 0.0)
+        self.replans = 0
+        self.splices = 0
+        self.last: dict = {}
+
+    # ------------------------------------------------------------------------------------------------
+    def _init(self, inp: PlanInput) -> None:
+        p = self.params
+        vp = self.vehicle
+        if vp is None or abs(vp.l - inp.cable_l_m) > 1e-9:
+            vp = VehicleParams(l=inp.cable_l_m, g=inp.g_mps2)
+        self.omega = pendulum_omega_rad_s(vp, "held")
+        widths = box_widths(p.shaper_tau_s, p.shaped_step_s)
+        self.tl = Timeline(inp.t_s, inp.ref_pos_m, p.shaped_step_s, widths, self.omega, inp.g_mps2)
+        self.plan_end_k = self.tl.index(inp.t_s)
+
+    def _watch(self, inp: PlanInput) -> None:
+        """Peak-hold the tracking error (m) and the swing's deviation from its nominal value (rad)."""
+        t = inp.t_s
+        hold = self.params.error_hold_s
+        e = math.hypot(float(inp.pos_m[0]) - float(inp.ref_pos_m[0]), float(inp.pos_m[1]) - float(inp.ref_pos_m[1]))
+        if e >= self.err_peak_m or t - self._err_t > hold:
+            self.err_peak_m, self._err_t = e, t
+        if inp.swing is not None:
+            a, b = self._last_nominal
+            d = math.hypot(float(inp.swing[0]) - a, float(inp.swing[1]) - b)
+            if d >= self.dev_peak_rad or t - self._dev_t > hold:
+                self.dev_peak_rad, self._dev_t = d, t
+
+    def envelope_m(self, inp: PlanInput) -> float:
+        """R_env (m) about the planned payload path (see module docstring, step 1)."""
+        p = self.params
+        r2 = inp.airframe_r_m
+        lead = p.shaped_a_max_mps2 / (self.omega * self.omega)
+        if inp.swing is None:
+            reach = max(inp.cable_l_m, r2)
+        else:
+            theta = (math.atan(p.shaped_a_max_mps2 / inp.g_mps2) + self.dev_peak_rad
+                     + p.swing_sigma_k * max(0.0, inp.swing_sigma_rad))
+            reach = inp.cable_l_m * math.sin(min(theta, 0.5 * math.pi))
+        return max(r2 + lead, reach)
+
+    # ------------------------------------------------------------------------------------------------
+    def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
+        """The reference at ``inp.t_s`` (replanning first when a cycle is due)."""
+        if self.tl is None:
+            self._init(inp)
+        assert self.tl is not None
+        self._watch(inp)
+        t = inp.t_s
+        if t >= self.next_replan_s - 1e-9:
+            self._replan(inp, obstacles)
+            period = 1.0 / self.params.replan_rate_hz
+            self.next_replan_s = self.next_replan_s + period if t - self.next_replan_s < period else t + period
+        row = self.tl.sample(t)
+        self._last_nominal = (row[8], row[9])
+        ref = ReferenceSample((row[0], row[1]), (row[2], row[3]), (row[4], row[5]), (row[6], row[7]),
+                              (row[8], row[9], row[10], row[11], row[12], row[13]))
+        goal_dir = (float(inp.goal_m[0]) - row[0], float(inp.goal_m[1]) - row[1])
+        return PlanOutput(v_des_mps=np.array((row[2], row[3])), force_att=np.array(goal_dir),
+                          force_rep=_ZERO2, mode=self.mode, reference=ref, no_route=self.no_route)
+
+    # ------------------------------------------------------------------------------------------------
+    def _discs(self, inp: PlanInput, obstacles: Sequence[Obstacle]
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[Obstacle], Predicted]:
+        """Static discs (centres, route rings, bare safety rings, contact radii), the moving obstacles, and every
+        relevant obstacle as :class:`Predicted` for the time-aware check."""
+        env = self.envelope_m(inp)
+        margin = self.params.track_margin_m + self.err_peak_m
+        r2 = inp.airframe_r_m
+        reach_z = inp.z_ned_m + inp.cable_l_m
+        rel = [o for o in obstacles if reach_z >= -o.height_m]
+        static = [o for o in rel if o.vx_mps == 0.0 and o.vy_mps == 0.0]
+        moving = [o for o in rel if not (o.vx_mps == 0.0 and o.vy_mps == 0.0)]
+        c = np.array([(o.x_m, o.y_m) for o in static], dtype=np.float64).reshape(-1, 2)
+        ro = np.array([o.radius_m for o in static], dtype=np.float64)
+        sd = np.array([o.safe_distance_m for o in static], dtype=np.float64)
+        ring = ro + sd + env + margin
+        bare = ro + sd + r2 + 0.02
+        contact = ro + r2
+        allo = static + moving
+        n = len(allo)
+        is_m = np.array([False] * len(static) + [True] * len(moving), dtype=np.bool_)
+        r_all = np.array([o.radius_m + o.safe_distance_m for o in allo], dtype=np.float64)
+        pred = Predicted(
+            cx=np.array([o.x_m for o in allo], dtype=np.float64), cy=np.array([o.y_m for o in allo], dtype=np.float64),
+            vx=np.array([o.vx_mps for o in allo], dtype=np.float64),
+            vy=np.array([o.vy_mps for o in allo], dtype=np.float64),
+            # static: the bare safety ring; moving: plus the tracking margin, growing with the look-ahead
+            ring_airframe=r_all + r2 + np.where(is_m, margin, -0.01),
+            ring_payload=r_all + np.where(is_m, margin, -0.01),
+            growth=np.where(is_m, self.params.predict_growth_mps, 0.0), moving=is_m,
+        )
+        del n
+        return c, ring, bare, contact, moving, pred
+
+    def _candidates(self, p0: np.ndarray, v0: np.ndarray, goal: np.ndarray, c: np.ndarray, ring: np.ndarray,
+                    hard: np.ndarray, a_max: float) -> list[Candidate]:
+        """Timed routes from (p0, v0) to the goal, fastest first (see module docstring, step 2).
+
+        Routes around the discs inflated by k·``route_extra_m`` go through ever wider gaps; then the apex of
+        the fastest one (its point farthest from the straight line to the goal) is walled off by a large disc
+        beyond it and the search repeated, which finds the best route on the other side of that apex.
+        """
+        p = self.params
+        speed = math.hypot(float(v0[0]), float(v0[1]))
+        heading = v0 / speed if speed > 0.05 else None
+        out: list[Candidate] = []
+        lengths: list[float] = []
+
+        def search(cc: np.ndarray, rr: np.ndarray, hh: np.ndarray, extras: Sequence[float]) -> bool:
+            found = False
+            for e in extras:
+                rt = find_route(p0, goal, cc, rr + e, hh)
+                if rt is None:
+                    continue
+                found = True
+                if any(abs(rt.length_m - L) < 1e-3 for L in lengths):
+                    continue
+                lengths.append(rt.length_m)
+                path = smooth_path(rt.points, cc, rr, ds_m=p.route_ds_m, heading=heading)
+                prof = speed_profile(path, speed, a_max_mps2=a_max, v_max_mps=p.shaped_v_max_mps, heading=heading,
+                                     a_brake_mps2=p.shaped_brake_mps2)
+                out.append(Candidate(prof, prof.duration_s, e, True))
+                self._paths.append(path)
+            return found
+
+        self._paths: list[np.ndarray] = []
+        extras = [k * p.route_extra_m for k in range(p.route_candidates)]
+        if not search(c, ring, hard, extras):
+            return out
+        # the other side of the fastest route's apex
+        best = int(np.argmin([cd.duration_s for cd in out]))
+        path = self._paths[best]
+        line = goal - p0
+        dist = float(np.hypot(line[0], line[1]))
+        if dist > 1e-6:
+            nrm = np.array((-line[1], line[0])) / dist
+            dev = (path - p0[None, :]) @ nrm
+            i = int(np.argmax(np.abs(dev)))
+            if abs(dev[i]) > 0.5:
+                big = 50.0
+                side = math.copysign(1.0, float(dev[i]))
+                centre = path[i] + side * nrm * (big - 0.05)
+                search(np.vstack([c, centre[None, :]]), np.r_[ring, big], np.r_[hard, big - 0.3],
+                       extras[: max(1, (len(extras) + 1) // 2)])
+        out.sort(key=lambda cd: cd.duration_s)
+        return out
+
+    def _rows(self, prof: Profile) -> np.ndarray:
+        """Unshaped rows [p, v, a] (m, 6) of a profile, one per grid step from its start to its end."""
+        h = self.params.shaped_step_s
+        times = np.arange(0.0, prof.duration_s + h, h)
+        pos, vel, acc = sample_motion(prof, times)
+        return np.concatenate([pos, vel, acc], axis=1)
+
+    def _brake_rows(self, p0: np.ndarray, v0: np.ndarray) -> np.ndarray:
+        """Unshaped rows of a straight stop from (p0, v0) at ``shaped_brake_mps2`` (or just rest)."""
+        h = self.params.shaped_step_s
+        b = self.params.shaped_brake_mps2
+        speed = math.hypot(float(v0[0]), float(v0[1]))
+        if speed < 1e-6:
+            row = np.zeros((1, 6))
+            row[0, 0:2] = p0
+            return row
+        u = v0 / speed
+        tt = np.arange(0.0, speed / b + h, h)
+        tt = np.minimum(tt, speed / b)
+        s = speed * tt - 0.5 * b * tt * tt
+        sp = np.maximum(speed - b * tt, 0.0)
+        rows = np.zeros((len(tt), 6))
+        rows[:, 0:2] = p0[None, :] + s[:, None] * u[None, :]
+        rows[:, 2:4] = sp[:, None] * u[None, :]
+        rows[:, 4:6] = np.where(sp[:, None] > 0.0, -b * u[None, :], 0.0)
+        return rows
+
+    # ------------------------------------------------------------------------------------------------
+    def _replan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> None:
+        tl = self.tl
+        assert tl is not None
+        p = self.params
+        self.replans += 1
+        t = inp.t_s
+        h = tl.h_s
+        k_now = tl.index(t)
+        k_r = k_now + LEAD_ROWS
+        u0 = tl.unshaped_at(k_r)
+        p0, v0 = u0[0:2], u0[2:4]
+        goal = np.asarray(inp.goal_m, dtype=np.float64)
+        c, ring, bare, contact, moving, pred = self._discs(inp, obstacles)
+        l_m = inp.cable_l_m
+
+        def check(ref: np.ndarray, base: int) -> tuple[np.ndarray, np.ndarray, int]:
+            fut, k_f = tl.future(k_now, ref, base)
+            first, worst = clearance(fut, tl.time_of(k_f), h, t, l_m, pred)
+            return first, worst, k_f
+
+        # the current plan: still clear?
+        first_cur, _, _ = check(tl.ref, tl.base)
+        cur_ok = bool(np.all(np.isinf(first_cur)))
+        remaining = max(0.0, (self.plan_end_k - k_r) * h)
+        at_goal = math.hypot(float(goal[0] - p0[0]), float(goal[1] - p0[1])) < 1e-3
+        if at_goal and math.hypot(float(v0[0]), float(v0[1])) < 1e-3 and cur_ok:
+            self.mode = "track"
+            self.last = {"kept": True, "reason": "at goal"}
+            return
+        if self.no_route:
+            self._hold(k_r, k_now, p0, v0, cur_ok, "no_route")
+            return
+
+        # static route existence (the bare safety ring): none means no route at all
+        if find_route(p0, goal, c, bare, contact) is None:
+            if self.no_route_since_s is None:
+                self.no_route_since_s = t
+            if t - self.no_route_since_s >= p.no_route_confirm_s - 1e-9:
+                self.no_route = True
+            self._hold(k_r, k_now, p0, v0, cur_ok, "no_route" if self.no_route else "brake")
+            self.last = {"no_route_search_failed": True, "since": self.no_route_since_s}
+            return
+        self.no_route_since_s = None
+
+        cc, rr, hh = c, ring, contact
+        chosen = None
+        tried = 0
+        for _round in range(3):
+            cands = self._candidates(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2)
+            if not cands:
+                # only the bare ring lets a route through: fly it at half the acceleration (less lead, less swing)
+                cands = self._candidates(p0, v0, goal, cc, np.maximum(rr - (ring - bare).max(initial=0.0), 0.0)
+                                         if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2)
+            conflicts: list[tuple[int, float]] = []
+            for cand in cands:
+                tried += 1
+                rows = self._rows(cand.profile)
+                u, ref, base = tl.preview(k_r, rows, k_now)
+                first, _worst, _ = check(ref, base)
+                if np.all(np.isinf(first)):
+                    chosen = (cand, rows, u, ref, base)
+                    break
+                if not conflicts:
+                    conflicts = [(j, float(first[j])) for j in np.flatnonzero(np.isfinite(first)) if pred.moving[j]]
+            if chosen is not None or not conflicts or not moving:
+                break
+            # capsules around the moving obstacles' positions at the conflict times
+            cc, rr, hh = self._add_capsules(cc, rr, hh, conflicts, pred, t, inp)
+        self.last = {"candidates": tried, "cur_ok": cur_ok, "remaining_s": remaining,
+                     "durations": [round(cd.duration_s, 3) for cd in cands] if True else []}
+        if chosen is not None:
+            cand, rows, u, ref, base = chosen
+            better = (not cur_ok or not self.plan_reaches_goal
+                      or cand.duration_s < remaining - p.replan_hysteresis_s)
+            if better:
+                tl.u, tl.ref, tl.base = u, ref, base
+                tl._ref_list = ref.tolist()
+                self.plan_end_k = k_r + len(rows) - 1
+                self.plan_reaches_goal = cand.reaches_goal
+                self.splices += 1
+                self.last.update({"spliced": True, "duration_s": cand.duration_s, "extra_m": cand.extra_m})
+            else:
+                self.last.update({"kept": True, "best_s": cand.duration_s})
+            self.mode = "track"
+            return
+        # nothing valid: keep a valid current plan, else stop and wait
+        if cur_ok and self.plan_reaches_goal:
+            self.last.update({"kept": True, "reason": "no better valid candidate"})
+            return
+        self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
+
+    def _hold(self, k_r: int, k_now: int, p0: np.ndarray, v0: np.ndarray, cur_ok: bool, mode: str) -> None:
+        """Stop along the current heading and hold there: when the current plan still heads for the goal, or
+        when the stop already under way is no longer clear (a new one from the state at k_r)."""
+        tl = self.tl
+        assert tl is not None
+        self.mode = mode
+        moving = math.hypot(float(v0[0]), float(v0[1])) > 1e-6
+        if self.plan_reaches_goal or (moving and not cur_ok):
+            rows = self._brake_rows(p0, v0)
+            tl.splice(k_r, rows, k_now)
+            self.plan_end_k = k_r + len(rows) - 1
+            self.plan_reaches_goal = False
+            self.splices += 1
+
+    def _add_capsules(self, c: np.ndarray, r: np.ndarray, hard: np.ndarray, conflicts: list[tuple[int, float]],
+                      pred: Predicted, t_now: float, inp: PlanInput) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Discs along each conflicting moving obstacle's predicted track around the conflict time."""
+        env = self.envelope_m(inp)
+        margin = self.params.track_margin_m + self.err_peak_m
+        add_c, add_r, add_h = [c], [r], [hard]
+        for j, t_c in conflicts:
+            vx, vy = float(pred.vx[j]), float(pred.vy[j])
+            speed = math.hypot(vx, vy)
+            dt_c = max(t_c - t_now, 0.0)
+            ring = float(pred.ring_payload[j]) - margin + env + margin + self.params.predict_growth_mps * dt_c
+            half = min(3.0, ring / max(speed, 1e-3) + 0.3)
+            t0, t1 = max(dt_c - half, 0.0), dt_c + half
+            n = max(2, math.ceil(speed * (t1 - t0) / CAPSULE_STEP_M) + 1)
+            ts = np.linspace(t0, t1, n)
+            pts = np.stack([pred.cx[j] + vx * ts, pred.cy[j] + vy * ts], axis=1)
+            add_c.append(pts)
+            add_r.append(np.full(n, ring))
+            add_h.append(np.full(n, float(pred.ring_payload[j]) - margin + inp.airframe_r_m))
+        return np.concatenate(add_c), np.concatenate(add_r), np.concatenate(add_h)
