@@ -26,7 +26,10 @@ class PlannerParams:
     Shaped planner (:mod:`companion.planning.shaped`): ``shaped_a_max_mps2`` bound on the planned payload
     acceleration (the nominal swing is atan(a/g): 1.85 m/s² is 0.187 rad), ``shaped_v_max_mps`` speed cap,
     ``shaper_tau_s`` the three moving-average widths (s) of the smoothing cascade, ``shaped_step_s`` the time
-    step of the planned reference, ``replan_rate_hz`` how often the route and its timing are recomputed,
+    step of the planned reference, ``replan_rate_hz`` how often the plan is checked against the latest obstacles
+    (and the route search rerun whenever an obstacle appeared, vanished, changed or left its predicted
+    track, the envelope grew, or the plan failed the check), ``route_refresh_s`` how often the search reruns
+    anyway,
     ``route_ds_m`` spacing of the points of the minimum-curvature path, ``route_extra_m`` /
     ``route_candidates`` the extra inflations (k·extra, k = 0 .. candidates−1) whose routes are timed and
     compared, ``replan_hysteresis_s`` how much
@@ -63,9 +66,10 @@ class PlannerParams:
     shaper_tau_s: tuple[float, float, float] = (0.3, 0.35, 0.4)
     shaped_step_s: float = 0.01
     replan_rate_hz: float = 20.0
+    route_refresh_s: float = 0.5
     route_ds_m: float = 0.4
-    route_extra_m: float = 0.4
-    route_candidates: int = 4
+    route_extra_m: float = 0.2
+    route_candidates: int = 6
     replan_hysteresis_s: float = 0.15
     no_route_confirm_s: float = 0.5
     swing_sigma_k: float = 2.0

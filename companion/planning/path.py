@@ -126,8 +126,8 @@ def _corridor(ref, nrm, cx, cy, r, d_max, skip):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _min_curvature(ref, nrm, lo, hi, n_fixed_start, tgt1x, tgt1y, w_head, rounds):  # pragma: no cover
-    """Offsets d minimising Σ|x[i−1] − 2x[i] + x[i+1]|² (x = ref + d·n) within [lo, hi] (active set)."""
+def _min_curvature(ref, nrm, lo, hi, n_fixed_start, tgt1x, tgt1y, w_head, rounds, wres):  # pragma: no cover
+    """Offsets d minimising Σ wres[i]·|x[i−1] − 2x[i] + x[i+1]|² (x = ref + d·n) within [lo, hi] (active set)."""
     n = ref.shape[0]
     h0 = np.zeros(n)
     h1 = np.zeros(n)
@@ -137,13 +137,14 @@ def _min_curvature(ref, nrm, lo, hi, n_fixed_start, tgt1x, tgt1y, w_head, rounds
     for i in range(1, n - 1):  # residual i couples i−1, i, i+1 with coefficients 1, −2, 1
         rx = ref[i - 1, 0] - 2.0 * ref[i, 0] + ref[i + 1, 0]
         ry = ref[i - 1, 1] - 2.0 * ref[i, 1] + ref[i + 1, 1]
+        wi = wres[i]
         for a in range(3):
             ka = i - 1 + a
-            g[ka] += cf[a] * (rx * nrm[ka, 0] + ry * nrm[ka, 1])
-            h0[ka] += cf[a] * cf[a]
+            g[ka] += wi * cf[a] * (rx * nrm[ka, 0] + ry * nrm[ka, 1])
+            h0[ka] += wi * cf[a] * cf[a]
             for b in range(a + 1, 3):
                 kb = i - 1 + b
-                v = cf[a] * cf[b] * (nrm[ka, 0] * nrm[kb, 0] + nrm[ka, 1] * nrm[kb, 1])
+                v = wi * cf[a] * cf[b] * (nrm[ka, 0] * nrm[kb, 0] + nrm[ka, 1] * nrm[kb, 1])
                 if kb - ka == 1:
                     h1[ka] += v
                 else:
@@ -253,7 +254,8 @@ def smooth_path(points: np.ndarray, centers: np.ndarray, radii: np.ndarray, *, d
         nfix, tx, ty = 2, float(tgt[0]), float(tgt[1])
     else:
         nfix, tx, ty = 1, 0.0, 0.0
-    d = _min_curvature(ref, nrm, lo, hi, nfix, tx, ty, float(w_heading), int(rounds))
+    wres = np.ones(n)
+    d = _min_curvature(ref, nrm, lo, hi, nfix, tx, ty, float(w_heading), int(rounds), np.ascontiguousarray(wres))
     return ref + d[:, None] * nrm
 
 

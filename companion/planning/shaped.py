@@ -53,6 +53,22 @@ from companion.planning.shaping import box_widths, pendulum_omega_rad_s
 from companion.planning.timeline import Timeline
 
 LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps ahead of now
+
+
+def warm_up() -> None:
+    """Run every compiled kernel once on a tiny problem (loads them from numba's cache, or compiles them), so
+    that the first replan of a flight is not the one that pays for it."""
+    c = np.array([[2.0, 0.1], [4.0, -0.3]])
+    r = np.array([0.6, 0.5])
+    rt = find_route(np.zeros(2), np.array([6.0, 0.0]), c, r, r)
+    assert rt is not None
+    path = smooth_path(rt.points, c, r, ds_m=0.4, heading=np.array([1.0, 0.0]))
+    prof = speed_profile(path, 0.5, a_max_mps2=1.0, v_max_mps=2.0, heading=np.array([1.0, 0.0]))
+    pos, vel, acc = sample_motion(prof, np.arange(0.0, prof.duration_s, 0.05))
+    tl = Timeline(0.0, np.zeros(2), 0.01, (3, 4, 5), 3.0, 9.81)
+    tl.splice(2, np.concatenate([pos, vel, acc], axis=1), 0)
+    z = np.zeros(1)
+    clearance(tl.ref, 0.0, 0.01, 0.0, 1.0, Predicted(z, z, z, z, z + 0.5, z + 0.3, z, np.zeros(1, np.bool_)))
 CAPSULE_STEP_M = 0.3
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
@@ -93,8 +109,14 @@ class ShapedPlanner:
         self._dev_t = -math.inf
         self._last_nominal = (0.0, 0.0)
         self.replans = 0
+        self.searches = 0
         self.splices = 0
         self.last: dict = {}
+        self._search_t = -math.inf
+        self._search_sig: tuple = ()
+        self._search_pred: Predicted | None = None
+        self._search_ring_m = 0.0
+        warm_up()
 
     # ------------------------------------------------------------------------------------------------
     def _init(self, inp: PlanInput) -> None:
@@ -300,6 +322,13 @@ class ShapedPlanner:
         if self.no_route:
             self._hold(k_r, k_now, p0, v0, cur_ok, "no_route")
             return
+        ring_now = self.envelope_m(inp) + self.err_peak_m
+        if cur_ok and self.plan_reaches_goal and not self._changed(t, obstacles, pred, ring_now):
+            self.last = {"kept": True, "reason": "valid, nothing changed"}
+            return
+        self.searches += 1
+        self._search_t, self._search_sig, self._search_pred = t, self._signature(obstacles), pred
+        self._search_ring_m = ring_now
 
         # static route existence (the bare safety ring): none means no route at all
         if find_route(p0, goal, c, bare, contact) is None:
@@ -372,6 +401,42 @@ class ShapedPlanner:
             self.plan_end_k = k_r + len(rows) - 1
             self.plan_reaches_goal = False
             self.splices += 1
+
+    @staticmethod
+    def _signature(obstacles: Sequence[Obstacle]) -> tuple:
+        """What identifies the obstacle set apart from the motion of the moving ones."""
+        return tuple(sorted((o.radius_m, o.height_m, o.safe_distance_m, o.vx_mps, o.vy_mps)
+                            + ((o.x_m, o.y_m) if o.vx_mps == 0.0 and o.vy_mps == 0.0 else ())
+                            for o in obstacles))
+
+    def _changed(self, t: float, obstacles: Sequence[Obstacle], pred: Predicted, ring_m: float) -> bool:
+        """True when the route search must run again: obstacles appeared, vanished or changed, a moving one is
+        off its predicted track by more than 0.05 m, the envelope or margin grew by more than 0.05 m, or
+        ``route_refresh_s`` passed since the last search."""
+        if t - self._search_t >= self.params.route_refresh_s - 1e-9:
+            return True
+        if ring_m > self._search_ring_m + 0.05:
+            return True
+        if self._signature(obstacles) != self._search_sig:
+            return True
+        old = self._search_pred
+        if old is None or len(old) != len(pred):
+            return True
+        if np.any(pred.moving):
+            dt = t - self._search_t
+            ex = old.cx + old.vx * dt - pred.cx
+            ey = old.cy + old.vy * dt - pred.cy
+            # obstacles keep their order in a list that did not change (the signature is sorted, so compare
+            # each current moving obstacle with its nearest prediction)
+            if not np.array_equal(old.moving, pred.moving):
+                return True
+            m = pred.moving
+            px, py = old.cx[m] + old.vx[m] * dt, old.cy[m] + old.vy[m] * dt
+            d = np.hypot(pred.cx[m][:, None] - px[None, :], pred.cy[m][:, None] - py[None, :])
+            if d.size and float(d.min(axis=1).max()) > 0.05:
+                return True
+            del ex, ey
+        return False
 
     def _add_capsules(self, c: np.ndarray, r: np.ndarray, hard: np.ndarray, conflicts: list[tuple[int, float]],
                       pred: Predicted, t_now: float, inp: PlanInput) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
