@@ -364,6 +364,7 @@ class Profile:
     a_t: np.ndarray
     duration_s: float
     length_m: float
+    a_peak_mps2: float = 0.0
 
     def curve(self, s: np.ndarray) -> np.ndarray:
         """[x, y, x', y', x'', y''] (k, 6) of the path at arc lengths ``s`` (m)."""
@@ -406,7 +407,9 @@ def speed_profile(points: np.ndarray, v0_mps: float, *, a_max_mps2: float, v_max
     dt = np.where(vm > 1e-9, 2.0 * (s[1] - s[0]) / np.maximum(vm, 1e-9), 0.0)
     t = np.r_[0.0, np.cumsum(dt)]
     a_t = np.where(dt > 0.0, (v[1:] - v[:-1]) / np.maximum(dt, 1e-12), 0.0)
-    return Profile(sk, p, mm, s, v, t, a_t, float(t[-1]), length)
+    lat = v[:-1] ** 2 * kappa[:-1]
+    a_peak = float(np.max(np.hypot(a_t, lat))) if len(a_t) else 0.0
+    return Profile(sk, p, mm, s, v, t, a_t, float(t[-1]), length, a_peak)
 
 
 @njit(cache=True)

@@ -341,6 +341,7 @@ class ShapedPlanner:
             return
         self.no_route_since_s = None
 
+        optional = cur_ok and self.plan_reaches_goal  # the current plan is fine; a new one must be better
         cc, rr, hh = c, ring, contact
         chosen = None
         tried = 0
@@ -352,6 +353,8 @@ class ShapedPlanner:
                                          if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2)
             conflicts: list[tuple[int, float]] = []
             for cand in cands:
+                if optional and cand.profile.a_peak_mps2 > 1.02 * p.shaped_a_max_mps2:
+                    continue  # an optional switch keeps the swing bound (no harder braking than a_max)
                 tried += 1
                 rows = self._rows(cand.profile)
                 u, ref, base = tl.preview(k_r, rows, k_now)
@@ -369,8 +372,7 @@ class ShapedPlanner:
                      "durations": [round(cd.duration_s, 3) for cd in cands] if True else []}
         if chosen is not None:
             cand, rows, u, ref, base = chosen
-            better = (not cur_ok or not self.plan_reaches_goal
-                      or cand.duration_s < remaining - p.replan_hysteresis_s)
+            better = not optional or cand.duration_s < remaining - p.replan_hysteresis_s
             if better:
                 tl.u, tl.ref, tl.base = u, ref, base
                 tl._ref_list = ref.tolist()
