@@ -70,6 +70,8 @@ def warm_up() -> None:
     z = np.zeros(1)
     clearance(tl.ref, 0.0, 0.01, 0.0, 1.0, Predicted(z, z, z, z, z + 0.5, z + 0.3, z, np.zeros(1, np.bool_)))
 CAPSULE_STEP_M = 0.3
+# an optional replan's motion may exceed a_max by the profile's discretisation (a few per cent), not by braking
+OPTIONAL_A_FACTOR = 1.06
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
 
@@ -353,7 +355,7 @@ class ShapedPlanner:
                                          if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2)
             conflicts: list[tuple[int, float]] = []
             for cand in cands:
-                if optional and cand.profile.a_peak_mps2 > 1.02 * p.shaped_a_max_mps2:
+                if optional and cand.profile.a_peak_mps2 > OPTIONAL_A_FACTOR * p.shaped_a_max_mps2:
                     continue  # an optional switch keeps the swing bound (no harder braking than a_max)
                 tried += 1
                 rows = self._rows(cand.profile)
