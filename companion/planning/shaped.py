@@ -38,7 +38,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -85,7 +85,7 @@ class Candidate:
     duration_s: float
     extra_m: float
     reaches_goal: bool
-    kind: str = "route"
+    walled: bool = False
 
 
 class ShapedPlanner:
@@ -118,6 +118,8 @@ class ShapedPlanner:
         self._search_sig: tuple = ()
         self._search_pred: Predicted | None = None
         self._search_ring_m = 0.0
+        self.plan_option: tuple[bool, float] = (False, 0.0)
+        self._rotation = 0
         warm_up()
 
     # ------------------------------------------------------------------------------------------------
@@ -212,12 +214,14 @@ class ShapedPlanner:
         return c, ring, bare, contact, moving, pred
 
     def _candidates(self, p0: np.ndarray, v0: np.ndarray, goal: np.ndarray, c: np.ndarray, ring: np.ndarray,
-                    hard: np.ndarray, a_max: float) -> list[Candidate]:
+                    hard: np.ndarray, a_max: float, options: Sequence[tuple[bool, float]] | None = None
+                    ) -> list[Candidate]:
         """Timed routes from (p0, v0) to the goal, fastest first (see module docstring, step 2).
 
         Routes around the discs inflated by k·``route_extra_m`` go through ever wider gaps; then the apex of
         the fastest one (its point farthest from the straight line to the goal) is walled off by a large disc
         beyond it and the search repeated, which finds the best route on the other side of that apex.
+        ``options`` (blocked, extra) restricts the search to those (a refresh); default: all of them.
         """
         p = self.params
         speed = math.hypot(float(v0[0]), float(v0[1]))
@@ -243,8 +247,11 @@ class ShapedPlanner:
             return found
 
         self._paths: list[np.ndarray] = []
-        extras = [k * p.route_extra_m for k in range(p.route_candidates)]
-        if not search(c, ring, hard, extras):
+        opts = list(options) if options is not None else self._options()
+        plain = [e for b, e in opts if not b]
+        walled = [e for b, e in opts if b]
+        if not search(c, ring, hard, plain or [0.0]) or not walled:
+            out.sort(key=lambda cd: cd.duration_s)
             return out
         # the other side of the fastest route's apex
         best = int(np.argmin([cd.duration_s for cd in out]))
@@ -259,10 +266,18 @@ class ShapedPlanner:
                 big = 50.0
                 side = math.copysign(1.0, float(dev[i]))
                 centre = path[i] + side * nrm * (big - 0.05)
-                search(np.vstack([c, centre[None, :]]), np.r_[ring, big], np.r_[hard, big - 0.3],
-                       extras[: max(1, (len(extras) + 1) // 2)])
+                n0 = len(out)
+                search(np.vstack([c, centre[None, :]]), np.r_[ring, big], np.r_[hard, big - 0.3], walled)
+                out[n0:] = [replace(cd, walled=True) for cd in out[n0:]]
         out.sort(key=lambda cd: cd.duration_s)
         return out
+
+    def _options(self) -> list[tuple[bool, float]]:
+        """Every (walled, extra) search option: the k·extra inflations, then the other side of the apex with the
+        first half of them."""
+        p = self.params
+        extras = [k * p.route_extra_m for k in range(p.route_candidates)]
+        return [(False, e) for e in extras] + [(True, e) for e in extras[: max(1, (len(extras) + 1) // 2)]]
 
     def _rows(self, prof: Profile) -> np.ndarray:
         """Unshaped rows [p, v, a] (m, 6) of a profile, one per grid step from its start to its end."""
@@ -325,15 +340,24 @@ class ShapedPlanner:
             self._hold(k_r, k_now, p0, v0, cur_ok, "no_route")
             return
         ring_now = self.envelope_m(inp) + self.err_peak_m
-        if cur_ok and self.plan_reaches_goal and not self._changed(t, obstacles, pred, ring_now):
+        valid = cur_ok and self.plan_reaches_goal
+        why = self._changed(t, obstacles, pred, ring_now) if valid else "invalid"
+        if why is None:
             self.last = {"kept": True, "reason": "valid, nothing changed"}
             return
         self.searches += 1
         self._search_t, self._search_sig, self._search_pred = t, self._signature(obstacles), pred
         self._search_ring_m = ring_now
+        options = None
+        if why == "refresh":
+            # nothing changed and the plan is good: re-time its own route and try one other option in turn
+            allo = self._options()
+            other = [o for o in allo if o != self.plan_option]
+            options = [self.plan_option] + ([other[self._rotation % len(other)]] if other else [])
+            self._rotation += 1
 
         # static route existence (the bare safety ring): none means no route at all
-        if find_route(p0, goal, c, bare, contact) is None:
+        if why != "refresh" and find_route(p0, goal, c, bare, contact) is None:
             if self.no_route_since_s is None:
                 self.no_route_since_s = t
             if t - self.no_route_since_s >= p.no_route_confirm_s - 1e-9:
@@ -348,7 +372,9 @@ class ShapedPlanner:
         chosen = None
         tried = 0
         for _round in range(3):
-            cands = self._candidates(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2)
+            cands = self._candidates(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, options)
+            if not cands and options is not None:
+                cands = self._candidates(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2)
             if not cands:
                 # only the bare ring lets a route through: fly it at half the acceleration (less lead, less swing)
                 cands = self._candidates(p0, v0, goal, cc, np.maximum(rr - (ring - bare).max(initial=0.0), 0.0)
@@ -376,10 +402,10 @@ class ShapedPlanner:
             cand, rows, u, ref, base = chosen
             better = not optional or cand.duration_s < remaining - p.replan_hysteresis_s
             if better:
-                tl.u, tl.ref, tl.base = u, ref, base
-                tl._ref_list = ref.tolist()
+                tl.install(u, ref, base)
                 self.plan_end_k = k_r + len(rows) - 1
                 self.plan_reaches_goal = cand.reaches_goal
+                self.plan_option = (cand.walled, cand.extra_m)
                 self.splices += 1
                 self.last.update({"spliced": True, "duration_s": cand.duration_s, "extra_m": cand.extra_m})
             else:
@@ -413,34 +439,31 @@ class ShapedPlanner:
                             + ((o.x_m, o.y_m) if o.vx_mps == 0.0 and o.vy_mps == 0.0 else ())
                             for o in obstacles))
 
-    def _changed(self, t: float, obstacles: Sequence[Obstacle], pred: Predicted, ring_m: float) -> bool:
-        """True when the route search must run again: obstacles appeared, vanished or changed, a moving one is
-        off its predicted track by more than 0.05 m, the envelope or margin grew by more than 0.05 m, or
-        ``route_refresh_s`` passed since the last search."""
-        if t - self._search_t >= self.params.route_refresh_s - 1e-9:
-            return True
+    def _changed(self, t: float, obstacles: Sequence[Obstacle], pred: Predicted, ring_m: float) -> str | None:
+        """Why the route search must run again — ``"changed"``: obstacles appeared, vanished or changed, a moving
+        one is off its predicted track by more than 0.05 m, or the envelope or margin grew by more than 0.05 m;
+        ``"refresh"``: ``route_refresh_s`` passed since the last search — or None."""
         if ring_m > self._search_ring_m + 0.05:
-            return True
+            return "changed"
         if self._signature(obstacles) != self._search_sig:
-            return True
+            return "changed"
         old = self._search_pred
         if old is None or len(old) != len(pred):
-            return True
+            return "changed"
         if np.any(pred.moving):
             dt = t - self._search_t
-            ex = old.cx + old.vx * dt - pred.cx
-            ey = old.cy + old.vy * dt - pred.cy
             # obstacles keep their order in a list that did not change (the signature is sorted, so compare
             # each current moving obstacle with its nearest prediction)
             if not np.array_equal(old.moving, pred.moving):
-                return True
+                return "changed"
             m = pred.moving
             px, py = old.cx[m] + old.vx[m] * dt, old.cy[m] + old.vy[m] * dt
             d = np.hypot(pred.cx[m][:, None] - px[None, :], pred.cy[m][:, None] - py[None, :])
             if d.size and float(d.min(axis=1).max()) > 0.05:
-                return True
-            del ex, ey
-        return False
+                return "changed"
+        if t - self._search_t >= self.params.route_refresh_s - 1e-9:
+            return "refresh"
+        return None
 
     def _add_capsules(self, c: np.ndarray, r: np.ndarray, hard: np.ndarray, conflicts: list[tuple[int, float]],
                       pred: Predicted, t_now: float, inp: PlanInput) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

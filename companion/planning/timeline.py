@@ -36,7 +36,7 @@ class Timeline:
         rest[:, 0:2] = np.asarray(pos_m, dtype=np.float64)[:2]
         self.u = rest
         self.ref = shape_reference(self.u, widths, h_s, omega_rad_s, g_mps2)
-        self._ref_list = self.ref.tolist()
+        self._flat = self.ref.ravel().tolist()
 
     # -- time <-> rows --------------------------------------------------------------------------------
     def index(self, t_s: float) -> int:
@@ -65,8 +65,14 @@ class Timeline:
     def splice(self, k_r: int, rows: np.ndarray, k_now: int) -> None:
         """Replace the unshaped motion from absolute row ``k_r`` by ``rows`` (m, 6), followed by rest at its
         last point; drop history older than the cascade needs before ``k_now``; recompute the reference."""
-        self.u, self.ref, self.base = self.preview(k_r, rows, k_now)
-        self._ref_list = self.ref.tolist()
+        self.install(*self.preview(k_r, rows, k_now))
+
+    def install(self, u: np.ndarray, ref: np.ndarray, base: int) -> None:
+        """Make a :meth:`preview` the plan. The reference is also kept as one flat list of floats: sampling it
+        costs no numpy call per tick, and one list (not one per row) keeps the garbage collector's
+        full passes — which scan every surviving container — out of the control loop."""
+        self.u, self.ref, self.base = u, ref, base
+        self._flat = ref.ravel().tolist()
 
     def preview(self, k_r: int, rows: np.ndarray, k_now: int) -> tuple[np.ndarray, np.ndarray, int]:
         """What :meth:`splice` would store, without storing it: (u, ref, base)."""
@@ -86,15 +92,15 @@ class Timeline:
     def sample(self, t_s: float) -> list[float]:
         """The reference row (REF_COLS floats) at time ``t_s``, linearly interpolated (at rest past the end)."""
         x = (t_s - self.t0_s) / self.h_s - self.base
-        n = len(self._ref_list)
+        flat = self._flat
+        n = len(flat) // REF_COLS
         if x >= n - 3:
-            row = list(self._ref_list[n - 3])
-            for c in range(2, REF_COLS):
-                row[c] = 0.0
-            return row
+            j = (n - 3) * REF_COLS
+            return flat[j: j + 2] + [0.0] * (REF_COLS - 2)
         i = max(math.floor(x), 0)
         f = min(max(x - i, 0.0), 1.0)
-        a, b = self._ref_list[i], self._ref_list[i + 1]
+        j = i * REF_COLS
+        a, b = flat[j: j + REF_COLS], flat[j + REF_COLS: j + 2 * REF_COLS]
         return [a[c] + f * (b[c] - a[c]) for c in range(REF_COLS)]
 
     def future(self, k_from: int, ref: np.ndarray | None = None, base: int | None = None) -> tuple[np.ndarray, int]:
