@@ -150,6 +150,7 @@ def test_no_route_to_a_fenced_goal_is_declared_within_a_second_and_held():
     t_decl = next(c.t_s for c in cmds if c.no_route)
     assert t_decl <= 1.0
     assert core.no_route and core.phase == "done"  # held for hold_s, then done: the mission ends
+    assert core.result == "no_route"  # the verdict the flight sequence ends the mission with
     phases = [c.phase for c in cmds]
     assert "no_route" in phases and phases.index("no_route") == next(i for i, c in enumerate(cmds) if c.no_route)
     # it held at a safe point (where it started; nothing was ever flown towards the fence)
@@ -165,6 +166,31 @@ def test_a_fence_with_a_gap_wide_enough_is_not_a_dead_end():
     cmds = _tick_core(core, 12.0)
     assert not core.no_route and not any(c.no_route for c in cmds)
     assert core.phase in ("hold", "done")
+
+
+def test_a_hold_asked_mid_cruise_takes_over_the_shaped_reference_smoothly():
+    m = Mission("line", np.array([0.0, 0.0, -2.0]), np.array([12.0, 0.0, -2.0]), "shaped", "smc_ff", 30.0, hold_s=1.0)
+    core = FlightCore(m)
+    cmds = _tick_core(core, 2.5)
+    v_before = cmds[-1].ref_vel_ned_mps.copy()
+    assert v_before[0] > 1.0 and core.phase == "cruise"
+    core.hold_here()
+    pos = cmds[-1].ref_pos_ned_m.copy()
+    vel = cmds[-1].ref_vel_ned_mps.copy()
+    after = []
+    for k in range(1, 1500):
+        cmd = core.update(_est(2.5 + k * DT - DT, pos, vel))
+        after.append(cmd)
+        pos, vel = cmd.ref_pos_ned_m.copy(), cmd.ref_vel_ned_mps.copy()
+    assert core.phase == "hold_here" and core.result is None
+    dv = np.linalg.norm(after[0].ref_vel_ned_mps - v_before)
+    assert dv < 0.1  # no jump in the reference velocity at the hand-over
+    vx = np.array([c.ref_vel_ned_mps[0] for c in after])
+    assert vx.min() > -1e-6  # the planner's own stop along its path: no overshoot and flying back
+    assert np.linalg.norm(after[-1].ref_vel_ned_mps) < 1e-6  # and it came to rest
+    assert after[-1].ref_pos_ned_m[0] < 12.0 and np.max(np.abs([c.ref_pos_ned_m[1] for c in after])) < 1e-9
+    # within the swing bound all the way (the nominal swing is |a_L|/g)
+    assert max(abs(c.ref_acc_ned_mps2[0]) for c in after) < 1.85 * (1.0 + 2.0 / (0.35 * 0.4 * 9.81)) + 1e-6
 
 
 def test_flight_core_moves_mission_obstacles_from_its_clock_zero():

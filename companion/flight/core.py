@@ -111,6 +111,7 @@ class FlightCore:
         self._moving_mission = any(o.vx_mps != 0.0 or o.vy_mps != 0.0 for o in mission.obstacles)
         self.no_route = False
         self.t_no_route_s: float | None = None
+        self._timed_stop = False  # hold_here / descend asked while a time-parameterised planner was flying
         self.controller = make_position_controller(mission.controller, self.cfg, self.params)
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
         self.ref: ReferenceGenerator | None = None
@@ -141,17 +142,29 @@ class FlightCore:
         return "timeout" if self.timed_out else "completed"
 
     def hold_here(self) -> None:
-        """Stop the mission and hover where the reference is now (a hold the flight sequence asked for)."""
+        """Stop the mission and hover where the reference is now (a hold the flight sequence asked for).
+
+        With a time-parameterised planner flying, "now" is the planner's own stop: along its checked path at
+        the swing-bounded deceleration (from 3.6 m/s a straight-line stop at the reference generator's limits
+        overshoots by 6 m, through whatever is ahead, and flies back)."""
         if self.ref is not None:
             self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)
+        self._stop_timed()
         self.phase = "hold_here"
 
     def descend(self) -> None:
         """Stop the mission and descend at :data:`DESCENT_MPS` over where the reference is now (the
-        companion's own landing, when the autopilot's land mode was not confirmed)."""
+        companion's own landing, when the autopilot's land mode was not confirmed); with a time-parameterised
+        planner, over the end of its stop (see :meth:`hold_here`)."""
         if self.ref is not None:
             self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)
+        self._stop_timed()
         self.phase = "descend"
+
+    def _stop_timed(self) -> None:
+        if self._timed and (self.phase in TIMED_PHASES or self._timed_stop):
+            self.planner.stop()
+            self._timed_stop = True
 
     # ------------------------------------------------------------------------------------------------
     def _vertical_speed(self, z_target: float) -> float:
@@ -243,7 +256,7 @@ class FlightCore:
         plan_mode = "track"
         ref = self.ref
         acc_ctl = None
-        timed_now = self._timed and self.phase in TIMED_PHASES
+        timed_now = self._timed and (self.phase in TIMED_PHASES or self._timed_stop)
         if timed_now:
             out = self._plan_timed(est, obs, swing, r_max, z, dt)
             f_att, f_rep, plan_mode = out.force_att, out.force_rep, out.mode
@@ -315,8 +328,11 @@ class FlightCore:
         r = out.reference
         assert r is not None
         if dt > 0.0:
-            z_target = float(m.goal_ned_m[2]) if not self.no_route else ref.p[2]
-            ref.step_vertical(self._vertical_speed(z_target), dt)
+            if self.phase == "descend":
+                ref.step_vertical(DESCENT_MPS, dt)
+            else:
+                z_target = float(m.goal_ned_m[2]) if not (self.no_route or self._timed_stop) else ref.p[2]
+                ref.step_vertical(self._vertical_speed(z_target), dt)
         ref.set_horizontal(r.pos_m, r.vel_mps, r.acc_mps2)
         return out
 

@@ -445,6 +445,27 @@ def sample_motion(prof: Profile, times_s: np.ndarray) -> tuple[np.ndarray, np.nd
     return p, v, a
 
 
+def state_at(prof: Profile, t_s: float) -> tuple[float, float]:
+    """Arc length (m) and speed (m/s) of the profile ``t_s`` seconds after its start."""
+    sv = np.empty((1, 3))
+    _sample(prof.t, prof.s, prof.v, prof.a_t, prof.duration_s, np.array([float(t_s)]), sv)
+    return float(sv[0, 0]), float(sv[0, 1])
+
+
+def stop_along(prof: Profile, s0_m: float, v0_mps: float, a_dec_mps2: float, h_s: float
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position, velocity, acceleration ((k, 2) each, every ``h_s``) of a stop along the profile's path from arc
+    length ``s0_m`` at ``v0_mps``, decelerating at ``a_dec_mps2`` (never beyond the path's end)."""
+    t_stop = v0_mps / a_dec_mps2 if a_dec_mps2 > 0.0 else 0.0
+    t = np.arange(0.0, t_stop + h_s, h_s)
+    t = np.minimum(t, t_stop)
+    sd = np.maximum(v0_mps - a_dec_mps2 * t, 0.0)
+    s = np.minimum(s0_m + v0_mps * t - 0.5 * a_dec_mps2 * t * t, prof.length_m)
+    ev = prof.curve(s)
+    at = np.where(sd > 0.0, -a_dec_mps2, 0.0)
+    return ev[:, 0:2], ev[:, 2:4] * sd[:, None], ev[:, 4:6] * (sd * sd)[:, None] + ev[:, 2:4] * at[:, None]
+
+
 def path_clear(points: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> float:
     """Smallest clearance (m) of the polyline's vertices and segment midpoints to the discs (negative: inside)."""
     c = np.asarray(centers, dtype=np.float64).reshape(-1, 2)

@@ -47,7 +47,7 @@ from companion.core.obstacles import Obstacle
 from companion.planning.base import PlanInput, PlanOutput, ReferenceSample
 from companion.planning.clearance import Predicted, clearance
 from companion.planning.params import PlannerParams
-from companion.planning.path import Profile, sample_motion, smooth_path, speed_profile
+from companion.planning.path import Profile, sample_motion, smooth_path, speed_profile, state_at, stop_along
 from companion.planning.route import find_route
 from companion.planning.shaping import box_widths, pendulum_omega_rad_s
 from companion.planning.timeline import Timeline
@@ -119,6 +119,9 @@ class ShapedPlanner:
         self._search_pred: Predicted | None = None
         self._search_ring_m = 0.0
         self.plan_option: tuple[bool, float] = (False, 0.0)
+        self.plan_profile: Profile | None = None  # the unshaped plan being flown, from absolute row plan_k0
+        self.plan_k0 = 0
+        self.stop_requested = False
         self._rotation = 0
         warm_up()
 
@@ -336,8 +339,8 @@ class ShapedPlanner:
             self.mode = "track"
             self.last = {"kept": True, "reason": "at goal"}
             return
-        if self.no_route:
-            self._hold(k_r, k_now, p0, v0, cur_ok, "no_route")
+        if self.no_route or self.stop_requested:
+            self._hold(k_r, k_now, p0, v0, cur_ok, "no_route" if self.no_route else "hold")
             return
         ring_now = self.envelope_m(inp) + self.err_peak_m
         valid = cur_ok and self.plan_reaches_goal
@@ -404,6 +407,7 @@ class ShapedPlanner:
             if better:
                 tl.install(u, ref, base)
                 self.plan_end_k = k_r + len(rows) - 1
+                self.plan_profile, self.plan_k0 = cand.profile, k_r
                 self.plan_reaches_goal = cand.reaches_goal
                 self.plan_option = (cand.walled, cand.extra_m)
                 self.splices += 1
@@ -418,19 +422,38 @@ class ShapedPlanner:
             return
         self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
 
+    def stop(self) -> None:
+        """Stop along the planned path as soon as the swing bound allows and hold there (a hold the flight
+        sequence asked for); takes effect at the next call of :meth:`plan`."""
+        self.stop_requested = True
+        self.next_replan_s = -math.inf
+
     def _hold(self, k_r: int, k_now: int, p0: np.ndarray, v0: np.ndarray, cur_ok: bool, mode: str) -> None:
-        """Stop along the current heading and hold there: when the current plan still heads for the goal, or
-        when the stop already under way is no longer clear (a new one from the state at k_r)."""
+        """Stop and hold there: when the current plan still heads for the goal, or when the stop already under
+        way is no longer clear (a new one from the state at k_r). The stop follows the current plan's path
+        (which was checked clear) at the swing-bounded deceleration a_max; without one, straight ahead at
+        ``shaped_brake_mps2``."""
         tl = self.tl
         assert tl is not None
         self.mode = mode
         moving = math.hypot(float(v0[0]), float(v0[1])) > 1e-6
-        if self.plan_reaches_goal or (moving and not cur_ok):
+        if not (self.plan_reaches_goal or (moving and not cur_ok)):
+            return
+        rows = None
+        prof = self.plan_profile
+        if prof is not None and self.plan_reaches_goal:
+            s0, sp = state_at(prof, (k_r - self.plan_k0) * tl.h_s)
+            if abs(sp - math.hypot(float(v0[0]), float(v0[1]))) < 0.05:
+                pos, vel, acc = stop_along(prof, s0, sp, self.params.shaped_a_max_mps2, tl.h_s)
+                rows = np.concatenate([pos, vel, acc], axis=1)
+                rows[0, 0:4] = np.r_[p0, v0]  # exactly continuous with the state being replaced
+        if rows is None:
             rows = self._brake_rows(p0, v0)
-            tl.splice(k_r, rows, k_now)
-            self.plan_end_k = k_r + len(rows) - 1
-            self.plan_reaches_goal = False
-            self.splices += 1
+        tl.splice(k_r, rows, k_now)
+        self.plan_end_k = k_r + len(rows) - 1
+        self.plan_reaches_goal = False
+        self.plan_profile = None
+        self.splices += 1
 
     @staticmethod
     def _signature(obstacles: Sequence[Obstacle]) -> tuple:
