@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from companion.planning.path import path_clear, sample_motion, smooth_path, speed_profile
+from companion.planning.path import path_clear, smooth_path
 from companion.planning.route import find_route
+from companion.planning.timing import sample_motion, speed_profile
 
 
 def _ring(center, radius, n, r):

@@ -11,9 +11,10 @@ ahead of now (so the reference being flown never jumps, see :mod:`companion.plan
    uncertainty (``PlanInput.swing_sigma_rad``, 0 for the cable sensor) — or the whole cable without swing
    sensing. The margin is ``track_margin_m`` plus the recent peak tracking error.
 2. **Routes.** The shortest route around the discs (:mod:`companion.planning.route`) and, to find faster
-   ones through wider gaps, the routes around the discs inflated by k·``route_extra_m``; each is relaxed
-   into a smooth path in the real free space and timed at the acceleration bound
-   (:mod:`companion.planning.path`). Candidates are compared by *time*, not length.
+   ones through wider gaps, the routes around the discs inflated by k·``route_extra_m`` and those on the
+   other side of the fastest one's apex (:mod:`companion.planning.candidates`); each is relaxed into a
+   minimum-curvature path in the real free space (:mod:`companion.planning.path`) and timed at the
+   acceleration bound (:mod:`companion.planning.timing`). Candidates are compared by *time*, not length.
 3. **Moving obstacles** (``vx_mps``/``vy_mps``) are predicted at constant velocity over the plan, with a ring
    that grows with the look-ahead (``predict_growth_mps``). Each candidate's shaped reference is checked
    against them at the time it gets there (:mod:`companion.planning.clearance`); where it would meet one,
@@ -38,19 +39,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
 
 import numpy as np
 
 from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
 from companion.planning.base import PlanInput, PlanOutput, ReferenceSample
+from companion.planning.candidates import capsules, search_options, timed_routes
 from companion.planning.clearance import Predicted, clearance
 from companion.planning.params import PlannerParams
-from companion.planning.path import Profile, sample_motion, smooth_path, speed_profile, state_at, stop_along
+from companion.planning.path import smooth_path
 from companion.planning.route import find_route
 from companion.planning.shaping import box_widths, pendulum_omega_rad_s
 from companion.planning.timeline import Timeline
+from companion.planning.timing import Profile, sample_motion, speed_profile, state_at, stop_along
 
 LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps ahead of now
 
@@ -69,23 +71,10 @@ def warm_up() -> None:
     tl.splice(2, np.concatenate([pos, vel, acc], axis=1), 0)
     z = np.zeros(1)
     clearance(tl.ref, 0.0, 0.01, 0.0, 1.0, Predicted(z, z, z, z, z + 0.5, z + 0.3, z, np.zeros(1, np.bool_)))
-CAPSULE_STEP_M = 0.3
 # an optional replan's motion may exceed a_max by the profile's discretisation (a few per cent), not by braking
 OPTIONAL_A_FACTOR = 1.06
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
-
-
-@dataclass(frozen=True, slots=True)
-class Candidate:
-    """A timed route: ``profile`` from the replan state to the goal (or a stop), its ``duration_s``, the extra
-    inflation it was found with (m), and whether it ends at the goal."""
-
-    profile: Profile
-    duration_s: float
-    extra_m: float
-    reaches_goal: bool
-    walled: bool = False
 
 
 class ShapedPlanner:
@@ -216,72 +205,6 @@ class ShapedPlanner:
         del n
         return c, ring, bare, contact, moving, pred
 
-    def _candidates(self, p0: np.ndarray, v0: np.ndarray, goal: np.ndarray, c: np.ndarray, ring: np.ndarray,
-                    hard: np.ndarray, a_max: float, options: Sequence[tuple[bool, float]] | None = None
-                    ) -> list[Candidate]:
-        """Timed routes from (p0, v0) to the goal, fastest first (see module docstring, step 2).
-
-        Routes around the discs inflated by k·``route_extra_m`` go through ever wider gaps; then the apex of
-        the fastest one (its point farthest from the straight line to the goal) is walled off by a large disc
-        beyond it and the search repeated, which finds the best route on the other side of that apex.
-        ``options`` (blocked, extra) restricts the search to those (a refresh); default: all of them.
-        """
-        p = self.params
-        speed = math.hypot(float(v0[0]), float(v0[1]))
-        heading = v0 / speed if speed > 0.05 else None
-        out: list[Candidate] = []
-        lengths: list[float] = []
-
-        def search(cc: np.ndarray, rr: np.ndarray, hh: np.ndarray, extras: Sequence[float]) -> bool:
-            found = False
-            for e in extras:
-                rt = find_route(p0, goal, cc, rr + e, hh)
-                if rt is None:
-                    continue
-                found = True
-                if any(abs(rt.length_m - L) < 1e-3 for L in lengths):
-                    continue
-                lengths.append(rt.length_m)
-                path = smooth_path(rt.points, cc, rr, ds_m=p.route_ds_m, heading=heading)
-                prof = speed_profile(path, speed, a_max_mps2=a_max, v_max_mps=p.shaped_v_max_mps, heading=heading,
-                                     a_brake_mps2=p.shaped_brake_mps2)
-                out.append(Candidate(prof, prof.duration_s, e, True))
-                self._paths.append(path)
-            return found
-
-        self._paths: list[np.ndarray] = []
-        opts = list(options) if options is not None else self._options()
-        plain = [e for b, e in opts if not b]
-        walled = [e for b, e in opts if b]
-        if not search(c, ring, hard, plain or [0.0]) or not walled:
-            out.sort(key=lambda cd: cd.duration_s)
-            return out
-        # the other side of the fastest route's apex
-        best = int(np.argmin([cd.duration_s for cd in out]))
-        path = self._paths[best]
-        line = goal - p0
-        dist = float(np.hypot(line[0], line[1]))
-        if dist > 1e-6:
-            nrm = np.array((-line[1], line[0])) / dist
-            dev = (path - p0[None, :]) @ nrm
-            i = int(np.argmax(np.abs(dev)))
-            if abs(dev[i]) > 0.5:
-                big = 50.0
-                side = math.copysign(1.0, float(dev[i]))
-                centre = path[i] + side * nrm * (big - 0.05)
-                n0 = len(out)
-                search(np.vstack([c, centre[None, :]]), np.r_[ring, big], np.r_[hard, big - 0.3], walled)
-                out[n0:] = [replace(cd, walled=True) for cd in out[n0:]]
-        out.sort(key=lambda cd: cd.duration_s)
-        return out
-
-    def _options(self) -> list[tuple[bool, float]]:
-        """Every (walled, extra) search option: the k·extra inflations, then the other side of the apex with the
-        first half of them."""
-        p = self.params
-        extras = [k * p.route_extra_m for k in range(p.route_candidates)]
-        return [(False, e) for e in extras] + [(True, e) for e in extras[: max(1, (len(extras) + 1) // 2)]]
-
     def _rows(self, prof: Profile) -> np.ndarray:
         """Unshaped rows [p, v, a] (m, 6) of a profile, one per grid step from its start to its end."""
         h = self.params.shaped_step_s
@@ -354,7 +277,7 @@ class ShapedPlanner:
         options = None
         if why == "refresh":
             # nothing changed and the plan is good: re-time its own route and try one other option in turn
-            allo = self._options()
+            allo = search_options(p)
             other = [o for o in allo if o != self.plan_option]
             options = [self.plan_option] + ([other[self._rotation % len(other)]] if other else [])
             self._rotation += 1
@@ -375,13 +298,13 @@ class ShapedPlanner:
         chosen = None
         tried = 0
         for _round in range(3):
-            cands = self._candidates(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, options)
+            cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p, options)
             if not cands and options is not None:
-                cands = self._candidates(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2)
+                cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p)
             if not cands:
                 # only the bare ring lets a route through: fly it at half the acceleration (less lead, less swing)
-                cands = self._candidates(p0, v0, goal, cc, np.maximum(rr - (ring - bare).max(initial=0.0), 0.0)
-                                         if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2)
+                cands = timed_routes(p0, v0, goal, cc, np.maximum(rr - (ring - bare).max(initial=0.0), 0.0)
+                                     if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2, p)
             conflicts: list[tuple[int, float]] = []
             for cand in cands:
                 if optional and cand.profile.a_peak_mps2 > OPTIONAL_A_FACTOR * p.shaped_a_max_mps2:
@@ -398,7 +321,8 @@ class ShapedPlanner:
             if chosen is not None or not conflicts or not moving:
                 break
             # capsules around the moving obstacles' positions at the conflict times
-            cc, rr, hh = self._add_capsules(cc, rr, hh, conflicts, pred, t, inp)
+            cc, rr, hh = capsules(cc, rr, hh, conflicts, pred, t, self.envelope_m(inp),
+                                  p.track_margin_m + self.err_peak_m, inp.airframe_r_m, p.predict_growth_mps)
         self.last = {"candidates": tried, "cur_ok": cur_ok, "remaining_s": remaining,
                      "durations": [round(cd.duration_s, 3) for cd in cands] if True else []}
         if chosen is not None:
@@ -487,24 +411,3 @@ class ShapedPlanner:
         if t - self._search_t >= self.params.route_refresh_s - 1e-9:
             return "refresh"
         return None
-
-    def _add_capsules(self, c: np.ndarray, r: np.ndarray, hard: np.ndarray, conflicts: list[tuple[int, float]],
-                      pred: Predicted, t_now: float, inp: PlanInput) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Discs along each conflicting moving obstacle's predicted track around the conflict time."""
-        env = self.envelope_m(inp)
-        margin = self.params.track_margin_m + self.err_peak_m
-        add_c, add_r, add_h = [c], [r], [hard]
-        for j, t_c in conflicts:
-            vx, vy = float(pred.vx[j]), float(pred.vy[j])
-            speed = math.hypot(vx, vy)
-            dt_c = max(t_c - t_now, 0.0)
-            ring = float(pred.ring_payload[j]) - margin + env + margin + self.params.predict_growth_mps * dt_c
-            half = min(3.0, ring / max(speed, 1e-3) + 0.3)
-            t0, t1 = max(dt_c - half, 0.0), dt_c + half
-            n = max(2, math.ceil(speed * (t1 - t0) / CAPSULE_STEP_M) + 1)
-            ts = np.linspace(t0, t1, n)
-            pts = np.stack([pred.cx[j] + vx * ts, pred.cy[j] + vy * ts], axis=1)
-            add_c.append(pts)
-            add_r.append(np.full(n, ring))
-            add_h.append(np.full(n, float(pred.ring_payload[j]) - margin + inp.airframe_r_m))
-        return np.concatenate(add_c), np.concatenate(add_r), np.concatenate(add_h)
