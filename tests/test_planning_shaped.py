@@ -240,3 +240,24 @@ def test_random_forest_with_crossing_trunks_in_process_is_clean():
     clear = clearances_moving(log.arr("t"), log.arr("pos"), log.arr("payload_pos"), m.obstacles, AIRFRAME)
     assert r["reached_goal"] and np.all(clear > 0.0)
     assert r["max_swing_rad"] <= 0.25
+
+
+def test_the_flight_core_hands_the_planner_the_swing_estimate_uncertainty():
+    from dataclasses import dataclass
+
+    from companion.flight.core import _swing_sigma_rad
+
+    @dataclass
+    class WithSigma:
+        swing: np.ndarray
+        swing_sigma_rad: float
+
+    @dataclass
+    class WithBound:
+        swing: np.ndarray
+        swing_bound_rad: float
+
+    assert _swing_sigma_rad(_est(0.0, [0, 0, -2])) == 0.0  # the cable sensor: exact
+    assert _swing_sigma_rad(WithSigma(np.zeros(4), 0.05)) == 0.05
+    # a 3σ bound around |(α, β)| = 0.05: σ = (0.2 − 0.05)/3
+    assert _swing_sigma_rad(WithBound(np.array([0.03, 0.04, 0.0, 0.0]), 0.2)) == pytest.approx(0.05)

@@ -316,7 +316,7 @@ class FlightCore:
             vel_mps=np.asarray(est.vel_ned_mps[:2], dtype=np.float64), ref_pos_m=np.array(ref.p[:2]),
             ref_vel_mps=np.array(ref.v[:2]), goal_m=self._goal_xy, r_max_m=r_max, swing=swing,
             cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
-            swing_sigma_rad=float(getattr(est, "swing_sigma_rad", 0.0) or 0.0),
+            swing_sigma_rad=_swing_sigma_rad(est),
         )
         out = self.planner.plan(inp, obs)
         if out.no_route and not self.no_route:
@@ -351,3 +351,15 @@ class FlightCore:
 
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
+
+
+def _swing_sigma_rad(est: Estimate) -> float:
+    """1σ (rad) of the swing estimate's error for the planner's envelope: ``est.swing_sigma_rad`` if the estimate
+    carries it, else from a 3σ bound ``est.swing_bound_rad`` = |(α, β)| + 3σ, else 0 (an exact sensor)."""
+    sigma = getattr(est, "swing_sigma_rad", None)
+    if sigma is not None:
+        return max(0.0, float(sigma))
+    bound = getattr(est, "swing_bound_rad", None)
+    if bound is not None and est.swing is not None and math.isfinite(float(bound)):
+        return max(0.0, (float(bound) - math.hypot(float(est.swing[0]), float(est.swing[1]))) / 3.0)
+    return 0.0
