@@ -26,7 +26,7 @@ from companion.planning.path import smooth_path
 from companion.planning.route import find_route
 from companion.planning.timing import Profile, speed_profile
 
-CAPSULE_STEP_M = 0.3
+CAPSULE_STEP_M = 0.45  # spacing of a capsule's discs: the union's edge sags < 3 cm for a 0.95 m ring
 
 
 @dataclass(frozen=True, slots=True)

@@ -297,7 +297,9 @@ class ShapedPlanner:
         cc, rr, hh = c, ring, contact
         chosen = None
         tried = 0
-        for _round in range(3):
+        for rnd in range(3):
+            if rnd > 0:  # with capsules in the way: the three smallest plain inflations are enough
+                options = [(False, e) for walled, e in search_options(p) if not walled][:3]
             cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p, options)
             if not cands and options is not None:
                 cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p)
