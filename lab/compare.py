@@ -31,27 +31,37 @@ def bound_time_s(distance_m: float, swing_rad: float = BOUND_SWING_RAD, g_mps2: 
 
 def plot_comparison(results: Sequence[Mapping[str, Any]], planners: Sequence[str], scenarios: Sequence[str],
                     path: Path, title: str = "") -> Path:
-    """Box plots per planner (one group per scenario): time to goal over the bound (successes), max swing,
-    min clearance and path length (successes), every mission of the same seeds."""
-    fig, axs = plt.subplots(1, 4, figsize=(16, 4.2))
+    """Box plots, one colour per planner and one group per scenario: time to goal over the bound (successes),
+    max swing, min clearance and path length (successes), every mission of the same seeds; dashed lines at the
+    bound and 1.6× it, the swing targets 0.2 / 0.25 rad, zero clearance."""
+    fig, axs = plt.subplots(1, 4, figsize=(4.2 * 4, 4.4))
     panels = (("time_over_bound", "time to goal / bound", True, (1.0, 1.6)),
               ("max_swing_rad", "max swing (rad)", False, (0.2, 0.25)),
               ("min_clearance_m", "min clearance (m)", False, (0.0,)),
               ("path_length_m", "path length (m)", True, ()))
-    labels = [f"{p}\n{s}" if len(scenarios) > 1 else p for s in scenarios for p in planners]
+    n_p = len(planners)
+    width = 0.8 / n_p
     for ax, (key, name, ok_only, lines) in zip(axs, panels, strict=True):
-        data = []
-        for s in scenarios:
-            for p in planners:
-                vals = [r.get(key) for r in results if r.get("planner") == p and r.get("scenario", "static") == s
+        for i, pl in enumerate(planners):
+            data, pos = [], []
+            for k, sc in enumerate(scenarios):
+                vals = [r.get(key) for r in results if r.get("planner") == pl and r.get("scenario", "static") == sc
                         and (r.get("class") == "success" or not ok_only)]
                 data.append([v for v in vals if v is not None and math.isfinite(v)] or [math.nan])
-        ax.boxplot(data, widths=0.6, showfliers=True)
-        ax.set_xticks(np.arange(1, len(labels) + 1), labels, fontsize=8)
+                pos.append(k + (i - (n_p - 1) / 2.0) * width)
+            bp = ax.boxplot(data, positions=pos, widths=0.85 * width, patch_artist=True, showfliers=True,
+                            flierprops={"markersize": 2})
+            for box in bp["boxes"]:
+                box.set_facecolor(f"C{i}")
+                box.set_alpha(0.6)
+            ax.plot([], [], color=f"C{i}", lw=6, alpha=0.6, label=pl)
+        ax.set_xticks(np.arange(len(scenarios)), list(scenarios))
+        ax.set_xlim(-0.6, len(scenarios) - 0.4)
         for y in lines:
             ax.axhline(y, color="gray", lw=0.7, ls="--")
         ax.set_title(name, fontsize=10)
         ax.grid(alpha=0.3, axis="y")
+    axs[0].legend(loc="upper left", fontsize=8)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
