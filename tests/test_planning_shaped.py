@@ -261,3 +261,13 @@ def test_the_flight_core_hands_the_planner_the_swing_estimate_uncertainty():
     assert _swing_sigma_rad(WithSigma(np.zeros(4), 0.05)) == 0.05
     # a 3σ bound around |(α, β)| = 0.05: σ = (0.2 − 0.05)/3
     assert _swing_sigma_rad(WithBound(np.array([0.03, 0.04, 0.0, 0.0]), 0.2)) == pytest.approx(0.05)
+
+
+@pytest.mark.slow
+def test_table2_forest_in_process_on_the_swing_estimate():
+    """The swing estimator instead of the cable sensor: its 3σ bound widens the envelope, its fade scales the
+    feed-forward and the compensation of the planned swing alike."""
+    m = load_mission(MISSIONS / "forest.toml").with_(planner="shaped", hold_s=2.0)
+    r = compute_metrics(fly_inprocess(m, swing_source="estimate"), m)
+    assert r["reached_goal"] and r["collisions"] == 0 and r["min_clearance_m"] > 0.0
+    assert r["time_to_goal_s"] <= 6.0 and r["max_swing_rad"] <= 0.20

@@ -337,16 +337,18 @@ class FlightCore:
         return out
 
     def _acc_for_controller(self, out, est: Estimate) -> list[float] | None:
-        """Reference acceleration for the controller: a_ref − ff(nominal swing) with the smc_ff controller and
-        the cable sensor (the feed-forward then acts on the deviation from the planned swing), else None."""
+        """Reference acceleration for the controller: a_ref − ff(nominal swing) with the smc_ff controller fed
+        the cable sensor or the swing estimate (the feed-forward then acts on the deviation from the planned
+        swing; for the estimate scaled by the same ``swing_fade`` as the controller's), else None."""
         r = out.reference
-        if r is None or self.mission.controller != "smc_ff" or est.swing_source != "cable_sensor":
+        if r is None or self.mission.controller != "smc_ff" or est.swing_source not in ("cable_sensor", "estimate"):
             return None
+        fade = max(0.0, min(1.0, float(est.swing_fade))) if est.swing_source == "estimate" else 1.0
         a, b, da, db, dda, ddb = r.swing_nom
         ff = feedforward_acc(np.array((a, b, da, db)), np.array((dda, ddb)), self.cfg.feedforward, self.params.l)
         ref = self.ref
         assert ref is not None
-        return [ref.a[0] - float(ff[0]), ref.a[1] - float(ff[1]), ref.a[2] - float(ff[2])]
+        return [ref.a[0] - fade * float(ff[0]), ref.a[1] - fade * float(ff[1]), ref.a[2] - fade * float(ff[2])]
 
 
 _ZERO2 = np.zeros(2)
