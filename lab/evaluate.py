@@ -5,16 +5,28 @@ flown by every planner. A worker process (``concurrent.futures``, spawn context)
 by default as a full lockstep MAVLink flight against the bundled vehicle (``mode="mavlink"``, i.e. exactly
 ``slungpilot fly --sitl``), or in-process (``mode="inprocess"``: same FlightCore, same physics, no MAVLink).
 
-Outcome classes (:func:`lab.runner.classify`): ``success`` = goal reached (within 0.1 m horizontally) with
-zero collisions; ``collision`` = at least one obstacle's clearance < 0 (airframe circle or payload point);
+Scenarios (``--scenarios``), each reported as its own class on the same seeds: ``static`` (the forest),
+``moving`` (the forest plus ``--movers`` trunks crossing the path at up to 1.5 m/s, :mod:`lab.forests`) and
+``fenced`` (the forest with the goal ringed by trunks: no route exists, the right answer is ``no_route``).
+
+Outcome classes (:func:`lab.runner.classify`, refined by :func:`lab.evaljob.run_eval_job`): ``success`` =
+goal reached (within 0.1 m horizontally) with zero collisions; ``collision`` = at least one obstacle's
+clearance < 0 (airframe circle or payload point; a moving obstacle where it is at that instant,
+:func:`lab.evaljob.clearances_moving`); ``no_route`` = the planner established that no route exists and
+held (the flight's outcome ``no_route``; the shaped planner);
 ``stuck`` = no collision and the goal never reached before the mission timeout (a local minimum of the
 potential field, an orbit or a stall); ``lost_control`` = not reached and the payload swung past the model's
 ±π/2 bound (a divergence, not a planning failure); ``error`` = the flight produced no metrics.
 
+Every mission is also measured against the physical bound of :mod:`lab.compare` (bang-bang at
+g·tan(0.3)): ``bound_s`` and ``time_over_bound``.
+
 Output in ``--out`` (default ``runs/evaluate-<UTC time>``): ``summary.md`` and ``summary.json`` (rates,
-time-to-goal and max-swing median/p90, min-clearance distribution, per planner and per planner × density,
-throughput, the failing seeds), ``results.jsonl`` (one line per mission), ``success_vs_density.png``, and
-``runs/<planner>/d<density>/s<seed>/`` for every failure (``mission.toml`` to replay with
+time-to-goal, time over the bound, max-swing and path-length median/p90, min-clearance distribution, per
+scenario × planner, per planner and per planner × density, throughput, the failing seeds),
+``results.jsonl`` (one line per mission), ``success_vs_density.png``, ``comparison.png`` (time over the
+bound, swing, clearance and path length per planner and scenario), and
+``runs/<scenario>/<planner>/d<density>/s<seed>/`` for every failure (``mission.toml`` to replay with
 ``slungpilot fly --sitl --mission``, plus the run folder: report, tlog or log, plots).
 """
 
@@ -35,13 +47,16 @@ from typing import Any
 
 import numpy as np
 
+from lab.compare import plot_comparison
+from lab.evaljob import SCENARIOS, run_eval_job, scenario_spec
 from lab.forests import ForestSpec, generate_forest
-from lab.runner import MODES, Job, run_job
+from lab.runner import MODES, Job
 
 log = logging.getLogger(__name__)
 
-PLANNERS = ("safe", "traditional", "improved")
-CLASSES = ("success", "collision", "stuck", "lost_control", "error")
+PLANNERS = ("shaped", "safe", "traditional", "improved")
+KNOWN_PLANNERS = ("shaped", "safe", "traditional", "improved", "none")
+CLASSES = ("success", "collision", "no_route", "stuck", "lost_control", "error")
 
 
 def _worker_init(level: int) -> None:
@@ -98,30 +113,41 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
         "success_rate": counts["success"] / n if n else None,
         "collision_rate": counts["collision"] / n if n else None,
         "stuck_rate": counts["stuck"] / n if n else None,
+        "no_route_rate": counts["no_route"] / n if n else None,
         "lost_control_rate": counts["lost_control"] / n if n else None,
         "error_rate": counts["error"] / n if n else None,
+        "collisions_moving": sum(1 for r in results if (r.get("collisions_moving") or 0) > 0),
         "time_to_goal_s": _quantiles([r["time_to_goal_s"] for r in ok]),
+        "time_over_bound": _quantiles([r.get("time_over_bound") for r in ok]),
+        "bound_s": _quantiles([r.get("bound_s") for r in results]),
         "max_swing_rad": _quantiles([r["max_swing_rad"] for r in results]),
         "min_clearance_m": _quantiles([r["min_clearance_m"] for r in results]),
+        "path_length_m": _quantiles([r.get("path_length_m") for r in ok]),
         "failures": sorted(
-            ({"seed": r["seed"], "density": r["density"], "class": r["class"], "mission_file": r["mission_file"]}
+            ({"seed": r["seed"], "density": r["density"], "class": r["class"], "mission_file": r["mission_file"],
+              "scenario": r.get("scenario", "static")}
              for r in results if r["class"] != "success"),
-            key=lambda f: (f["density"], f["seed"]),
+            key=lambda f: (f["scenario"], f["density"], f["seed"]),
         ),
     }
 
 
 def build_jobs(planners: list[str], densities: list[float], n: int, seed0: int, spec: ForestSpec, mode: str,
-               out: Path, keep_runs: bool = False) -> list[Job]:
-    """One job per (planner, density, seed), seeds ``seed0 .. seed0 + n - 1`` shared by every planner."""
+               out: Path, keep_runs: bool = False, scenarios: tuple[str, ...] = ("static",), movers: int = 2
+               ) -> list[Job]:
+    """One job per (scenario, planner, density, seed), seeds ``seed0 .. seed0 + n - 1`` shared by every planner.
+    The static scenario keeps the historical folder layout ``runs/<planner>/d<density>/s<seed>``."""
     jobs = []
-    for d in densities:
-        for seed in range(seed0, seed0 + n):
-            for p in planners:
-                mission = generate_forest(seed, spec.with_(density_per_100m2=d, planner=p))
-                run_dir = out / "runs" / p / f"d{d:g}" / f"s{seed}"
-                jobs.append(Job(key=f"{p}|{d:g}|{seed}", mission=mission, run_dir=run_dir, mode=mode,
-                                plots=False, keep_run_dir=keep_runs))
+    for sc in scenarios:
+        sspec = scenario_spec(spec, sc, movers)
+        for d in densities:
+            for seed in range(seed0, seed0 + n):
+                for p in planners:
+                    mission = generate_forest(seed, sspec.with_(density_per_100m2=d, planner=p))
+                    base = out / "runs" if sc == "static" else out / "runs" / sc
+                    run_dir = base / p / f"d{d:g}" / f"s{seed}"
+                    jobs.append(Job(key=f"{p}|{d:g}|{seed}|{sc}", mission=mission, run_dir=run_dir, mode=mode,
+                                    plots=False, keep_run_dir=keep_runs))
     return jobs
 
 
@@ -132,14 +158,14 @@ def run_jobs(jobs: list[Job], workers: int, progress: bool = True, log_level: in
     results: list[dict[str, Any]] = []
     if workers <= 1:
         for j in jobs:
-            r = run_job(j)
+            r = run_eval_job(j)
             bar.update(r["class"])
             results.append(r)
         return results
     ctx = multiprocessing.get_context("spawn")
     with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
                                 initargs=(log_level,)) as pool:
-        futs = [pool.submit(run_job, j) for j in jobs]
+        futs = [pool.submit(run_eval_job, j) for j in jobs]
         for f in cf.as_completed(futs):
             r = f.result()
             bar.update(r["class"])
@@ -150,20 +176,23 @@ def run_jobs(jobs: list[Job], workers: int, progress: bool = True, log_level: in
 
 
 def evaluate(planners: list[str], densities: list[float], n: int, *, seed0: int = 0, spec: ForestSpec | None = None,
-             mode: str = "mavlink", workers: int = 2, out: Path, progress: bool = True, keep_runs: bool = False
-             ) -> dict[str, Any]:
+             mode: str = "mavlink", workers: int = 2, out: Path, progress: bool = True, keep_runs: bool = False,
+             scenarios: tuple[str, ...] = ("static",), movers: int = 2) -> dict[str, Any]:
     """Fly everything, write the summary files into ``out`` and return the summary dict."""
     if mode not in MODES:
         raise ValueError(f"mode: must be one of {', '.join(MODES)}, got {mode!r}")
+    for sc in scenarios:
+        if sc not in SCENARIOS:
+            raise ValueError(f"scenario: must be one of {', '.join(SCENARIOS)}, got {sc!r}")
     spec = spec or ForestSpec()
     out.mkdir(parents=True, exist_ok=True)
-    jobs = build_jobs(planners, densities, n, seed0, spec, mode, out, keep_runs)
+    jobs = build_jobs(planners, densities, n, seed0, spec, mode, out, keep_runs, scenarios, movers)
     wall0 = time.monotonic()
     results = run_jobs(jobs, workers, progress)
     wall = time.monotonic() - wall0
     for r in results:
-        p, d, s = r["key"].split("|")
-        r["planner"], r["density"], r["seed"] = p, float(d), int(s)
+        p, d, s, sc = r["key"].split("|")
+        r["planner"], r["density"], r["seed"], r["scenario"] = p, float(d), int(s), sc
     with (out / "results.jsonl").open("w") as fh:
         for r in results:
             fh.write(json.dumps(r) + "\n")
@@ -172,10 +201,12 @@ def evaluate(planners: list[str], densities: list[float], n: int, *, seed0: int 
         "mode_text": ("full lockstep MAVLink flights against the bundled vehicle (slungpilot fly --sitl)"
                       if mode == "mavlink" else "in-process flights (same FlightCore and physics, no MAVLink)"),
         "n_per_planner_and_density": n, "seed0": seed0, "planners": planners, "densities": densities,
-        "workers": workers, "spec": asdict(spec),
+        "workers": workers, "spec": asdict(spec), "scenarios": list(scenarios), "movers": movers,
         "missions": len(results), "wall_s": wall,
         "missions_per_min": len(results) / wall * 60.0 if wall > 0 else None,
         "per_planner": {p: summarise([r for r in results if r["planner"] == p]) for p in planners},
+        "per_scenario": {sc: {p: summarise([r for r in results if r["planner"] == p and r["scenario"] == sc])
+                              for p in planners} for sc in scenarios},
         "per_density": {
             p: {f"{d:g}": summarise([r for r in results if r["planner"] == p and r["density"] == d])
                 for d in densities}
@@ -188,7 +219,9 @@ def evaluate(planners: list[str], densities: list[float], n: int, *, seed0: int 
         from lab.figures import plot_success_vs_density
 
         png = plot_success_vs_density(summary, out / "success_vs_density.png")
-    (out / "summary.md").write_text(summary_markdown(summary, png))
+    cmp_png = plot_comparison(results, planners, list(scenarios), out / "comparison.png",
+                              f"{n} seeds from {seed0}, {mode} mode; bound: bang-bang at g·tan(0.3)")
+    (out / "summary.md").write_text(summary_markdown(summary, png, cmp_png))
     return summary
 
 
@@ -198,11 +231,19 @@ def _f(v: Any, digits: int = 2, pct: bool = False) -> str:
     return f"{100.0 * v:.1f} %" if pct else f"{v:.{digits}f}"
 
 
-def summary_markdown(s: dict[str, Any], png: Path | None = None) -> str:
+SCENARIO_TEXT = {
+    "static": "the forest",
+    "moving": "the forest plus {movers} trunks crossing the path at 0.5–1.5 m/s",
+    "fenced": "the forest with the goal ringed by trunks (no route exists; the right outcome is no_route)",
+}
+
+
+def summary_markdown(s: dict[str, Any], png: Path | None = None, cmp_png: Path | None = None) -> str:
     """The human-readable summary (Markdown)."""
     sp = s["spec"]
     var = ("wind U(0,2), payload U(0.1,0.5) kg, cable U(0.5,1.5) m" if sp["vary"] else
            f"wind scale {sp['wind_scale']:g}, payload {sp['payload_kg']:g} kg, cable {sp['cable_m']:g} m")
+    scenarios = s.get("scenarios", ["static"])
     lines = [
         "# slungpilot evaluate: random forests",
         "",
@@ -215,47 +256,66 @@ def summary_markdown(s: dict[str, Any], png: Path | None = None) -> str:
         f"{s['seed0'] + s['n_per_planner_and_density'] - 1}"
         f" (the same for every planner), controller {sp['controller']}, timeout {sp['timeout_s']:g} s.",
         "",
-        "Success = goal reached and zero collisions; collision = any obstacle clearance < 0 (airframe circle or "
-        "payload); stuck = no collision but the goal not reached before the timeout (local minimum); lost = "
-        "the payload swung past ±π/2 (loss of control, not a planning failure).",
+        "Scenarios (each its own class, same seeds): " + "; ".join(
+            f"**{sc}** = {SCENARIO_TEXT[sc].format(movers=s.get('movers', 2))}" for sc in scenarios) + ".",
         "",
-        "| planner | n | success | collision | stuck | lost | error | time to goal median / p90 (s) | "
-        "max swing median / p90 (rad) | min clearance p10 / median / min (m) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "Success = goal reached and zero collisions; collision = any obstacle clearance < 0 (airframe circle or "
+        "payload; moving obstacles where they are at that instant); no route = the planner established that "
+        "no route exists and held; stuck = no collision but the goal not reached before the timeout (local "
+        "minimum); lost = the payload swung past ±π/2 (loss of control, not a planning failure). "
+        "Bound = 2·sqrt(D/(g·tan 0.3)): the straight distance D flown bang-bang at the acceleration that keeps "
+        "the swing under 0.3 rad; time/bound over the successes.",
+        "",
+        "| scenario | planner | n | success | collision | no route | stuck | lost | error | time to goal median / p90"
+        " (s) | time / bound median / p90 | max swing median / p90 (rad) | min clearance p10 / median / min (m) | "
+        "path length median (m) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for p, t in s["per_planner"].items():
-        tg, sw, mc = t["time_to_goal_s"], t["max_swing_rad"], t["min_clearance_m"]
-        lines.append(
-            f"| {p} | {t['n']} | {_f(t['success_rate'], pct=True)} | {_f(t['collision_rate'], pct=True)} | "
-            f"{_f(t['stuck_rate'], pct=True)} | {_f(t['lost_control_rate'], pct=True)} | "
-            f"{_f(t['error_rate'], pct=True)} | "
-            f"{_f(tg['median'])} / {_f(tg['p90'])} | "
-            f"{_f(sw['median'], 3)} / {_f(sw['p90'], 3)} | {_f(mc['p10'], 3)} / {_f(mc['median'], 3)} / "
-            f"{_f(mc['min'], 3)} |"
-        )
+    per_sc = s.get("per_scenario") or {"static": s["per_planner"]}
+    for sc, per in per_sc.items():
+        for p, t in per.items():
+            tg, tb, sw, mc, pl = (t["time_to_goal_s"], t.get("time_over_bound") or {}, t["max_swing_rad"],
+                                  t["min_clearance_m"], t.get("path_length_m") or {})
+            lines.append(
+                f"| {sc} | {p} | {t['n']} | {_f(t['success_rate'], pct=True)} | {_f(t['collision_rate'], pct=True)} | "
+                f"{_f(t.get('no_route_rate'), pct=True)} | {_f(t['stuck_rate'], pct=True)} | "
+                f"{_f(t['lost_control_rate'], pct=True)} | {_f(t['error_rate'], pct=True)} | "
+                f"{_f(tg['median'])} / {_f(tg['p90'])} | {_f(tb.get('median'))} / {_f(tb.get('p90'))} | "
+                f"{_f(sw['median'], 3)} / {_f(sw['p90'], 3)} | {_f(mc['p10'], 3)} / {_f(mc['median'], 3)} / "
+                f"{_f(mc['min'], 3)} | {_f(pl.get('median'))} |"
+            )
+    b_all = [t.get("bound_s", {}).get("median") for per in per_sc.values() for t in per.values()]
+    b_all = [b for b in b_all if b is not None]
+    if b_all:
+        lines += ["", f"Bound for this corridor: {b_all[0]:.2f} s (1.6 × bound = {1.6 * b_all[0]:.2f} s)."]
     if len(s["densities"]) > 1:
         lines += ["", "Success rate by density (trunks/100 m²):", "",
                   "| planner | " + " | ".join(f"{d:g}" for d in s["densities"]) + " |",
                   "|---|" + "---|" * len(s["densities"])]
         for p, per in s["per_density"].items():
             lines.append(f"| {p} | " + " | ".join(_f(t["success_rate"], pct=True) for t in per.values()) + " |")
+    if cmp_png is not None:
+        lines += ["", f"![time over the bound, swing, clearance and path length]({cmp_png.name})"]
     if png is not None:
         lines += ["", f"![success rate against density]({png.name})"]
     lines += ["", "## Failures", "",
               "Each keeps its run folder with the mission file; replay one with "
-              "`slungpilot fly --sitl --mission <out>/runs/<planner>/d<density>/s<seed>/mission.toml`.", ""]
+              "`slungpilot fly --sitl --mission <out>/runs/[<scenario>/]<planner>/d<density>/s<seed>/mission.toml`.",
+              ""]
     any_fail = False
-    for p, t in s["per_planner"].items():
-        for cls in ("collision", "stuck", "lost_control", "error"):
-            fails = [f for f in t["failures"] if f["class"] == cls]
-            if not fails:
-                continue
-            any_fail = True
-            by_d: dict[float, list[int]] = {}
-            for f in fails:
-                by_d.setdefault(f["density"], []).append(f["seed"])
-            seeds = "; ".join(f"d{d:g}: seeds {', '.join(str(k) for k in ks)}" for d, ks in sorted(by_d.items()))
-            lines.append(f"- **{p}** {cls} ({len(fails)}): {seeds}")
+    for sc, per in per_sc.items():
+        for p, t in per.items():
+            for cls in ("collision", "no_route", "stuck", "lost_control", "error"):
+                fails = [f for f in t["failures"] if f["class"] == cls]
+                if not fails:
+                    continue
+                any_fail = True
+                by_d: dict[float, list[int]] = {}
+                for f in fails:
+                    by_d.setdefault(f["density"], []).append(f["seed"])
+                seeds = "; ".join(f"d{d:g}: seeds {', '.join(str(k) for k in ks)}" for d, ks in sorted(by_d.items()))
+                expected = " (expected: no route exists)" if sc == "fenced" and cls == "no_route" else ""
+                lines.append(f"- **{p}** ({sc}) {cls}{expected} ({len(fails)}): {seeds}")
     if not any_fail:
         lines.append("None.")
     return "\n".join(lines) + "\n"
@@ -264,7 +324,12 @@ def summary_markdown(s: dict[str, Any], png: Path | None = None) -> str:
 def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
     """The ``evaluate`` options."""
     p.add_argument("--n", type=int, default=100, help="missions per planner and density (default 100)")
-    p.add_argument("--planners", default="safe,traditional,improved", help="comma-separated planner names")
+    p.add_argument("--planners", default="shaped,safe,traditional,improved",
+                   help="comma-separated planner names (default: all four; the same seeds for each)")
+    p.add_argument("--scenarios", default="static",
+                   help="comma-separated scenarios, each reported as its own class: static (the forest), moving "
+                        "(plus --movers trunks crossing the path at 0.5-1.5 m/s), fenced (goal ringed: no route)")
+    p.add_argument("--movers", type=int, default=2, help="crossing trunks per moving scenario (default 2)")
     p.add_argument("--density", type=float, default=3.0, help="trunks per 100 m² (default 3)")
     p.add_argument("--densities", default=None, help="comma-separated densities (overrides --density), e.g. 1,2,3,4")
     p.add_argument("--mode", choices=MODES, default="mavlink",
@@ -290,9 +355,14 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from companion.errors import ConfigError
 
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
-    bad = [p for p in planners if p not in ("safe", "traditional", "improved", "none")]
+    bad = [p for p in planners if p not in KNOWN_PLANNERS]
     if bad or not planners:
         raise ConfigError(f"--planners: unknown planner {bad[0] if bad else '(none given)'!r}")
+    scenarios = tuple(x.strip() for x in args.scenarios.split(",") if x.strip())
+    bad = [x for x in scenarios if x not in SCENARIOS]
+    if bad or not scenarios:
+        raise ConfigError(f"--scenarios: unknown scenario {bad[0] if bad else '(none given)'!r} "
+                          f"(known: {', '.join(SCENARIOS)})")
     try:
         densities = [float(d) for d in args.densities.split(",")] if args.densities else [args.density]
         spec = ForestSpec(wind_scale=args.wind_scale, trap=args.traps, vary=args.vary, controller=args.controller,
@@ -300,13 +370,15 @@ def run_evaluate(args: argparse.Namespace) -> int:
         spec.validate()
         for d in densities:
             spec.with_(density_per_100m2=d)
+        spec.with_(movers=args.movers)
     except ValueError as exc:
         raise ConfigError(f"evaluate: {exc}") from None
     if args.n < 1 or args.workers < 1:
         raise ConfigError("--n and --workers: must be >= 1")
     out = args.out or Path("runs") / f"evaluate-{datetime.now(UTC).strftime('%Y%m%d-%H%M%S')}"
     summary = evaluate(planners, densities, args.n, seed0=args.seed0, spec=spec, mode=args.mode,
-                       workers=args.workers, out=out, progress=not args.no_progress, keep_runs=args.keep_runs)
+                       workers=args.workers, out=out, progress=not args.no_progress, keep_runs=args.keep_runs,
+                       scenarios=scenarios, movers=args.movers)
     print((out / "summary.md").read_text())
-    print(f"written: {out}/summary.md, summary.json, results.jsonl")
+    print(f"written: {out}/summary.md, summary.json, results.jsonl, comparison.png")
     return 0 if summary["missions"] else 1

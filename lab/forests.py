@@ -16,7 +16,17 @@ Geometry (NED metres, flown at ``altitude_m`` above ground):
   ``pair`` is two trunks side by side with a surface gap of 0.15–0.35 m (narrower than the airframe circle
   2 (r_uav + L_uav) = 0.56 m), centred on the path within ±0.1 m; ``cluster`` is 5–7 trunks on a half circle of
   radius 1.0–1.4 m whose open side faces the start (a cup the attractive force pushes the vehicle into).
-  ``mixed`` picks one of the two per seed.
+  ``mixed`` picks one of the two per seed. ``fence`` rings the goal with trunks (radius 0.25 m on a circle of
+  1.3 m, surface gaps 0.15–0.35 m, narrower than the airframe circle): no route to the goal exists, the
+  mission's correct outcome is ``no_route``.
+* Moving trunks (``movers`` > 0): each crosses the straight path at a point uniform in the middle of the
+  corridor (25–85 % of its length), within ±30° of square to it, at U(``mover_speed_min_mps``,
+  ``mover_speed_max_mps``), radius U(r_min, r_max). Its file position is where it is at the mission clock's
+  zero (the first setpoint, on the ground), timed so that it reaches the path when a vehicle that climbs for
+  ``climb_s`` and then accelerates at 1.5 m/s² to ``cruise_mps`` would be there, ± U(0, ``mover_jitter_s``):
+  pedestrians or vehicles crossing in front of, onto and behind the vehicle. Its track keeps at least
+  ``clear_radius_m`` from the start and the goal, so it never runs over the vehicle climbing or holding
+  there. Trunks move through one another (they are not simulated, only flown around).
 
 Everything is drawn from ``numpy.random.default_rng(seed)`` in a fixed order: the same (spec, seed) always
 gives the same mission.
@@ -34,7 +44,7 @@ from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
 from companion.core.wind import WindConfig
 
-TRAP_KINDS = ("none", "pair", "cluster", "mixed")
+TRAP_KINDS = ("none", "pair", "cluster", "mixed", "fence")
 
 
 @dataclass(frozen=True)
@@ -61,6 +71,12 @@ class ForestSpec:
     timeout_s: float = 60.0
     hold_s: float = 1.0
     land: bool = False
+    movers: int = 0
+    mover_speed_min_mps: float = 0.5
+    mover_speed_max_mps: float = 1.5
+    mover_jitter_s: float = 1.5
+    climb_s: float = 2.2
+    cruise_mps: float = 3.0
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for values the generator cannot honour."""
@@ -87,6 +103,13 @@ class ForestSpec:
             raise ValueError(f"trap: must be one of {', '.join(TRAP_KINDS)}, got {self.trap!r}")
         if self.timeout_s <= 0.0:
             raise ValueError(f"timeout_s: must be > 0, got {self.timeout_s}")
+        if not 0 <= self.movers <= 20:
+            raise ValueError(f"movers: must be in 0..20, got {self.movers}")
+        if not 0.0 < self.mover_speed_min_mps <= self.mover_speed_max_mps <= 10.0:
+            raise ValueError(f"mover_speed_max_mps: need 0 < min <= max <= 10 m/s, got "
+                             f"{self.mover_speed_min_mps}, {self.mover_speed_max_mps}")
+        if self.mover_jitter_s < 0.0 or self.climb_s < 0.0 or self.cruise_mps <= 0.0:
+            raise ValueError("mover_jitter_s: jitter and climb time must be >= 0, cruise speed > 0")
 
     def with_(self, **changes: object) -> ForestSpec:
         """A validated copy with fields replaced."""
@@ -126,6 +149,50 @@ def _trap_trunks(rng: np.random.Generator, spec: ForestSpec, kind: str) -> list[
     return [(x0 + radius * math.cos(a), radius * math.sin(a), r) for a in angles]
 
 
+def _fence_trunks(spec: ForestSpec, rng: np.random.Generator) -> list[tuple[float, float, float]]:
+    """Trunks (x, y, r) on a circle around the goal with gaps narrower than the airframe circle."""
+    radius, r = 1.3, 0.25
+    gap = float(rng.uniform(0.15, 0.35))
+    n = math.ceil(2.0 * math.pi * radius / (2.0 * r + gap))
+    phase = float(rng.uniform(0.0, 2.0 * math.pi / n))
+    return [(spec.length_m + radius * math.cos(phase + 2.0 * math.pi * k / n),
+             radius * math.sin(phase + 2.0 * math.pi * k / n), r) for k in range(n)]
+
+
+def _movers(rng: np.random.Generator, spec: ForestSpec) -> list[Obstacle]:
+    """Trunks crossing the straight path (see module docstring)."""
+    out = []
+    a_nom = 1.5
+    for _ in range(spec.movers):
+        x_c = float(rng.uniform(0.25, 0.85)) * spec.length_m
+        ang = float(rng.uniform(-math.pi / 6.0, math.pi / 6.0))
+        side = 1.0 if rng.uniform() < 0.5 else -1.0
+        speed = float(rng.uniform(spec.mover_speed_min_mps, spec.mover_speed_max_mps))
+        r = float(rng.uniform(spec.r_min_m, spec.r_max_m))
+        jitter = float(rng.uniform(-spec.mover_jitter_s, spec.mover_jitter_s))
+        d_acc = spec.cruise_mps**2 / (2.0 * a_nom)
+        t_at = (math.sqrt(2.0 * x_c / a_nom) if x_c < d_acc
+                else spec.cruise_mps / a_nom + (x_c - d_acc) / spec.cruise_mps)
+        t_c = max(0.0, spec.climb_s + t_at + jitter)
+        # moving across the path (+y or −y), tilted by ang from square
+        vx, vy = speed * math.sin(ang), side * speed * math.cos(ang)
+        out.append(Obstacle(x_m=round(x_c - vx * t_c, 4), y_m=round(-vy * t_c, 4), radius_m=round(r, 4),
+                            height_m=spec.trunk_height_m, safe_distance_m=spec.safe_distance_m,
+                            vx_mps=round(vx, 4), vy_mps=round(vy, 4)))
+    return out
+
+
+def _track_clear(o: Obstacle, points: tuple[tuple[float, float], ...], clear_m: float) -> bool:
+    """Does the moving obstacle's straight track keep ``clear_m`` (surface) from each point?"""
+    sp = math.hypot(o.vx_mps, o.vy_mps)
+    ux, uy = o.vx_mps / sp, o.vy_mps / sp
+    for px, py in points:
+        dx, dy = px - o.x_m, py - o.y_m
+        if abs(dx * uy - dy * ux) - o.radius_m < clear_m:
+            return False
+    return True
+
+
 def generate_forest(seed: int, spec: ForestSpec | None = None) -> Mission:
     """The mission for ``seed``: a random forest (and trap) in the corridor, start and goal at its ends."""
     spec = spec or ForestSpec()
@@ -141,7 +208,9 @@ def generate_forest(seed: int, spec: ForestSpec | None = None) -> Mission:
     if kind == "mixed":
         kind = ("pair", "cluster")[int(rng.integers(0, 2))]
     placed: list[tuple[float, float, float]] = []
-    if kind != "none":
+    if kind == "fence":
+        placed += _fence_trunks(spec, rng)
+    elif kind != "none":
         placed += _trap_trunks(rng, spec, kind)
     goal_x = spec.length_m
     half_w = spec.width_m / 2.0
@@ -159,9 +228,19 @@ def generate_forest(seed: int, spec: ForestSpec | None = None) -> Mission:
                  safe_distance_m=spec.safe_distance_m)
         for x, y, r in placed
     )
+    if spec.movers:
+        movers: list[Obstacle] = []
+        ends = ((0.0, 0.0), (goal_x, 0.0))
+        attempts = 0
+        while len(movers) < spec.movers and attempts < 100 * spec.movers:
+            attempts += 1
+            o = _movers(rng, spec.with_(movers=1))[0]
+            if _track_clear(o, ends, spec.clear_radius_m):
+                movers.append(o)
+        obstacles = obstacles + tuple(movers)
     vehicle = replace(VehicleParams(), m=round(payload, 4), l=round(cable, 4))
     vehicle.validate()
-    tag = f"-{kind}" if kind != "none" else ""
+    tag = (f"-{kind}" if kind != "none" else "") + (f"-m{spec.movers}" if spec.movers else "")
     z = -spec.altitude_m
     return Mission(
         name=f"forest-s{seed}-d{spec.density_per_100m2:g}{tag}",

@@ -24,7 +24,8 @@ def _groups(**g2_changes):
           "smc_ff": _row(swing_settle_s=4.0, swing_settle_after_arrival_s=1.5)}
     g2 = {"traditional": _row(time_to_goal_s=13.5, swing_settle_s=18.0, path_length_m=14.0),
           "improved": _row(time_to_goal_s=10.3, max_swing_rad=0.25, swing_settle_s=12.0),
-          "safe": _row(time_to_goal_s=6.5, max_swing_rad=0.22)}
+          "safe": _row(time_to_goal_s=6.5, max_swing_rad=0.22),
+          "shaped": _row(time_to_goal_s=5.9, max_swing_rad=0.19)}
     for k, v in g2_changes.items():
         g2[k] = _row(**{**g2[k], **v})
     return g1, g2
@@ -42,13 +43,14 @@ def test_agreement_gives_no_disagreement_sentences():
 def test_disagreements_are_spelled_out_with_the_numbers():
     g1, g2 = _groups(improved={"collisions": 2, "min_clearance_m": -0.104, "path_length_m": 15.0,
                                "max_swing_rad": 0.337, "time_to_goal_s": 7.7},
-                     safe={"time_to_goal_s": 7.4})
+                     safe={"time_to_goal_s": 7.4}, shaped={"max_swing_rad": 0.21})
     fs = "\n".join(findings(g1, g2))
     assert "`improved`: touches 2 obstacle(s), min clearance -0.104 m" in fs
     assert "max swing 0.337 rad exceeds the paper (Fig. 9) bound of 0.3 rad" in fs
     assert "reaches the goal in 7.70 s, faster than the paper's ≈10 s" in fs
     assert "path 15.00 m is not shorter than `traditional`'s 14.00 m" in fs
     assert "`safe`: time to goal 7.40 s misses the issue 5 target (ours) of <= 7 s" in fs
+    assert "`shaped`: max swing 0.210 rad exceeds the issue 12 target (ours) bound of 0.2 rad" in fs
     assert "without feed-forward (`smc`) the swing never settles" in fs
 
 
@@ -56,7 +58,7 @@ def test_report_has_both_tables_and_every_row():
     g1, g2 = _groups()
     md = report_markdown({"quick": True, "wall_s": 1.0, "group1": g1, "group2": g2, "findings": findings(g1, g2)})
     assert "## Group 1" in md and "## Group 2" in md
-    for name in ("pid", "smc", "smc_ff", "traditional", "improved", "safe"):
+    for name in ("pid", "smc", "smc_ff", "traditional", "improved", "safe", "shaped"):
         assert f"| {name} | yes |" in md
 
 
@@ -69,7 +71,7 @@ def test_experiments_quick_over_mavlink(tmp_path):
     md = (out / "report.md").read_text()
     res = json.loads((out / "experiments.json").read_text())
     assert set(res["group1"]) == {"pid", "smc", "smc_ff"}
-    assert set(res["group2"]) == {"traditional", "improved", "safe"}
+    assert set(res["group2"]) == {"traditional", "improved", "safe", "shaped"}
     for group in ("group1", "group2"):
         for name, r in res[group].items():
             assert r["class"] != "error", (name, r["error"])

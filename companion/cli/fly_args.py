@@ -13,7 +13,7 @@ from companion.zenoh_io.session import add_zenoh_arguments
 
 DEFAULT_MISSION = shipped_config("missions/forest.toml")
 DEFAULT_GAINS = shipped_config("controller.toml")
-PLANNERS = ("traditional", "improved", "safe", "none")
+PLANNERS = ("traditional", "improved", "safe", "shaped", "none")
 CONTROLLERS = ("smc_ff", "smc", "pid")
 
 #: ``slungpilot fly`` exit codes by outcome (also in --help and the README); 2 is a broken file or flag.

@@ -53,7 +53,7 @@ from companion.core.obstacles import Obstacle
 from companion.core.wind import WindConfig
 from companion.errors import ConfigError
 
-PLANNERS = ("traditional", "improved", "safe", "none")
+PLANNERS = ("traditional", "improved", "safe", "shaped", "none")
 CONTROLLERS = ("smc_ff", "smc", "pid")
 _MAX_COORD_M = 1.0e4
 

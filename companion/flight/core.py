@@ -2,8 +2,23 @@
 
 Phases: ``climb`` (vertical, from wherever the vehicle is, to the mission's start altitude; skipped when
 already there), ``cruise`` (planner towards the goal; horizontal from the planner, vertical straight to the
-goal's altitude with a braking profile), ``hold`` (at the goal for ``mission.hold_s``), ``done`` (hold
-finished or timeout; the app lands). No I/O, no clocks: time comes from the estimates.
+goal's altitude with a braking profile), ``hold`` (at the goal for ``mission.hold_s``), ``no_route`` (the
+planner established that no route to the goal exists and holds where it stopped, for ``mission.hold_s``;
+``FlightCore.no_route`` stays True), ``done`` (hold finished, no route, or timeout; :attr:`FlightCore.result`
+says which; the app lands); ``hold_here`` / ``descend`` (the flight sequence stopped the mission: hover, or
+descend, where the reference is). No I/O, no clocks: time comes from the estimates.
+
+A time-parameterised planner (``shaped``) gives the horizontal reference itself (position, velocity,
+acceleration, and the payload's nominal swing along it); the core flies it through cruise, hold, no_route
+and done instead of integrating a desired velocity (hold_here and descend take over from it smoothly), and
+keeps the anti-swing feed-forward from fighting the planned swing: the controller adds ff(swing) to the
+reference acceleration, so the core hands it a_ref − ff(nominal swing) and the feed-forward acts on the
+deviation from the nominal swing only.
+
+Moving obstacles: a mission obstacle with a velocity (``vx_mps``/``vy_mps``) is at its file position at the
+mission clock's zero — the first :meth:`FlightCore.update` (the first setpoint of the mission) — and moves
+at constant velocity; the core advances it to each tick's time before planning. Live obstacles arrive
+already advanced (:mod:`companion.zenoh_io.obstacle_store`).
 
 Swing input: an :class:`~companion.estimation.estimate.Estimate` with ``swing`` None means no swing measurement —
 the controller then flies without payload compensation and feed-forward and the planners use the
@@ -33,6 +48,7 @@ from companion.control import (
     ControllerConfig,
     SwingAccelEstimator,
     attitude_from_force,
+    feedforward_acc,
     limit_force_xyz,
     make_position_controller,
 )
@@ -44,10 +60,11 @@ from companion.planning import PlanInput, ReferenceGenerator, make_planner
 
 log = logging.getLogger(__name__)
 
-PHASES = ("climb", "cruise", "hold", "done", "hold_here", "descend")
+PHASES = ("climb", "cruise", "hold", "no_route", "done", "hold_here", "descend")
 DESCENT_MPS = 0.5  # the companion's own landing descent (when the autopilot's land mode is not confirmed)
 ARRIVE_HORIZ_M = 0.1
 ARRIVE_VERT_M = 0.25
+TIMED_PHASES = ("cruise", "hold", "no_route", "done")  # where a time-parameterised planner gives the reference
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,7 +76,8 @@ class Command:
     force_att_n / force_rep_n: the planner's attractive and repulsive parts (2,) (velocity units for the
     APF-as-gradient-flow, see :mod:`companion.planning.apf`); r_max_m: envelope radius used;
     envelope_mode: ``"swing"`` or ``"full_cable"``; phase; ff_accel (3,) m/s² anti-swing feed-forward;
-    plan_mode: ``"track"`` or ``"escape"`` (safe planner's trap escape).
+    plan_mode: ``"track"`` or ``"escape"`` (safe planner's trap escape), ``"brake"`` / ``"no_route"`` (shaped
+    planner stopping); no_route: the planner found no route to the goal (the mission ends ``no_route``).
     """
 
     t_s: float
@@ -77,6 +95,7 @@ class Command:
     phase: str
     ff_accel: np.ndarray
     plan_mode: str = "track"
+    no_route: bool = False
 
 
 class FlightCore:
@@ -87,7 +106,12 @@ class FlightCore:
         self.cfg = gains or ControllerConfig()
         self.profile = profile or VehicleProfile()
         self.params = mission.vehicle
-        self.planner = make_planner(mission.planner, self.cfg.planner)
+        self.planner = make_planner(mission.planner, self.cfg.planner, self.params)
+        self._timed = bool(getattr(self.planner, "time_parameterised", False))
+        self._moving_mission = any(o.vx_mps != 0.0 or o.vy_mps != 0.0 for o in mission.obstacles)
+        self.no_route = False
+        self.t_no_route_s: float | None = None
+        self._timed_stop = False  # hold_here / descend asked while a time-parameterised planner was flying
         self.controller = make_position_controller(mission.controller, self.cfg, self.params)
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
         self.ref: ReferenceGenerator | None = None
@@ -109,23 +133,38 @@ class FlightCore:
     # ------------------------------------------------------------------------------------------------
     @property
     def result(self) -> str | None:
-        """The mission's verdict once the core is done (``"completed"`` or ``"timeout"``), else None."""
+        """The mission's verdict once the core is done (``"completed"``, ``"timeout"`` or ``"no_route"``: the
+        planner established that no route to the goal exists and held), else None."""
         if self.phase != "done":
             return None
+        if self.no_route:
+            return "no_route"
         return "timeout" if self.timed_out else "completed"
 
     def hold_here(self) -> None:
-        """Stop the mission and hover where the reference is now (a hold the flight sequence asked for)."""
+        """Stop the mission and hover where the reference is now (a hold the flight sequence asked for).
+
+        With a time-parameterised planner flying, "now" is the planner's own stop: along its checked path at
+        the swing-bounded deceleration (from 3.6 m/s a straight-line stop at the reference generator's limits
+        overshoots by 6 m, through whatever is ahead, and flies back)."""
         if self.ref is not None:
             self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)
+        self._stop_timed()
         self.phase = "hold_here"
 
     def descend(self) -> None:
         """Stop the mission and descend at :data:`DESCENT_MPS` over where the reference is now (the
-        companion's own landing, when the autopilot's land mode was not confirmed)."""
+        companion's own landing, when the autopilot's land mode was not confirmed); with a time-parameterised
+        planner, over the end of its stop (see :meth:`hold_here`)."""
         if self.ref is not None:
             self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)
+        self._stop_timed()
         self.phase = "descend"
+
+    def _stop_timed(self) -> None:
+        if self._timed and (self.phase in TIMED_PHASES or self._timed_stop):
+            self.planner.stop()
+            self._timed_stop = True
 
     # ------------------------------------------------------------------------------------------------
     def _vertical_speed(self, z_target: float) -> float:
@@ -139,7 +178,8 @@ class FlightCore:
     def _advance_phase(self, est: Estimate) -> None:
         m = self.mission
         t = est.t_s
-        if self.t0_s is not None and t - self.t0_s > m.timeout_s and self.phase in ("climb", "cruise", "hold"):
+        if (self.t0_s is not None and t - self.t0_s > m.timeout_s
+                and self.phase in ("climb", "cruise", "hold", "no_route")):
             log.warning("mission %s: timeout after %.1f s in phase %s", m.name, m.timeout_s, self.phase)
             self.timed_out = True
             self.phase = "done"
@@ -158,6 +198,17 @@ class FlightCore:
             assert self.t_arrived_s is not None
             if t - self.t_arrived_s >= m.hold_s:
                 self.phase = "done"
+        elif self.phase == "no_route":
+            assert self.t_no_route_s is not None
+            if t - self.t_no_route_s >= m.hold_s:
+                self.phase = "done"
+
+    def _advance_obstacles(self, obs: Sequence[Obstacle], t_s: float) -> Sequence[Obstacle]:
+        """Moving mission obstacles at time ``t_s`` (see module docstring); the others unchanged."""
+        if not self._moving_mission or self.t0_s is None:
+            return obs
+        dt = t_s - self.t0_s
+        return [o.at_time(dt) if o.source == "mission" else o for o in obs]
 
     # ------------------------------------------------------------------------------------------------
     def update(self, est: Estimate, obstacles: Sequence[Obstacle] | None = None) -> Command:
@@ -180,6 +231,7 @@ class FlightCore:
         dt = 0.004 if self.t_prev_s is None else est.t_s - self.t_prev_s
         self.t_prev_s = est.t_s
         self._advance_phase(est)
+        obs = self._advance_obstacles(obs, est.t_s)
 
         swing = None if est.swing is None else np.asarray(est.swing, dtype=np.float64)
         if swing is not None:
@@ -203,7 +255,13 @@ class FlightCore:
         f_rep = _ZERO2
         plan_mode = "track"
         ref = self.ref
-        if self.phase == "climb":
+        acc_ctl = None
+        timed_now = self._timed and (self.phase in TIMED_PHASES or self._timed_stop)
+        if timed_now:
+            out = self._plan_timed(est, obs, swing, r_max, z, dt)
+            f_att, f_rep, plan_mode = out.force_att, out.force_rep, out.mode
+            acc_ctl = self._acc_for_controller(out, est)
+        elif self.phase == "climb":
             vdx = vdy = 0.0
             vdz = self._vertical_speed(float(m.start_ned_m[2]))
         elif self.phase == "cruise":
@@ -222,7 +280,7 @@ class FlightCore:
             vdx = ka * (float(hold[0]) - ref.p[0])
             vdy = ka * (float(hold[1]) - ref.p[1])
             vdz = DESCENT_MPS if self.phase == "descend" else self._vertical_speed(float(hold[2]))
-        if dt > 0.0:
+        if dt > 0.0 and not timed_now:
             ref.step((vdx, vdy, vdz), dt)
 
         ctl_swing = swing if est.swing_source in ("cable_sensor", "estimate") else None
@@ -231,8 +289,8 @@ class FlightCore:
             ctl_swing = ctl_swing * fade
             swing_acc = (swing_acc[0] * fade, swing_acc[1] * fade)
         ctl = self.controller.update(
-            pos, vel, ref.p, ref.v, ref.a, ctl_swing, swing_acc if ctl_swing is not None else (0.0, 0.0),
-            max(dt, 1e-4),
+            pos, vel, ref.p, ref.v, ref.a if acc_ctl is None else acc_ctl, ctl_swing,
+            swing_acc if ctl_swing is not None else (0.0, 0.0), max(dt, 1e-4),
         )
         lim = self.cfg.limits
         fx, fy, fz = (float(v) for v in ctl.force_ned_n)
@@ -243,9 +301,67 @@ class FlightCore:
             thrust_norm=self.profile.thrust_to_norm(thrust, self.params.hover_thrust_n), euler_cmd_rad=euler,
             ref_pos_ned_m=np.array(ref.p), ref_vel_ned_mps=np.array(ref.v), ref_acc_ned_mps2=np.array(ref.a),
             force_att_n=f_att, force_rep_n=f_rep, r_max_m=r_max, envelope_mode=mode, phase=self.phase,
-            ff_accel=ctl.ff_acc_mps2, plan_mode=plan_mode,
+            ff_accel=ctl.ff_acc_mps2, plan_mode=plan_mode, no_route=self.no_route,
         )
+
+    def _plan_timed(self, est: Estimate, obs: Sequence[Obstacle], swing: np.ndarray | None, r_max: float, z: float,
+                    dt: float):
+        """Cruise / hold / no_route / done with a time-parameterised planner: its horizontal reference, the
+        vertical channel towards the goal's altitude (or held where it is after no route)."""
+        m = self.mission
+        ref = self.ref
+        assert ref is not None
+        inp = PlanInput(
+            t_s=est.t_s, pos_m=np.asarray(est.pos_ned_m[:2], dtype=np.float64),
+            vel_mps=np.asarray(est.vel_ned_mps[:2], dtype=np.float64), ref_pos_m=np.array(ref.p[:2]),
+            ref_vel_mps=np.array(ref.v[:2]), goal_m=self._goal_xy, r_max_m=r_max, swing=swing,
+            cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
+            swing_sigma_rad=_swing_sigma_rad(est),
+        )
+        out = self.planner.plan(inp, obs)
+        if out.no_route and not self.no_route:
+            self.no_route = True
+            if self.phase == "cruise":
+                self.phase = "no_route"
+                self.t_no_route_s = est.t_s
+                log.warning("mission %s: no route to the goal; holding at (%.2f, %.2f)", m.name, ref.p[0], ref.p[1])
+        r = out.reference
+        assert r is not None
+        if dt > 0.0:
+            if self.phase == "descend":
+                ref.step_vertical(DESCENT_MPS, dt)
+            else:
+                z_target = float(m.goal_ned_m[2]) if not (self.no_route or self._timed_stop) else ref.p[2]
+                ref.step_vertical(self._vertical_speed(z_target), dt)
+        ref.set_horizontal(r.pos_m, r.vel_mps, r.acc_mps2)
+        return out
+
+    def _acc_for_controller(self, out, est: Estimate) -> list[float] | None:
+        """Reference acceleration for the controller: a_ref − ff(nominal swing) with the smc_ff controller fed
+        the cable sensor or the swing estimate (the feed-forward then acts on the deviation from the planned
+        swing; for the estimate scaled by the same ``swing_fade`` as the controller's), else None."""
+        r = out.reference
+        if r is None or self.mission.controller != "smc_ff" or est.swing_source not in ("cable_sensor", "estimate"):
+            return None
+        fade = max(0.0, min(1.0, float(est.swing_fade))) if est.swing_source == "estimate" else 1.0
+        a, b, da, db, dda, ddb = r.swing_nom
+        ff = feedforward_acc(np.array((a, b, da, db)), np.array((dda, ddb)), self.cfg.feedforward, self.params.l)
+        ref = self.ref
+        assert ref is not None
+        return [ref.a[0] - fade * float(ff[0]), ref.a[1] - fade * float(ff[1]), ref.a[2] - fade * float(ff[2])]
 
 
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
+
+
+def _swing_sigma_rad(est: Estimate) -> float:
+    """1σ (rad) of the swing estimate's error for the planner's envelope: ``est.swing_sigma_rad`` if the estimate
+    carries it, else from a 3σ bound ``est.swing_bound_rad`` = |(α, β)| + 3σ, else 0 (an exact sensor)."""
+    sigma = getattr(est, "swing_sigma_rad", None)
+    if sigma is not None:
+        return max(0.0, float(sigma))
+    bound = getattr(est, "swing_bound_rad", None)
+    if bound is not None and est.swing is not None and math.isfinite(float(bound)):
+        return max(0.0, (float(bound) - math.hypot(float(est.swing[0]), float(est.swing[1]))) / 3.0)
+    return 0.0

@@ -6,6 +6,11 @@ force as that velocity (gradient flow: ``v_des = sat(F_all, v_max)``; see :mod:`
 the safe planner builds it directly. The :class:`~companion.planning.reference.ReferenceGenerator` turns
 the desired velocity into a flyable reference (position, velocity, acceleration) with acceleration and jerk
 limits; the position controller tracks that reference.
+
+A *time-parameterised* planner (class attribute ``time_parameterised = True``: the ``shaped`` planner)
+produces the horizontal reference itself, :class:`ReferenceSample` in ``PlanOutput.reference``, including the
+payload's nominal swing along it; the flight core then flies that reference instead of integrating
+``v_des_mps``. Such a planner may also find that no route to the goal exists (``PlanOutput.no_route``).
 """
 
 from __future__ import annotations
@@ -26,7 +31,8 @@ class PlanInput:
     pos_m / vel_mps: measured airframe; ref_pos_m / ref_vel_mps: current reference; goal_m: goal;
     r_max_m: envelope radius now (eq. 21, or the full cable without swing sensing); swing: [α, β, α̇, β̇]
     or None; cable_l_m, airframe_r_m (r_uav + L_uav); z_ned_m: airframe altitude (NED z, m) for "below the trunk's top"
-    tests; t_s: time.
+    tests; t_s: time; swing_sigma_rad: standard deviation (rad) of the swing estimate's error (0: exact, the
+    cable-angle sensor; the swing estimator will supply it), used by planners that widen their envelope by it.
     """
 
     t_s: float
@@ -41,16 +47,38 @@ class PlanInput:
     airframe_r_m: float
     g_mps2: float = 9.81
     z_ned_m: float = 0.0
+    swing_sigma_rad: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class ReferenceSample:
+    """A time-parameterised planner's horizontal reference at one instant (NED, SI; tuples of floats).
+
+    pos_m, vel_mps, acc_mps2, jerk_mps3: the airframe's reference (2 each); swing_nom: the nominal swing the
+    payload has when the airframe flies it, [α, β, α̇, β̇, α̈, β̈] (rad, rad/s, rad/s²).
+    """
+
+    pos_m: tuple[float, float]
+    vel_mps: tuple[float, float]
+    acc_mps2: tuple[float, float]
+    jerk_mps3: tuple[float, float]
+    swing_nom: tuple[float, float, float, float, float, float]
 
 
 @dataclass(frozen=True, slots=True)
 class PlanOutput:
-    """Desired horizontal velocity (2,) m/s, and the attractive / repulsive parts for plots and telemetry."""
+    """Desired horizontal velocity (2,) m/s, and the attractive / repulsive parts for plots and telemetry.
+
+    ``reference``: the horizontal reference itself (time-parameterised planners only, else None);
+    ``no_route``: the planner has established that no route to the goal exists (it holds at a safe point).
+    """
 
     v_des_mps: np.ndarray
     force_att: np.ndarray
     force_rep: np.ndarray
     mode: str = "track"
+    reference: ReferenceSample | None = None
+    no_route: bool = False
 
 
 class Planner(Protocol):

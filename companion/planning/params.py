@@ -22,6 +22,23 @@ class PlannerParams:
     ``steer_lookahead_s`` the same for its steering, ``a_goal_mps2`` braking deceleration towards the
     goal, ``goal_lookahead_s`` lag allowance of that braking, ``error_lookahead_s`` horizon of the predicted
     tracking error in the margin (see :mod:`companion.planning.safe`).
+
+    Shaped planner (:mod:`companion.planning.shaped`): ``shaped_a_max_mps2`` bound on the planned payload
+    acceleration (the nominal swing is atan(a/g): 1.85 m/s² is 0.187 rad), ``shaped_v_max_mps`` speed cap,
+    ``shaper_tau_s`` the three moving-average widths (s) of the smoothing cascade, ``shaped_step_s`` the time
+    step of the planned reference, ``replan_rate_hz`` how often the plan is checked against the latest obstacles
+    (and the route search rerun whenever an obstacle appeared, vanished, changed or left its predicted
+    track, the envelope grew, or the plan failed the check), ``route_refresh_s`` how often the search reruns
+    anyway,
+    ``route_ds_m`` spacing of the points of the minimum-curvature path, ``route_extra_m`` /
+    ``route_candidates`` the extra inflations (k·extra, k = 0 .. candidates−1) whose routes are timed and
+    compared, ``replan_hysteresis_s`` how much
+    faster (s) a new plan must be to replace a valid current one, ``no_route_confirm_s`` how long the route
+    search must fail before the planner declares that there is none, ``swing_sigma_k`` how many standard
+    deviations of the swing estimate's uncertainty widen the envelope, ``predict_growth_mps`` how fast the
+    predicted position of a moving obstacle grows uncertain (m per s of look-ahead), ``error_hold_s`` how
+    long a tracking-error peak is remembered in the margin, ``shaped_brake_mps2`` the deceleration allowed
+    when the current speed is too high for what lies ahead (also the no-route stop).
     """
 
     ka: float = 1.5
@@ -44,10 +61,30 @@ class PlannerParams:
     a_goal_mps2: float = 1.8
     goal_lookahead_s: float = 0.5
     error_lookahead_s: float = 0.3
+    shaped_a_max_mps2: float = 1.85
+    shaped_v_max_mps: float = 6.0
+    shaper_tau_s: tuple[float, float, float] = (0.3, 0.35, 0.4)
+    shaped_step_s: float = 0.01
+    replan_rate_hz: float = 20.0
+    route_refresh_s: float = 0.5
+    route_ds_m: float = 0.4
+    route_extra_m: float = 0.2
+    route_candidates: int = 6
+    replan_hysteresis_s: float = 0.15
+    no_route_confirm_s: float = 0.5
+    swing_sigma_k: float = 2.0
+    predict_growth_mps: float = 0.1
+    error_hold_s: float = 2.0
+    shaped_brake_mps2: float = 3.0
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: must be > 0")`` for non-positive or non-finite values."""
         for f in fields(self):
             v = getattr(self, f.name)
-            if not (math.isfinite(v) and v > 0.0):
-                raise ValueError(f"{f.name}: must be > 0, got {v}")
+            for x in v if isinstance(v, tuple) else (v,):
+                if not (math.isfinite(x) and x > 0.0):
+                    raise ValueError(f"{f.name}: must be > 0, got {v}")
+        if not 1 <= self.route_candidates <= 8:
+            raise ValueError(f"route_candidates: must be in 1..8, got {self.route_candidates}")
+        if self.replan_rate_hz < 1.0:
+            raise ValueError(f"replan_rate_hz: must be >= 1, got {self.replan_rate_hz}")

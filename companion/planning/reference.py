@@ -80,3 +80,21 @@ class ReferenceGenerator:
         for i in range(3):
             v[i] += a[i] * dt_s
             pos[i] += v[i] * dt_s
+
+    def step_vertical(self, vz_des_ned_mps: float, dt_s: float) -> None:
+        """Advance only the vertical channel by ``dt_s`` towards ``vz_des_ned_mps`` (m/s), with the same limits
+        as :meth:`step` (the horizontal channels belong to a time-parameterised planner then)."""
+        p = self.params
+        vz = min(max(float(vz_des_ned_mps), -p.vz_max_mps), p.vz_max_mps)
+        az = min(max(p.k_vel * (vz - self.v[2]), -p.az_max_mps2), p.az_max_mps2)
+        tau_s = max(dt_s, 0.25 / p.k_vel)
+        jz = min(max((az - self.a[2]) / tau_s, -p.j_max_mps3), p.j_max_mps3)
+        self.a[2] += jz * dt_s
+        self.v[2] += self.a[2] * dt_s
+        self.p[2] += self.v[2] * dt_s
+
+    def set_horizontal(self, pos_m, vel_mps, acc_mps2) -> None:
+        """Overwrite the horizontal reference (2 floats each: m, m/s, m/s²) with a planner's."""
+        self.p[0], self.p[1] = float(pos_m[0]), float(pos_m[1])
+        self.v[0], self.v[1] = float(vel_mps[0]), float(vel_mps[1])
+        self.a[0], self.a[1] = float(acc_mps2[0]), float(acc_mps2[1])

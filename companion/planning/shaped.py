@@ -1,0 +1,415 @@
+"""The ``shaped`` planner: a route through the inflated free space, flown as a swing-free timed reference.
+
+Every replan cycle (``replan_rate_hz``, 20 Hz by default) from the *unshaped* motion's state a few steps
+ahead of now (so the reference being flown never jumps, see :mod:`companion.planning.timeline`):
+
+1. **Free space.** Each obstacle below which the payload can pass becomes a disc of radius
+   r_o + Δd + R_env + margin around its predicted position. The envelope R_env is the farther of the airframe
+   circle r_uav + L_uav carried a_max/ω² ahead of the payload path by the shaping (see below), and the
+   payload at the largest swing the plan allows — the nominal bound atan(a_max/g), plus the measured
+   deviation from the nominal swing, plus ``swing_sigma_k`` standard deviations of the swing estimate's
+   uncertainty (``PlanInput.swing_sigma_rad``, 0 for the cable sensor) — or the whole cable without swing
+   sensing. The margin is ``track_margin_m`` plus the recent peak tracking error.
+2. **Routes.** The shortest route around the discs (:mod:`companion.planning.route`) and, to find faster
+   ones through wider gaps, the routes around the discs inflated by k·``route_extra_m`` and those on the
+   other side of the fastest one's apex (:mod:`companion.planning.candidates`); each is relaxed into a
+   minimum-curvature path in the real free space (:mod:`companion.planning.path`) and timed at the
+   acceleration bound (:mod:`companion.planning.timing`). Candidates are compared by *time*, not length.
+3. **Moving obstacles** (``vx_mps``/``vy_mps``) are predicted at constant velocity over the plan, with a ring
+   that grows with the look-ahead (``predict_growth_mps``). Each candidate's shaped reference is checked
+   against them at the time it gets there (:mod:`companion.planning.clearance`); where it would meet one,
+   the obstacle's swept positions around that time (a capsule of discs) join the free-space model and the
+   routes are searched again (at most three rounds).
+4. **Shaping.** The chosen motion (bang-bang acceleration, |a| <= a_max) is smoothed by a three-stage
+   moving-average cascade and mapped through the pendulum notch p_q = p_L + a_L/ω²
+   (:mod:`companion.planning.shaping`): the payload follows the planned path with swing |a_L|/g and no
+   residual swing when it stops; ω is the model's (acceleration-controlled support).
+5. **Keeping a plan.** A valid current plan is replaced only by one faster by ``replan_hysteresis_s``.
+   If no candidate is valid (a moving obstacle in the way), the planner brakes along its heading and waits.
+6. **No route.** If no route exists even at the bare safety ring r_o + Δd + r_uav + L_uav around the static
+   obstacles (a goal fenced in), the planner brakes, and after ``no_route_confirm_s`` of consistent failure
+   declares ``no_route`` (``PlanOutput.no_route``) and holds where it stopped; it does not circle.
+
+The reference rows carry the airframe position, velocity, acceleration and jerk and the nominal swing the
+payload has along them, which the flight core uses to keep the anti-swing feed-forward from fighting the
+planned swing.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from companion.core.model import VehicleParams
+from companion.core.obstacles import Obstacle
+from companion.planning.base import PlanInput, PlanOutput, ReferenceSample
+from companion.planning.candidates import capsules, search_options, timed_routes
+from companion.planning.clearance import Predicted, clearance
+from companion.planning.params import PlannerParams
+from companion.planning.path import smooth_path
+from companion.planning.route import find_route
+from companion.planning.shaping import box_widths, pendulum_omega_rad_s
+from companion.planning.timeline import Timeline
+from companion.planning.timing import Profile, sample_motion, speed_profile, state_at, stop_along
+
+LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps ahead of now
+
+
+def warm_up() -> None:
+    """Run every compiled kernel once on a tiny problem (loads them from numba's cache, or compiles them), so
+    that the first replan of a flight is not the one that pays for it."""
+    c = np.array([[2.0, 0.1], [4.0, -0.3]])
+    r = np.array([0.6, 0.5])
+    rt = find_route(np.zeros(2), np.array([6.0, 0.0]), c, r, r)
+    assert rt is not None
+    path = smooth_path(rt.points, c, r, ds_m=0.4, heading=np.array([1.0, 0.0]))
+    prof = speed_profile(path, 0.5, a_max_mps2=1.0, v_max_mps=2.0, heading=np.array([1.0, 0.0]))
+    pos, vel, acc = sample_motion(prof, np.arange(0.0, prof.duration_s, 0.05))
+    tl = Timeline(0.0, np.zeros(2), 0.01, (3, 4, 5), 3.0, 9.81)
+    tl.splice(2, np.concatenate([pos, vel, acc], axis=1), 0)
+    z = np.zeros(1)
+    clearance(tl.ref, 0.0, 0.01, 0.0, 1.0, Predicted(z, z, z, z, z + 0.5, z + 0.3, z, np.zeros(1, np.bool_)))
+# an optional replan's motion may exceed a_max by the profile's discretisation (a few per cent), not by braking
+OPTIONAL_A_FACTOR = 1.06
+_ZERO2 = np.zeros(2)
+_ZERO2.flags.writeable = False
+
+
+class ShapedPlanner:
+    """Route + swing-free timed reference (see module docstring). Keeps its plan between calls."""
+
+    name = "shaped"
+    time_parameterised = True
+
+    def __init__(self, params: PlannerParams, vehicle: VehicleParams | None = None) -> None:
+        self.params = params
+        self.vehicle = vehicle
+        self.tl: Timeline | None = None
+        self.omega = 0.0
+        self.next_replan_s = -math.inf
+        self.mode = "track"
+        self.no_route = False
+        self.no_route_since_s: float | None = None
+        self.plan_end_k = 0
+        self.plan_reaches_goal = False
+        self.err_peak_m = 0.0
+        self._err_t = -math.inf
+        self.dev_peak_rad = 0.0
+        self._dev_t = -math.inf
+        self._last_nominal = (0.0, 0.0)
+        self.replans = 0
+        self.searches = 0
+        self.splices = 0
+        self.last: dict = {}
+        self._search_t = -math.inf
+        self._search_sig: tuple = ()
+        self._search_pred: Predicted | None = None
+        self._search_ring_m = 0.0
+        self.plan_option: tuple[bool, float] = (False, 0.0)
+        self.plan_profile: Profile | None = None  # the unshaped plan being flown, from absolute row plan_k0
+        self.plan_k0 = 0
+        self.stop_requested = False
+        self._rotation = 0
+        warm_up()
+
+    # ------------------------------------------------------------------------------------------------
+    def _init(self, inp: PlanInput) -> None:
+        p = self.params
+        vp = self.vehicle
+        if vp is None or abs(vp.l - inp.cable_l_m) > 1e-9:
+            vp = VehicleParams(l=inp.cable_l_m, g=inp.g_mps2)
+        self.omega = pendulum_omega_rad_s(vp, "held")
+        widths = box_widths(p.shaper_tau_s, p.shaped_step_s)
+        self.tl = Timeline(inp.t_s, inp.ref_pos_m, p.shaped_step_s, widths, self.omega, inp.g_mps2)
+        self.plan_end_k = self.tl.index(inp.t_s)
+
+    def _watch(self, inp: PlanInput) -> None:
+        """Peak-hold the tracking error (m) and the swing's deviation from its nominal value (rad)."""
+        t = inp.t_s
+        hold = self.params.error_hold_s
+        e = math.hypot(float(inp.pos_m[0]) - float(inp.ref_pos_m[0]), float(inp.pos_m[1]) - float(inp.ref_pos_m[1]))
+        if e >= self.err_peak_m or t - self._err_t > hold:
+            self.err_peak_m, self._err_t = e, t
+        if inp.swing is not None:
+            a, b = self._last_nominal
+            d = math.hypot(float(inp.swing[0]) - a, float(inp.swing[1]) - b)
+            if d >= self.dev_peak_rad or t - self._dev_t > hold:
+                self.dev_peak_rad, self._dev_t = d, t
+
+    def envelope_m(self, inp: PlanInput) -> float:
+        """R_env (m) about the planned payload path (see module docstring, step 1)."""
+        p = self.params
+        r2 = inp.airframe_r_m
+        lead = p.shaped_a_max_mps2 / (self.omega * self.omega)
+        if inp.swing is None:
+            reach = max(inp.cable_l_m, r2)
+        else:
+            theta = (math.atan(p.shaped_a_max_mps2 / inp.g_mps2) + self.dev_peak_rad
+                     + p.swing_sigma_k * max(0.0, inp.swing_sigma_rad))
+            reach = inp.cable_l_m * math.sin(min(theta, 0.5 * math.pi))
+        return max(r2 + lead, reach)
+
+    # ------------------------------------------------------------------------------------------------
+    def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
+        """The reference at ``inp.t_s`` (replanning first when a cycle is due)."""
+        if self.tl is None:
+            self._init(inp)
+        assert self.tl is not None
+        self._watch(inp)
+        t = inp.t_s
+        if t >= self.next_replan_s - 1e-9:
+            self._replan(inp, obstacles)
+            period = 1.0 / self.params.replan_rate_hz
+            self.next_replan_s = self.next_replan_s + period if t - self.next_replan_s < period else t + period
+        row = self.tl.sample(t)
+        self._last_nominal = (row[8], row[9])
+        ref = ReferenceSample((row[0], row[1]), (row[2], row[3]), (row[4], row[5]), (row[6], row[7]),
+                              (row[8], row[9], row[10], row[11], row[12], row[13]))
+        goal_dir = (float(inp.goal_m[0]) - row[0], float(inp.goal_m[1]) - row[1])
+        return PlanOutput(v_des_mps=np.array((row[2], row[3])), force_att=np.array(goal_dir),
+                          force_rep=_ZERO2, mode=self.mode, reference=ref, no_route=self.no_route)
+
+    # ------------------------------------------------------------------------------------------------
+    def _discs(self, inp: PlanInput, obstacles: Sequence[Obstacle]
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[Obstacle], Predicted]:
+        """Static discs (centres, route rings, bare safety rings, contact radii), the moving obstacles, and every
+        relevant obstacle as :class:`Predicted` for the time-aware check."""
+        env = self.envelope_m(inp)
+        margin = self.params.track_margin_m + self.err_peak_m
+        r2 = inp.airframe_r_m
+        reach_z = inp.z_ned_m + inp.cable_l_m
+        rel = [o for o in obstacles if reach_z >= -o.height_m]
+        static = [o for o in rel if o.vx_mps == 0.0 and o.vy_mps == 0.0]
+        moving = [o for o in rel if not (o.vx_mps == 0.0 and o.vy_mps == 0.0)]
+        c = np.array([(o.x_m, o.y_m) for o in static], dtype=np.float64).reshape(-1, 2)
+        ro = np.array([o.radius_m for o in static], dtype=np.float64)
+        sd = np.array([o.safe_distance_m for o in static], dtype=np.float64)
+        ring = ro + sd + env + margin
+        bare = ro + sd + r2 + 0.02
+        contact = ro + r2
+        allo = static + moving
+        n = len(allo)
+        is_m = np.array([False] * len(static) + [True] * len(moving), dtype=np.bool_)
+        r_all = np.array([o.radius_m + o.safe_distance_m for o in allo], dtype=np.float64)
+        pred = Predicted(
+            cx=np.array([o.x_m for o in allo], dtype=np.float64), cy=np.array([o.y_m for o in allo], dtype=np.float64),
+            vx=np.array([o.vx_mps for o in allo], dtype=np.float64),
+            vy=np.array([o.vy_mps for o in allo], dtype=np.float64),
+            # static: the bare safety ring; moving: plus the tracking margin, growing with the look-ahead
+            ring_airframe=r_all + r2 + np.where(is_m, margin, -0.01),
+            ring_payload=r_all + np.where(is_m, margin, -0.01),
+            growth=np.where(is_m, self.params.predict_growth_mps, 0.0), moving=is_m,
+        )
+        del n
+        return c, ring, bare, contact, moving, pred
+
+    def _rows(self, prof: Profile) -> np.ndarray:
+        """Unshaped rows [p, v, a] (m, 6) of a profile, one per grid step from its start to its end."""
+        h = self.params.shaped_step_s
+        times = np.arange(0.0, prof.duration_s + h, h)
+        pos, vel, acc = sample_motion(prof, times)
+        return np.concatenate([pos, vel, acc], axis=1)
+
+    def _brake_rows(self, p0: np.ndarray, v0: np.ndarray) -> np.ndarray:
+        """Unshaped rows of a straight stop from (p0, v0) at ``shaped_brake_mps2`` (or just rest)."""
+        h = self.params.shaped_step_s
+        b = self.params.shaped_brake_mps2
+        speed = math.hypot(float(v0[0]), float(v0[1]))
+        if speed < 1e-6:
+            row = np.zeros((1, 6))
+            row[0, 0:2] = p0
+            return row
+        u = v0 / speed
+        tt = np.arange(0.0, speed / b + h, h)
+        tt = np.minimum(tt, speed / b)
+        s = speed * tt - 0.5 * b * tt * tt
+        sp = np.maximum(speed - b * tt, 0.0)
+        rows = np.zeros((len(tt), 6))
+        rows[:, 0:2] = p0[None, :] + s[:, None] * u[None, :]
+        rows[:, 2:4] = sp[:, None] * u[None, :]
+        rows[:, 4:6] = np.where(sp[:, None] > 0.0, -b * u[None, :], 0.0)
+        return rows
+
+    # ------------------------------------------------------------------------------------------------
+    def _replan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> None:
+        tl = self.tl
+        assert tl is not None
+        p = self.params
+        self.replans += 1
+        t = inp.t_s
+        h = tl.h_s
+        k_now = tl.index(t)
+        k_r = k_now + LEAD_ROWS
+        u0 = tl.unshaped_at(k_r)
+        p0, v0 = u0[0:2], u0[2:4]
+        goal = np.asarray(inp.goal_m, dtype=np.float64)
+        c, ring, bare, contact, moving, pred = self._discs(inp, obstacles)
+        l_m = inp.cable_l_m
+
+        def check(ref: np.ndarray, base: int) -> tuple[np.ndarray, np.ndarray, int]:
+            fut, k_f = tl.future(k_now, ref, base)
+            first, worst = clearance(fut, tl.time_of(k_f), h, t, l_m, pred)
+            return first, worst, k_f
+
+        # the current plan: still clear?
+        first_cur, _, _ = check(tl.ref, tl.base)
+        cur_ok = bool(np.all(np.isinf(first_cur)))
+        remaining = max(0.0, (self.plan_end_k - k_r) * h)
+        at_goal = math.hypot(float(goal[0] - p0[0]), float(goal[1] - p0[1])) < 1e-3
+        if at_goal and math.hypot(float(v0[0]), float(v0[1])) < 1e-3 and cur_ok:
+            self.mode = "track"
+            self.last = {"kept": True, "reason": "at goal"}
+            return
+        if self.no_route or self.stop_requested:
+            self._hold(k_r, k_now, p0, v0, cur_ok, "no_route" if self.no_route else "hold")
+            return
+        ring_now = self.envelope_m(inp) + self.err_peak_m
+        valid = cur_ok and self.plan_reaches_goal
+        why = self._changed(t, obstacles, pred, ring_now) if valid else "invalid"
+        if why is None:
+            self.last = {"kept": True, "reason": "valid, nothing changed"}
+            return
+        self.searches += 1
+        self._search_t, self._search_sig, self._search_pred = t, self._signature(obstacles), pred
+        self._search_ring_m = ring_now
+        options = None
+        if why == "refresh":
+            # nothing changed and the plan is good: re-time its own route and try one other option in turn
+            allo = search_options(p)
+            other = [o for o in allo if o != self.plan_option]
+            options = [self.plan_option] + ([other[self._rotation % len(other)]] if other else [])
+            self._rotation += 1
+
+        # static route existence (the bare safety ring): none means no route at all
+        if why != "refresh" and find_route(p0, goal, c, bare, contact) is None:
+            if self.no_route_since_s is None:
+                self.no_route_since_s = t
+            if t - self.no_route_since_s >= p.no_route_confirm_s - 1e-9:
+                self.no_route = True
+            self._hold(k_r, k_now, p0, v0, cur_ok, "no_route" if self.no_route else "brake")
+            self.last = {"no_route_search_failed": True, "since": self.no_route_since_s}
+            return
+        self.no_route_since_s = None
+
+        optional = cur_ok and self.plan_reaches_goal  # the current plan is fine; a new one must be better
+        cc, rr, hh = c, ring, contact
+        chosen = None
+        tried = 0
+        for rnd in range(3):
+            if rnd > 0:  # with capsules in the way: the three smallest plain inflations are enough
+                options = [(False, e) for walled, e in search_options(p) if not walled][:3]
+            cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p, options)
+            if not cands and options is not None:
+                cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p)
+            if not cands:
+                # only the bare ring lets a route through: fly it at half the acceleration (less lead, less swing)
+                cands = timed_routes(p0, v0, goal, cc, np.maximum(rr - (ring - bare).max(initial=0.0), 0.0)
+                                     if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2, p)
+            conflicts: list[tuple[int, float]] = []
+            for cand in cands:
+                if optional and cand.profile.a_peak_mps2 > OPTIONAL_A_FACTOR * p.shaped_a_max_mps2:
+                    continue  # an optional switch keeps the swing bound (no harder braking than a_max)
+                tried += 1
+                rows = self._rows(cand.profile)
+                u, ref, base = tl.preview(k_r, rows, k_now)
+                first, _worst, _ = check(ref, base)
+                if np.all(np.isinf(first)):
+                    chosen = (cand, rows, u, ref, base)
+                    break
+                if not conflicts:
+                    conflicts = [(j, float(first[j])) for j in np.flatnonzero(np.isfinite(first)) if pred.moving[j]]
+            if chosen is not None or not conflicts or not moving:
+                break
+            # capsules around the moving obstacles' positions at the conflict times
+            cc, rr, hh = capsules(cc, rr, hh, conflicts, pred, t, self.envelope_m(inp),
+                                  p.track_margin_m + self.err_peak_m, inp.airframe_r_m, p.predict_growth_mps)
+        self.last = {"candidates": tried, "cur_ok": cur_ok, "remaining_s": remaining,
+                     "durations": [round(cd.duration_s, 3) for cd in cands] if True else []}
+        if chosen is not None:
+            cand, rows, u, ref, base = chosen
+            better = not optional or cand.duration_s < remaining - p.replan_hysteresis_s
+            if better:
+                tl.install(u, ref, base)
+                self.plan_end_k = k_r + len(rows) - 1
+                self.plan_profile, self.plan_k0 = cand.profile, k_r
+                self.plan_reaches_goal = cand.reaches_goal
+                self.plan_option = (cand.walled, cand.extra_m)
+                self.splices += 1
+                self.last.update({"spliced": True, "duration_s": cand.duration_s, "extra_m": cand.extra_m})
+            else:
+                self.last.update({"kept": True, "best_s": cand.duration_s})
+            self.mode = "track"
+            return
+        # nothing valid: keep a valid current plan, else stop and wait
+        if cur_ok and self.plan_reaches_goal:
+            self.last.update({"kept": True, "reason": "no better valid candidate"})
+            return
+        self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
+
+    def stop(self) -> None:
+        """Stop along the planned path as soon as the swing bound allows and hold there (a hold the flight
+        sequence asked for); takes effect at the next call of :meth:`plan`."""
+        self.stop_requested = True
+        self.next_replan_s = -math.inf
+
+    def _hold(self, k_r: int, k_now: int, p0: np.ndarray, v0: np.ndarray, cur_ok: bool, mode: str) -> None:
+        """Stop and hold there: when the current plan still heads for the goal, or when the stop already under
+        way is no longer clear (a new one from the state at k_r). The stop follows the current plan's path
+        (which was checked clear) at the swing-bounded deceleration a_max; without one, straight ahead at
+        ``shaped_brake_mps2``."""
+        tl = self.tl
+        assert tl is not None
+        self.mode = mode
+        moving = math.hypot(float(v0[0]), float(v0[1])) > 1e-6
+        if not (self.plan_reaches_goal or (moving and not cur_ok)):
+            return
+        rows = None
+        prof = self.plan_profile
+        if prof is not None and self.plan_reaches_goal:
+            s0, sp = state_at(prof, (k_r - self.plan_k0) * tl.h_s)
+            if abs(sp - math.hypot(float(v0[0]), float(v0[1]))) < 0.05:
+                pos, vel, acc = stop_along(prof, s0, sp, self.params.shaped_a_max_mps2, tl.h_s)
+                rows = np.concatenate([pos, vel, acc], axis=1)
+                rows[0, 0:4] = np.r_[p0, v0]  # exactly continuous with the state being replaced
+        if rows is None:
+            rows = self._brake_rows(p0, v0)
+        tl.splice(k_r, rows, k_now)
+        self.plan_end_k = k_r + len(rows) - 1
+        self.plan_reaches_goal = False
+        self.plan_profile = None
+        self.splices += 1
+
+    @staticmethod
+    def _signature(obstacles: Sequence[Obstacle]) -> tuple:
+        """What identifies the obstacle set apart from the motion of the moving ones."""
+        return tuple(sorted((o.radius_m, o.height_m, o.safe_distance_m, o.vx_mps, o.vy_mps)
+                            + ((o.x_m, o.y_m) if o.vx_mps == 0.0 and o.vy_mps == 0.0 else ())
+                            for o in obstacles))
+
+    def _changed(self, t: float, obstacles: Sequence[Obstacle], pred: Predicted, ring_m: float) -> str | None:
+        """Why the route search must run again — ``"changed"``: obstacles appeared, vanished or changed, a moving
+        one is off its predicted track by more than 0.05 m, or the envelope or margin grew by more than 0.05 m;
+        ``"refresh"``: ``route_refresh_s`` passed since the last search — or None."""
+        if ring_m > self._search_ring_m + 0.05:
+            return "changed"
+        if self._signature(obstacles) != self._search_sig:
+            return "changed"
+        old = self._search_pred
+        if old is None or len(old) != len(pred):
+            return "changed"
+        if np.any(pred.moving):
+            dt = t - self._search_t
+            # obstacles keep their order in a list that did not change (the signature is sorted, so compare
+            # each current moving obstacle with its nearest prediction)
+            if not np.array_equal(old.moving, pred.moving):
+                return "changed"
+            m = pred.moving
+            px, py = old.cx[m] + old.vx[m] * dt, old.cy[m] + old.vy[m] * dt
+            d = np.hypot(pred.cx[m][:, None] - px[None, :], pred.cy[m][:, None] - py[None, :])
+            if d.size and float(d.min(axis=1).max()) > 0.05:
+                return "changed"
+        if t - self._search_t >= self.params.route_refresh_s - 1e-9:
+            return "refresh"
+        return None
