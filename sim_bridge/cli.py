@@ -43,8 +43,9 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--home-alt", type=float, default=488.0, help="home altitude AMSL, m")
     g.add_argument("--address", default="127.0.0.1", help="address the vehicle binds to")
     g.add_argument("--onboard-port", type=int, help="onboard link bind port (default 14580+i)")
-    g.add_argument("--onboard-remote", default="127.0.0.1:14540",
-                   help="where onboard telemetry goes until someone talks (port +i)")
+    g.add_argument("--onboard-remote", default=None, metavar="HOST:PORT",
+                   help="where onboard telemetry goes until someone talks (default 127.0.0.1:14540+i; a given "
+                        "port is used as is)")
     g.add_argument("--gcs-port", type=int, help="GCS link bind port (default 18570+i)")
     g.add_argument("--gcs-remote", default="127.0.0.1:14550", help="where GCS telemetry goes first")
     g.add_argument("--sysid", type=int, help="vehicle system id (default 1+i)")
@@ -100,7 +101,8 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
         takeoff_alt_m=args.takeoff_alt,
         home=(args.home_lat, args.home_lon, args.home_alt),
         onboard_bind=(args.address, args.onboard_port if args.onboard_port is not None else 14580 + i),
-        onboard_remote=_hostport(args.onboard_remote, "--onboard-remote", i),
+        onboard_remote=(_hostport(args.onboard_remote, "--onboard-remote", 0) if args.onboard_remote
+                        else ("127.0.0.1", 14540 + i)),
         gcs_bind=(args.address, args.gcs_port if args.gcs_port is not None else 18570 + i),
         gcs_remote=_hostport(args.gcs_remote, "--gcs-remote", 0),
         sysid=args.sysid if args.sysid is not None else 1 + i,

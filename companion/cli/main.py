@@ -204,6 +204,18 @@ def _cmd_keygen(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_fleet(sub: Any) -> None:
+    from companion.cli.fleet import add_fleet_arguments, run_fleet
+
+    fleet = sub.add_parser(
+        "fleet", help=COMMANDS["fleet"],
+        description="N bundled vehicles and N companions flying at once through one Zenoh router (companions as "
+                    "clients), with each vehicle's swing stream counted for loss; `slungpilot view --zenoh-connect "
+                    "ENDPOINT` shows them all. Ctrl-C: every companion holds and lands.")
+    add_fleet_arguments(fleet)
+    fleet.set_defaults(func=run_fleet)
+
+
 def _add_missions(sub: Any) -> None:
     missions = sub.add_parser("missions", help=COMMANDS["missions"],
                               description="The missions that ship with slungpilot, by name, with where they fly.")
@@ -242,6 +254,7 @@ COMMANDS = {
     "report": "rebuild a run folder's report, summary and plots from its journal (e.g. after kill -9)",
     "missions": "list the shipped missions (use their names with fly --mission)",
     "keygen": "write a new MAVLink 2 signing key file (for fly/sitl --signing-key)",
+    "fleet": "fly N bundled vehicles with N companions at once through one Zenoh router",
     "replay": "open a run folder's recording.rrd in Rerun's viewer (web viewer on 127.0.0.1 without a display)",
     "view": "show every vehicle on the Zenoh network live in Rerun's viewer",
     "bench": "print performance numbers (model, sitl, fly, zenoh, faults, view)",
@@ -250,7 +263,8 @@ _ADDERS: dict[str, Callable[[Any], None]] = {
     "fly": _add_fly, "sitl": _add_sitl, "listen": _add_zenoh_tool("listen"),
     "obstacles": _add_zenoh_tool("obstacles"), "zenoh-router": _add_zenoh_tool("zenoh-router"),
     "experiments": _add_lab("experiments"), "evaluate": _add_lab("evaluate"), "report": _add_report,
-    "missions": _add_missions, "keygen": _add_keygen, "bench": _add_bench, "replay": _add_viz_tool("replay"),
+    "missions": _add_missions, "keygen": _add_keygen, "fleet": _add_fleet, "bench": _add_bench,
+    "replay": _add_viz_tool("replay"),
     "view": _add_viz_tool("view"),
 }
 

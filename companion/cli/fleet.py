@@ -1,0 +1,153 @@
+"""``slungpilot fleet N``: N bundled vehicles and N companions flying at once, all on one Zenoh router.
+
+Starts a Zenoh router (in this process), then N ``slungpilot fly --sitl --realtime --instance i`` (vehicle id and
+MAVLink system id 1+i, each with its own bundled vehicle), every companion a Zenoh **client** of the router, and a
+subscriber that counts each vehicle's swing stream (sequence gaps = loss). Prints a line per vehicle when all
+have landed: outcome, tick p99, swing samples received and lost. Ctrl-C passes on to every companion (each holds
+and lands). ``slungpilot view --zenoh-connect ENDPOINT`` shows them all live.
+
+Why clients: with eclipse-zenoh 1.10 a router forwards between its clients, but two *peers* that only know the
+router do not get each other's samples (docs/zenoh.md); clients always go through the router.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from companion.zenoh_io.session import open_session, zenoh_config
+
+
+def add_fleet_arguments(p: argparse.ArgumentParser) -> None:
+    """``fleet``'s options."""
+    p.add_argument("n", type=int, metavar="N", help="how many vehicle + companion pairs (1..16)")
+    p.add_argument("--mission", default="open_field", metavar="FILE|NAME",
+                   help="the mission every vehicle flies (default open_field; each in its own simulated world)")
+    p.add_argument("--router", default=None, metavar="ENDPOINT",
+                   help="the router's endpoint (default a free tcp/127.0.0.1 port)")
+    p.add_argument("--run-dir", type=Path, default=None, help="where the run folders go (default runs/fleet-<time>)")
+    p.add_argument("--lockstep", action="store_true", help="fly in lockstep instead of real time")
+
+
+def _free_tcp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class _StreamCounter:
+    """Per (vehicle id, stream): samples received, payload bytes and sequence numbers skipped (loss). Runs on
+    Zenoh's threads; only counts under a lock."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.count: dict[tuple[str, str], int] = {}
+        self.bytes: dict[tuple[str, str], int] = {}
+        self.lost: dict[tuple[str, str], int] = {}
+        self._last: dict[tuple[str, str], int] = {}
+
+    def __call__(self, s: zenoh.Sample) -> None:
+        raw = s.payload.to_bytes()
+        parts = str(s.key_expr).split("/")
+        if len(parts) != 3:
+            return
+        key = (parts[1], parts[2])
+        try:
+            seq = int(json.loads(raw)["seq"])
+        except (ValueError, KeyError, TypeError):
+            seq = None
+        with self.lock:
+            self.count[key] = self.count.get(key, 0) + 1
+            self.bytes[key] = self.bytes.get(key, 0) + len(raw)
+            last = self._last.get(key)
+            if seq is not None:
+                if last is not None and seq > last + 1:
+                    self.lost[key] = self.lost.get(key, 0) + seq - last - 1
+                self._last[key] = seq if last is None else max(seq, last)
+
+    def of(self, vid: str, stream: str) -> tuple[int, int, int]:
+        """(samples, bytes, lost) of one vehicle's stream."""
+        with self.lock:
+            k = (vid, stream)
+            return self.count.get(k, 0), self.bytes.get(k, 0), self.lost.get(k, 0)
+
+
+def run_fleet(args: argparse.Namespace) -> int:
+    """Fly the fleet; exit 0 when every vehicle completed its mission."""
+    n = args.n
+    if not 1 <= n <= 16:
+        from companion.errors import ConfigError
+
+        raise ConfigError(f"N: 1..16 pairs, got {n}")
+    ep = args.router or f"tcp/127.0.0.1:{_free_tcp_port()}"
+    root = args.run_dir or Path("runs") / f"fleet-{datetime.now(UTC).strftime('%Y%m%d-%H%M%S-%f')[:-3]}"
+    root.mkdir(parents=True, exist_ok=True)
+    counter = _StreamCounter()
+    procs: list[subprocess.Popen] = []
+    router_cfg = zenoh_config("router", mode="router", listen=[ep])
+    client_cfg = zenoh_config("listener", mode="client", connect=[ep])
+    with open_session(router_cfg), open_session(client_cfg) as sub_session:
+        sub_session.declare_subscriber("slungpilot/*/*", counter)
+        print(f"fleet: router on {ep}; {n} vehicles flying {args.mission} "
+              f"({'lockstep' if args.lockstep else 'real time'}); run folders in {root}", flush=True)
+        for i in range(n):
+            argv = [sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--instance", str(i),
+                    "--mission", args.mission, "--zenoh-mode", "client", "--zenoh-connect", ep, "--no-recording",
+                    "--no-plots", "--run-dir", str(root / f"vehicle-{1 + i}")]
+            if not args.lockstep:
+                argv.append("--realtime")
+            procs.append(subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=(root / f"vehicle-{1 + i}.log")
+                                          .open("w"), start_new_session=True))
+
+        def forward(signum: int, _frame: Any) -> None:
+            for p in procs:
+                if p.poll() is None:
+                    p.send_signal(signal.SIGINT)
+
+        old = signal.signal(signal.SIGINT, forward)
+        try:
+            codes = [p.wait() for p in procs]
+        finally:
+            signal.signal(signal.SIGINT, old)
+        time.sleep(0.5)  # the last samples through the router
+    ok = True
+    per_vehicle: dict[str, Any] = {}
+    for i, code in enumerate(codes):
+        vid = str(1 + i)
+        rep_file = root / f"vehicle-{vid}" / "report.json"
+        rep = json.loads(rep_file.read_text()) if rep_file.exists() else {}
+        loop = rep.get("loop", {})
+        published = rep.get("zenoh", {}).get("published", {})
+        sim_s = float(rep.get("sim_time_s") or float("nan"))  # stream rates are in vehicle time
+        streams = {}
+        for stream in ("swing", "state", "setpoint", "status", "obstacles"):
+            got, nbytes, lost = counter.of(vid, stream)
+            streams[stream] = {"published": published.get(stream), "received": got, "lost": lost, "bytes": nbytes,
+                               "bytes_per_sample": nbytes / got if got else None}
+        total_bytes = sum(v["bytes"] for v in streams.values())
+        per_vehicle[vid] = {"exit": code, "outcome": rep.get("outcome"), "tick_ms_p99": loop.get("tick_ms_p99"),
+                            "late_ticks": loop.get("late_ticks"), "sim_time_s": sim_s, "streams": streams,
+                            "bytes_per_sim_s": total_bytes / sim_s if sim_s > 0 else None}
+        ok = ok and code == 0
+        sw = streams["swing"]
+        print(f"  vehicle {vid}: {rep.get('outcome', '?')} (exit {code}), tick p99 "
+              f"{loop.get('tick_ms_p99', float('nan')):.3f} ms, late ticks {loop.get('late_ticks')}, swing samples "
+              f"{sw['received']} of {sw['published']} published, {sw['lost']} lost in sequence; "
+              f"{total_bytes / 1e3:.0f} kB over Zenoh ({total_bytes / sim_s / 1e3:.1f} kB/s)", flush=True)
+    summary = {"router": ep, "n": n, "mission": args.mission, "lockstep": bool(args.lockstep), "codes": codes,
+               "swing_received": {v: d["streams"]["swing"]["received"] for v, d in per_vehicle.items()},
+               "swing_lost": {v: d["streams"]["swing"]["lost"] for v, d in per_vehicle.items()},
+               "vehicles": per_vehicle}
+    (root / "fleet.json").write_text(json.dumps(summary, indent=1) + "\n")
+    return 0 if ok else 1

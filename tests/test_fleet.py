@@ -1,0 +1,36 @@
+"""``slungpilot fleet N``: N bundled vehicles and N companions through one Zenoh router, real processes on loopback.
+
+Lockstep here (deterministic, quick); the real-time figures (4 pairs, loss and tick p99) are measured by hand and
+quoted in the README, since timing is never asserted in tests."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+pytestmark = pytest.mark.slow
+
+
+def test_two_pairs_fly_through_one_router_and_every_swing_sample_arrives(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "companion.cli", "fleet", "2", "--lockstep", "--run-dir",
+                          str(tmp_path)], capture_output=True, text=True, timeout=240)
+    assert out.returncode == 0, out.stdout + out.stderr
+    summary = json.loads((tmp_path / "fleet.json").read_text())
+    assert summary["n"] == 2 and summary["codes"] == [0, 0]
+    for vid in ("1", "2"):
+        report = json.loads((tmp_path / f"vehicle-{vid}" / "report.json").read_text())
+        assert report["outcome"] == "completed"
+        published = report["zenoh"]["published"]["swing"]
+        # every sample the companion published reached the subscriber on the other side of the router
+        assert published > 100 and summary["swing_received"][vid] == published
+        assert summary["swing_lost"].get(vid, 0) == 0
+        assert f"vehicle {vid}: completed (exit 0)" in out.stdout
+
+
+def test_fleet_size_is_checked():
+    out = subprocess.run([sys.executable, "-m", "companion.cli", "fleet", "0"], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 2 and "1..16" in out.stderr
