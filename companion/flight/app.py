@@ -70,6 +70,7 @@ ATT_TYPE_MASK = (
 TICK_ONLY_MASK = ATT_TYPE_MASK | mavlink2.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE | \
     mavlink2.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE
 _LEVEL_Q = np.array([1.0, 0.0, 0.0, 0.0])
+SWING_WAIT_S = 5.0  # with a swing estimator: the longest the climb waits at the start altitude for its trust (s)
 RELEVANT_RADIUS_M = 20.0  # obstacles farther than this from the vehicle are not given to the planner
 MAX_OBSTACLES_SEEN = 4096  # the report's record of obstacles met is bounded too
 
@@ -178,6 +179,8 @@ class FlightApp:
         self.link.on_datagram_done = self._on_datagram_done
         self.profile = opts.profile or profile_by_name("px4", opts.hover_thrust_norm)
         self.core = FlightCore(mission, gains=opts.gains, profile=self.profile)
+        if self.swing_feed.wants_estimator:
+            self.core.swing_wait_s = SWING_WAIT_S
         self.period_s = 1.0 / opts.rate_hz
         base = opts.sequence or SequenceConfig()
         if opts.lockstep:

@@ -64,6 +64,7 @@ PHASES = ("climb", "cruise", "hold", "no_route", "done", "hold_here", "descend")
 DESCENT_MPS = 0.5  # the companion's own landing descent (when the autopilot's land mode is not confirmed)
 ARRIVE_HORIZ_M = 0.1
 ARRIVE_VERT_M = 0.25
+SWING_READY_FADE = 0.9  # the swing estimate carries this much feed-forward: trusted enough to start the cruise
 TIMED_PHASES = ("cruise", "hold", "no_route", "done")  # where a time-parameterised planner gives the reference
 
 
@@ -116,6 +117,11 @@ class FlightCore:
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
         self.ref: ReferenceGenerator | None = None
         self.phase = "climb"
+        #: with a swing estimator as the swing input, the climb holds at the start altitude up to this long (s)
+        #: until the estimate is trusted (fade >= SWING_READY_FADE): cruising off on a still-fading feed-forward
+        #: swung the payload to 0.35 rad in the first second (bundled vehicle, sensorless). 0 = never wait.
+        self.swing_wait_s = 0.0
+        self.t_swing_wait_s: float | None = None  # when the climb started waiting for the estimate
         self.timed_out = False
         self.t0_s: float | None = None
         self.t_prev_s: float | None = None
@@ -175,6 +181,21 @@ class FlightCore:
         v = min(p.vz_max_mps, math.sqrt(2.0 * 0.5 * p.az_max_mps2 * abs(dz)), p.ka * abs(dz))
         return math.copysign(v, dz)
 
+    def _swing_ready(self, est: Estimate) -> bool:
+        """Whether the swing input is ready for the cruise (see :attr:`swing_wait_s`); starts the wait clock."""
+        if self.swing_wait_s <= 0.0 or (est.swing is not None and est.swing_source != "estimate"):
+            return True
+        if est.swing_source == "estimate" and est.swing_fade >= SWING_READY_FADE:
+            return True
+        if self.t_swing_wait_s is None:
+            self.t_swing_wait_s = est.t_s
+            log.info("at the start altitude: waiting up to %.1f s for the swing estimate to settle", self.swing_wait_s)
+        if est.t_s - self.t_swing_wait_s >= self.swing_wait_s:
+            log.warning("the swing estimate did not settle within %.1f s: cruising on the full-cable envelope and "
+                        "the faded feed-forward", self.swing_wait_s)
+            return True
+        return False
+
     def _advance_phase(self, est: Estimate) -> None:
         m = self.mission
         t = est.t_s
@@ -187,7 +208,7 @@ class FlightCore:
             assert self.ref is not None
             if abs(float(est.pos_ned_m[2]) - m.start_ned_m[2]) < ARRIVE_VERT_M and abs(
                 self.ref.p[2] - m.start_ned_m[2]
-            ) < 0.02:
+            ) < 0.02 and self._swing_ready(est):
                 self.phase = "cruise"
         elif self.phase == "cruise":
             dh = math.hypot(est.pos_ned_m[0] - m.goal_ned_m[0], est.pos_ned_m[1] - m.goal_ned_m[1])
