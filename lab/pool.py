@@ -120,12 +120,22 @@ def descendants(root: int | None = None) -> set[int]:
     return out
 
 
+def _resource_tracker_pid() -> int | None:
+    """multiprocessing's resource tracker (a child of ours): spared, it exits by itself when we do, and killed
+    it would be restarted and print a traceback for every semaphore it no longer knows."""
+    from multiprocessing import resource_tracker
+
+    return getattr(resource_tracker._resource_tracker, "_pid", None)
+
+
 def kill_descendants(extra: list[int] | None = None) -> int:
-    """Freeze (SIGSTOP) every process below this one until no new one appears, then SIGKILL them all; returns
-    how many were killed. ``extra``: pids to include even if /proc cannot be read (the pool's workers)."""
+    """Freeze (SIGSTOP) every process below this one until no new one appears, then SIGKILL them all (but
+    multiprocessing's resource tracker); returns how many were killed. ``extra``: pids to include even if /proc
+    cannot be read (the pool's workers)."""
+    spare = {_resource_tracker_pid()}
     frozen: set[int] = set()
     for _ in range(20):
-        new = (descendants() | set(extra or ())) - frozen
+        new = (descendants() | set(extra or ())) - frozen - spare
         if not new:
             break
         for pid in new:
@@ -214,24 +224,36 @@ def _run_pool(jobs: list[Job], workers: int, log_level: int, fn: Callable[[Job],
     pool.shutdown(wait=True)
 
 
+def _dask_job(fn: Callable[[Job], dict[str, Any]], job: Job, level: int) -> dict[str, Any]:
+    """One job on a Dask worker, with the flight's own loggers as quiet as in a pool worker (:func:`_worker_init`)."""
+    for name in ("companion", "lab", "sim_bridge"):
+        logging.getLogger(name).setLevel(level)
+    return fn(job)
+
+
 def _run_dask(jobs: list[Job], address: str, workers: int, fn: Callable[[Job], dict[str, Any]],
               take: Callable[[dict], None]) -> None:
     from dask.distributed import Client, LocalCluster, as_completed
 
+    # Dask sets its loggers to INFO on import; follow this command's -v instead
+    logging.getLogger("distributed").setLevel(logging.getLogger().getEffectiveLevel())
     local = None
     if address == "local":
         local = LocalCluster(n_workers=max(1, workers), threads_per_worker=1, processes=True, host="127.0.0.1",
-                             dashboard_address=None)
+                             dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(local)
     else:
         client = Client(address, timeout=30)
     futs: list[Any] = []
     try:
-        futs = [client.submit(fn, j, key=f"slungpilot-{j.key}-{id(jobs):x}", pure=False) for j in jobs]
+        level = logging.getLogger().getEffectiveLevel()
+        futs = [client.submit(_dask_job, fn, j, max(level, logging.ERROR), key=f"slungpilot-{j.key}-{id(jobs):x}",
+                              pure=False) for j in jobs]
         for f in as_completed(futs):
             take(f.result())
     except BaseException:
         with _no_sigint():
+            logging.getLogger("distributed").setLevel(logging.ERROR)  # the workers we kill are no news
             with contextlib.suppress(Exception):
                 client.cancel(futs, force=True)
             if local is not None:  # its workers (and the vehicles they started) are ours: stop them now

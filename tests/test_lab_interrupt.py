@@ -148,6 +148,7 @@ def test_evaluate_ctrl_c_to_the_process_group_stops_with_a_partial_summary(tmp_p
     assert f"interrupted after {s['missions']} of 6 missions" in md and "PARTIAL" in md
     assert md in cmd.out.decode()  # printed too
     assert f"interrupted after {s['missions']} of 6 missions" in cmd.err.decode()
+    assert "Traceback" not in cmd.err.decode()
 
 
 @pytest.mark.slow
@@ -171,3 +172,26 @@ def test_experiments_ctrl_c_to_the_main_process_stops_with_a_partial_report(tmp_
     assert f"interrupted after {res['flights']} of 7 flights" in md
     for name in done:
         assert f"| {name} | " in md
+
+
+@pytest.mark.slow
+def test_evaluate_ctrl_c_with_a_local_dask_cluster(tmp_path):
+    pytest.importorskip("distributed")
+    out = tmp_path / "evc"
+    cmd = _Cmd(["evaluate", "--n", "6", "--planners", "safe", "--mode", "mavlink", "--workers", "2", "--length", "12",
+                "--cluster", "local", "--out", str(out)])
+    try:
+        cmd.wait_for("1/6", 150)
+        time.sleep(0.5)
+        running = [c for _, c in _tagged(cmd.tag) if "sim_bridge" in c]
+        dt = cmd.interrupt(group=True)
+        left = cmd.leftovers()
+    finally:
+        cmd.cleanup()
+    print(f"evaluate --cluster local stopped {dt:.2f} s after SIGINT; vehicles running: {len(running)}")
+    assert cmd.proc.returncode == 130, cmd.err.decode()[-3000:]
+    assert dt < STOP_LIMIT_S
+    assert running and left == [], left
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interrupted"] and s["cluster"] == "local" and 1 <= s["missions"] < 6
+    assert "Traceback" not in cmd.err.decode()
