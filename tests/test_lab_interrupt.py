@@ -195,3 +195,28 @@ def test_evaluate_ctrl_c_with_a_local_dask_cluster(tmp_path):
     s = json.loads((out / "summary.json").read_text())
     assert s["interrupted"] and s["cluster"] == "local" and 1 <= s["missions"] < 6
     assert "Traceback" not in cmd.err.decode()
+
+
+@pytest.mark.slow
+def test_evaluate_ctrl_c_without_workers_drops_the_flight_it_cut_short(tmp_path):
+    """--workers 1 flies in the command itself: a MAVLink flight takes the SIGINT (holds, lands, returns
+    'aborted'); that flight is not counted, the finished ones are."""
+    out = tmp_path / "ev1"
+    cmd = _Cmd(["evaluate", "--n", "6", "--planners", "safe", "--mode", "mavlink", "--workers", "1", "--length", "12",
+                "--out", str(out)])
+    try:
+        cmd.wait_for("1/6", 120)
+        time.sleep(0.5)
+        running = [c for _, c in _tagged(cmd.tag) if "sim_bridge" in c]
+        dt = cmd.interrupt(group=True)
+        left = cmd.leftovers()
+    finally:
+        cmd.cleanup()
+    print(f"evaluate --workers 1 stopped {dt:.2f} s after SIGINT")
+    assert cmd.proc.returncode == 130, cmd.err.decode()[-3000:]
+    assert dt < STOP_LIMIT_S
+    assert running and left == [], left
+    s = json.loads((out / "summary.json").read_text())
+    assert s["interrupted"] and 1 <= s["missions"] < 6
+    lines = [json.loads(x) for x in (out / "results.jsonl").read_text().splitlines()]
+    assert all(r["outcome"] != "aborted" for r in lines)
