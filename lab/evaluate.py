@@ -48,7 +48,7 @@ import numpy as np
 from lab.compare import plot_comparison
 from lab.evaljob import SCENARIOS, scenario_spec
 from lab.forests import ForestSpec, generate_forest
-from lab.pool import Interrupted, run_jobs
+from lab.pool import Interrupted, check_cluster, run_jobs
 from lab.runner import MODES, Job
 
 log = logging.getLogger(__name__)
@@ -358,11 +358,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         raise ConfigError(f"evaluate: {exc}") from None
     if args.n < 1 or args.workers < 1:
         raise ConfigError("--n and --workers: must be >= 1")
-    if args.cluster:
-        import importlib.util
-
-        if importlib.util.find_spec("distributed") is None:
-            raise ConfigError("--cluster: needs Dask's 'distributed' (pip install 'slungpilot[cluster]')")
+    check_cluster(args.cluster)
     out = args.out or Path("runs") / f"evaluate-{datetime.now(UTC).strftime('%Y%m%d-%H%M%S')}"
     try:
         summary = evaluate(planners, densities, args.n, seed0=args.seed0, spec=spec, mode=args.mode,

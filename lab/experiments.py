@@ -28,7 +28,7 @@ from typing import Any
 from companion.config import shipped_config
 from companion.core.mission import Mission, load_mission
 from lab import figures
-from lab.pool import Interrupted, run_jobs
+from lab.pool import Interrupted, check_cluster, run_jobs
 from lab.runner import Job
 
 log = logging.getLogger(__name__)
@@ -309,6 +309,7 @@ def add_experiments_arguments(p: argparse.ArgumentParser) -> None:
 def run_experiments_cli(args: argparse.Namespace) -> int:
     """CLI entry for ``slungpilot experiments``: prints the report; exit 0 when every flight produced numbers, 130
     after Ctrl-C (the partial report written and printed)."""
+    check_cluster(args.cluster)
     out = args.out or Path("runs") / f"experiments-{datetime.now(UTC).strftime('%Y%m%d-%H%M%S')}"
     try:
         res = run_experiments(out, quick=args.quick, workers=max(1, args.workers), progress=not args.no_progress,

@@ -224,6 +224,16 @@ def _run_pool(jobs: list[Job], workers: int, log_level: int, fn: Callable[[Job],
     pool.shutdown(wait=True)
 
 
+def check_cluster(cluster: str | None) -> None:
+    """Refuse ``--cluster`` up front (ConfigError, exit 2) when Dask's ``distributed`` is not installed."""
+    import importlib.util
+
+    from companion.errors import ConfigError
+
+    if cluster and importlib.util.find_spec("distributed") is None:
+        raise ConfigError("--cluster: needs Dask's 'distributed' (pip install 'slungpilot[cluster]')")
+
+
 def _dask_job(fn: Callable[[Job], dict[str, Any]], job: Job, level: int) -> dict[str, Any]:
     """One job on a Dask worker, with the flight's own loggers as quiet as in a pool worker (:func:`_worker_init`)."""
     for name in ("companion", "lab", "sim_bridge"):
