@@ -28,6 +28,7 @@ import os
 import signal
 import sys
 import time
+import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -257,7 +258,8 @@ def _run_dask(jobs: list[Job], address: str, workers: int, fn: Callable[[Job], d
     futs: list[Any] = []
     try:
         level = logging.getLogger().getEffectiveLevel()
-        futs = [client.submit(_dask_job, fn, j, max(level, logging.ERROR), key=f"slungpilot-{j.key}-{id(jobs):x}",
+        batch = uuid.uuid4().hex[:12]  # task keys unique on a scheduler other batches may share
+        futs = [client.submit(_dask_job, fn, j, max(level, logging.ERROR), key=f"slungpilot-{j.key}-{batch}",
                               pure=False) for j in jobs]
         for f in as_completed(futs):
             take(f.result())
