@@ -33,11 +33,9 @@ bound, swing, clearance and path length per planner and scenario), and
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
 import json
 import logging
 import math
-import multiprocessing
 import sys
 import time
 from dataclasses import asdict
@@ -48,8 +46,9 @@ from typing import Any
 import numpy as np
 
 from lab.compare import plot_comparison
-from lab.evaljob import SCENARIOS, run_eval_job, scenario_spec
+from lab.evaljob import SCENARIOS, scenario_spec
 from lab.forests import ForestSpec, generate_forest
+from lab.pool import Interrupted, check_cluster, run_jobs
 from lab.runner import MODES, Job
 
 log = logging.getLogger(__name__)
@@ -57,39 +56,6 @@ log = logging.getLogger(__name__)
 PLANNERS = ("shaped", "safe", "traditional", "improved")
 KNOWN_PLANNERS = ("shaped", "safe", "traditional", "improved", "none")
 CLASSES = ("success", "collision", "no_route", "stuck", "lost_control", "error")
-
-
-def _worker_init(level: int) -> None:
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
-    logging.getLogger().setLevel(level)
-
-
-class Progress:
-    """A one-line progress bar on a stream (stderr), redrawn in place; nothing when ``enabled`` is False."""
-
-    def __init__(self, total: int, stream: Any = None, enabled: bool = True, width: int = 30) -> None:
-        self.total = max(1, total)
-        self.done = 0
-        self.counts: dict[str, int] = {}
-        self.stream = stream or sys.stderr
-        self.enabled = enabled
-        self.width = width
-        self.t0 = time.monotonic()
-
-    def update(self, cls: str) -> None:
-        self.done += 1
-        self.counts[cls] = self.counts.get(cls, 0) + 1
-        if not self.enabled:
-            return
-        frac = self.done / self.total
-        bar = "#" * round(frac * self.width)
-        el = time.monotonic() - self.t0
-        eta = el / frac - el if frac > 0 else 0.0
-        counts = " ".join(f"{k}={v}" for k, v in sorted(self.counts.items()))
-        self.stream.write(f"\r[{bar:<{self.width}}] {self.done}/{self.total} {counts} eta {eta:5.0f} s ")
-        if self.done == self.total:
-            self.stream.write("\n")
-        self.stream.flush()
 
 
 def _quantiles(values: list[float]) -> dict[str, float | None]:
@@ -151,34 +117,15 @@ def build_jobs(planners: list[str], densities: list[float], n: int, seed0: int, 
     return jobs
 
 
-def run_jobs(jobs: list[Job], workers: int, progress: bool = True, log_level: int = logging.ERROR
-             ) -> list[dict[str, Any]]:
-    """Fly ``jobs`` in ``workers`` spawned processes (in this process when ``workers`` <= 1)."""
-    bar = Progress(len(jobs), enabled=progress)
-    results: list[dict[str, Any]] = []
-    if workers <= 1:
-        for j in jobs:
-            r = run_eval_job(j)
-            bar.update(r["class"])
-            results.append(r)
-        return results
-    ctx = multiprocessing.get_context("spawn")
-    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
-                                initargs=(log_level,)) as pool:
-        futs = [pool.submit(run_eval_job, j) for j in jobs]
-        for f in cf.as_completed(futs):
-            r = f.result()
-            bar.update(r["class"])
-            results.append(r)
-    order = {j.key: i for i, j in enumerate(jobs)}
-    results.sort(key=lambda r: order[r["key"]])
-    return results
-
-
 def evaluate(planners: list[str], densities: list[float], n: int, *, seed0: int = 0, spec: ForestSpec | None = None,
              mode: str = "mavlink", workers: int = 2, out: Path, progress: bool = True, keep_runs: bool = False,
-             scenarios: tuple[str, ...] = ("static",), movers: int = 2) -> dict[str, Any]:
-    """Fly everything, write the summary files into ``out`` and return the summary dict."""
+             scenarios: tuple[str, ...] = ("static",), movers: int = 2, cluster: str | None = None) -> dict[str, Any]:
+    """Fly everything, write the summary files into ``out`` and return the summary dict.
+
+    ``cluster``: a Dask scheduler address (``tcp://host:8786``) or ``"local"`` to fly the missions on a Dask
+    cluster instead of the local worker pool (:mod:`lab.pool`). On Ctrl-C the missions that had finished are
+    summarised into the same files, marked partial (``summary["interrupted"]``), and :class:`lab.pool.Interrupted`
+    is raised again with ``summary`` attached."""
     if mode not in MODES:
         raise ValueError(f"mode: must be one of {', '.join(MODES)}, got {mode!r}")
     for sc in scenarios:
@@ -188,21 +135,40 @@ def evaluate(planners: list[str], densities: list[float], n: int, *, seed0: int 
     out.mkdir(parents=True, exist_ok=True)
     jobs = build_jobs(planners, densities, n, seed0, spec, mode, out, keep_runs, scenarios, movers)
     wall0 = time.monotonic()
-    results = run_jobs(jobs, workers, progress)
-    wall = time.monotonic() - wall0
+    try:
+        results = run_jobs(jobs, workers, progress, cluster=cluster)
+    except Interrupted as exc:
+        exc.summary = _write_summary(exc.results, len(jobs), time.monotonic() - wall0, out, mode=mode, n=n,
+                                     seed0=seed0, planners=planners, densities=densities, workers=workers, spec=spec,
+                                     scenarios=scenarios, movers=movers, cluster=cluster)
+        raise
+    return _write_summary(results, len(jobs), time.monotonic() - wall0, out, mode=mode, n=n, seed0=seed0,
+                          planners=planners, densities=densities, workers=workers, spec=spec, scenarios=scenarios,
+                          movers=movers, cluster=cluster)
+
+
+def _write_summary(results: list[dict[str, Any]], planned: int, wall: float, out: Path, *, mode: str, n: int,
+                   seed0: int, planners: list[str], densities: list[float], workers: int, spec: ForestSpec,
+                   scenarios: tuple[str, ...], movers: int, cluster: str | None) -> dict[str, Any]:
+    """results.jsonl, summary.json, summary.md and the figures of ``results`` (``planned`` missions were asked
+    for; fewer means the run was interrupted and the summary says so)."""
     for r in results:
         p, d, s, sc = r["key"].split("|")
         r["planner"], r["density"], r["seed"], r["scenario"] = p, float(d), int(s), sc
     with (out / "results.jsonl").open("w") as fh:
         for r in results:
             fh.write(json.dumps(r) + "\n")
+    interrupted = len(results) < planned
     summary: dict[str, Any] = {
         "mode": mode,
         "mode_text": ("full lockstep MAVLink flights against the bundled vehicle (slungpilot fly --sitl)"
                       if mode == "mavlink" else "in-process flights (same FlightCore and physics, no MAVLink)"),
         "n_per_planner_and_density": n, "seed0": seed0, "planners": planners, "densities": densities,
-        "workers": workers, "spec": asdict(spec), "scenarios": list(scenarios), "movers": movers,
-        "missions": len(results), "wall_s": wall,
+        "workers": workers, "cluster": cluster, "spec": asdict(spec), "scenarios": list(scenarios), "movers": movers,
+        "missions": len(results), "missions_planned": planned, "interrupted": interrupted,
+        "interrupted_text": (f"interrupted after {len(results)} of {planned} missions (Ctrl-C): partial results"
+                             if interrupted else None),
+        "wall_s": wall,
         "missions_per_min": len(results) / wall * 60.0 if wall > 0 else None,
         "per_planner": {p: summarise([r for r in results if r["planner"] == p]) for p in planners},
         "per_scenario": {sc: {p: summarise([r for r in results if r["planner"] == p and r["scenario"] == sc])
@@ -214,13 +180,14 @@ def evaluate(planners: list[str], densities: list[float], n: int, *, seed0: int 
         },
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    png = None
-    if len(densities) > 0:
+    png = cmp_png = None
+    if results:  # nothing to draw before the first mission finished
         from lab.figures import plot_success_vs_density
 
         png = plot_success_vs_density(summary, out / "success_vs_density.png")
-    cmp_png = plot_comparison(results, planners, list(scenarios), out / "comparison.png",
-                              f"{n} seeds from {seed0}, {mode} mode; bound: bang-bang at g·tan(0.3)")
+        cmp_png = plot_comparison(results, planners, list(scenarios), out / "comparison.png",
+                                  f"{n} seeds from {seed0}, {mode} mode; bound: bang-bang at g·tan(0.3)"
+                                  + (f"; {summary['interrupted_text']}" if interrupted else ""))
     (out / "summary.md").write_text(summary_markdown(summary, png, cmp_png))
     return summary
 
@@ -238,6 +205,13 @@ SCENARIO_TEXT = {
 }
 
 
+def _where(s: dict[str, Any]) -> str:
+    c = s.get("cluster")
+    if not c:
+        return f"{s['workers']} workers"
+    return f"a local Dask cluster of {s['workers']} workers" if c == "local" else f"the Dask cluster at {c}"
+
+
 def summary_markdown(s: dict[str, Any], png: Path | None = None, cmp_png: Path | None = None) -> str:
     """The human-readable summary (Markdown)."""
     sp = s["spec"]
@@ -245,10 +219,12 @@ def summary_markdown(s: dict[str, Any], png: Path | None = None, cmp_png: Path |
            f"wind scale {sp['wind_scale']:g}, payload {sp['payload_kg']:g} kg, cable {sp['cable_m']:g} m")
     scenarios = s.get("scenarios", ["static"])
     lines = [
-        "# slungpilot evaluate: random forests",
+        "# slungpilot evaluate: random forests" + (" (PARTIAL)" if s.get("interrupted") else ""),
         "",
+        *([f"**Partial: {s['interrupted_text']}.** Only the missions that finished are counted below.", ""]
+          if s.get("interrupted") else []),
         f"Mode: **{s['mode']}** — {s['mode_text']}. {s['missions']} missions in {s['wall_s']:.0f} s wall with "
-        f"{s['workers']} workers: **{_f(s['missions_per_min'], 1)} missions/min**.",
+        f"{_where(s)}: **{_f(s['missions_per_min'], 1)} missions/min**.",
         "",
         f"Forests: corridor {sp['length_m']:g} m × {sp['width_m']:g} m at {sp['altitude_m']:g} m altitude, "
         f"trunk radii {sp['r_min_m']:g}–{sp['r_max_m']:g} m, densities {', '.join(f'{d:g}' for d in s['densities'])}"
@@ -334,7 +310,13 @@ def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--densities", default=None, help="comma-separated densities (overrides --density), e.g. 1,2,3,4")
     p.add_argument("--mode", choices=MODES, default="mavlink",
                    help="mavlink: full lockstep flight against the bundled vehicle (default); inprocess: faster")
-    p.add_argument("--workers", type=int, default=2, help="parallel worker processes (default 2)")
+    p.add_argument("--workers", type=int, default=2,
+                   help="parallel worker processes (default 2; with --cluster local: the local cluster's workers)")
+    p.add_argument("--cluster", default=None, metavar="ADDRESS",
+                   help="fly the missions on a Dask distributed cluster: its scheduler's address (tcp://HOST:8786; "
+                        "every worker needs slungpilot installed) or 'local' for a local cluster of --workers "
+                        "processes (needs the 'cluster' extra: pip install 'slungpilot[cluster]'); see "
+                        "docs/experiments.md")
     p.add_argument("--seed0", type=int, default=0, help="first seed (default 0)")
     p.add_argument("--out", type=Path, default=None, help="output folder (default runs/evaluate-<time>)")
     p.add_argument("--traps", nargs="?", const="mixed", default="none", choices=["none", "pair", "cluster", "mixed"],
@@ -351,7 +333,8 @@ def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
-    """CLI entry for ``slungpilot evaluate``; prints the Markdown summary; exit 0."""
+    """CLI entry for ``slungpilot evaluate``; prints the Markdown summary; exit 0 (130 after Ctrl-C, with the
+    partial summary written and printed)."""
     from companion.errors import ConfigError
 
     planners = [p.strip() for p in args.planners.split(",") if p.strip()]
@@ -375,10 +358,17 @@ def run_evaluate(args: argparse.Namespace) -> int:
         raise ConfigError(f"evaluate: {exc}") from None
     if args.n < 1 or args.workers < 1:
         raise ConfigError("--n and --workers: must be >= 1")
+    check_cluster(args.cluster)
     out = args.out or Path("runs") / f"evaluate-{datetime.now(UTC).strftime('%Y%m%d-%H%M%S')}"
-    summary = evaluate(planners, densities, args.n, seed0=args.seed0, spec=spec, mode=args.mode,
-                       workers=args.workers, out=out, progress=not args.no_progress, keep_runs=args.keep_runs,
-                       scenarios=scenarios, movers=args.movers)
+    try:
+        summary = evaluate(planners, densities, args.n, seed0=args.seed0, spec=spec, mode=args.mode,
+                           workers=args.workers, out=out, progress=not args.no_progress, keep_runs=args.keep_runs,
+                           scenarios=scenarios, movers=args.movers, cluster=args.cluster)
+    except Interrupted as exc:
+        print((out / "summary.md").read_text())
+        print(f"slungpilot evaluate: {exc}; partial summary in {out}/summary.md, summary.json, results.jsonl",
+              file=sys.stderr)
+        return 130
     print((out / "summary.md").read_text())
     print(f"written: {out}/summary.md, summary.json, results.jsonl, comparison.png")
     return 0 if summary["missions"] else 1

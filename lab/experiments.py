@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -27,7 +28,7 @@ from typing import Any
 from companion.config import shipped_config
 from companion.core.mission import Mission, load_mission
 from lab import figures
-from lab.evaluate import run_jobs
+from lab.pool import Interrupted, check_cluster, run_jobs
 from lab.runner import Job
 
 log = logging.getLogger(__name__)
@@ -192,8 +193,10 @@ def report_markdown(res: dict[str, Any]) -> str:
     """The experiments report (Markdown) from :func:`run_experiments`' result dict."""
     g1, g2 = res["group1"], res["group2"]
     lines = [
-        "# slungpilot experiments: the paper's simulations, rerun",
+        "# slungpilot experiments: the paper's simulations, rerun" + (" (PARTIAL)" if res.get("interrupted") else ""),
         "",
+        *([f"**Partial: {res['interrupted_text']}.** Only the flights that finished appear below.", ""]
+          if res.get("interrupted") else []),
         f"Every row is one `slungpilot fly --sitl` flight: the companion streams SET_ATTITUDE_TARGET over MAVLink/UDP "
         f"to the bundled vehicle (separate process, lockstep), wind of eq. 49 on. Mode: "
         f"{f'quick (hold {QUICK_HOLD_S:g} s, no landing)' if res['quick'] else 'full (mission files as committed)'}; "
@@ -256,16 +259,32 @@ def _figures(out: Path, res: dict[str, Any], g1_mission: Mission, g2_mission: Mi
     return paths
 
 
-def run_experiments(out: Path, quick: bool = False, workers: int = 2, progress: bool = True) -> dict[str, Any]:
-    """Fly both groups, write report.md, experiments.json and the figures into ``out``; return the results."""
+def run_experiments(out: Path, quick: bool = False, workers: int = 2, progress: bool = True,
+                    cluster: str | None = None) -> dict[str, Any]:
+    """Fly both groups, write report.md, experiments.json and the figures into ``out``; return the results.
+
+    ``cluster``: a Dask scheduler address or ``"local"`` (:mod:`lab.pool`). On Ctrl-C the flights that had
+    finished are reported into the same files, marked partial, and :class:`lab.pool.Interrupted` is raised
+    again with ``res`` attached."""
     import time
 
     out.mkdir(parents=True, exist_ok=True)
     jobs = _jobs(out, quick)
     t0 = time.monotonic()
-    results = run_jobs(jobs, workers, progress)
-    wall = time.monotonic() - t0
-    res: dict[str, Any] = {"quick": quick, "wall_s": wall, "group1": {}, "group2": {}}
+    try:
+        results = run_jobs(jobs, workers, progress, cluster=cluster)
+    except Interrupted as exc:
+        exc.res = _write(out, exc.results, len(jobs), time.monotonic() - t0, quick)
+        raise
+    return _write(out, results, len(jobs), time.monotonic() - t0, quick)
+
+
+def _write(out: Path, results: list[dict[str, Any]], planned: int, wall: float, quick: bool) -> dict[str, Any]:
+    """experiments.json, report.md and the figures of ``results`` (fewer than ``planned``: interrupted, partial)."""
+    res: dict[str, Any] = {"quick": quick, "wall_s": wall, "flights": len(results), "flights_planned": planned,
+                           "interrupted": len(results) < planned, "group1": {}, "group2": {}}
+    if res["interrupted"]:
+        res["interrupted_text"] = f"interrupted after {len(results)} of {planned} flights (Ctrl-C): partial results"
     for r in results:
         group, key = r["key"].split("|")
         res[group][key] = r
@@ -283,12 +302,23 @@ def add_experiments_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quick", action="store_true", help="6 s hold, no landing, no per-run figures (CI)")
     p.add_argument("--workers", type=int, default=2, help="flights at a time (default 2)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--cluster", default=None, metavar="ADDRESS",
+                   help="fly on a Dask distributed cluster: tcp://HOST:8786, or 'local' (see evaluate --help)")
 
 
 def run_experiments_cli(args: argparse.Namespace) -> int:
-    """CLI entry for ``slungpilot experiments``: prints the report; exit 0 when every flight produced numbers."""
+    """CLI entry for ``slungpilot experiments``: prints the report; exit 0 when every flight produced numbers, 130
+    after Ctrl-C (the partial report written and printed)."""
+    check_cluster(args.cluster)
     out = args.out or Path("runs") / f"experiments-{datetime.now(UTC).strftime('%Y%m%d-%H%M%S')}"
-    res = run_experiments(out, quick=args.quick, workers=max(1, args.workers), progress=not args.no_progress)
+    try:
+        res = run_experiments(out, quick=args.quick, workers=max(1, args.workers), progress=not args.no_progress,
+                              cluster=args.cluster)
+    except Interrupted as exc:
+        print((out / "report.md").read_text())
+        print(f"slungpilot experiments: {exc}; partial report in {out}/report.md, experiments.json",
+              file=sys.stderr)
+        return 130
     print((out / "report.md").read_text())
     print(f"written: {out}/report.md, experiments.json, figures")
     errors = [r for g in ("group1", "group2") for r in res[g].values() if r["class"] == "error"]
