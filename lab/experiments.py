@@ -4,10 +4,13 @@
   ``smc`` and ``smc_ff`` (planner ``none``).
 * Group 2 (``config/missions/forest.toml``: Table 2 forest at 2 m to (10, 0)): planners ``traditional``,
   ``improved`` (as printed), ``safe`` and ``shaped`` (ours), controller ``smc_ff``.
+* Group 3 (the same forest, its own planner ``safe``): the swing input — the bundled vehicle's cable sensor, the
+  swing estimator fused, on payload fixes, sensorless (IMU), and none — side by side, with a figure of the
+  estimate against the cable sensor's truth (issue 11).
 
 Every run is ``slungpilot fly --sitl`` (lockstep, the bundled vehicle as its own process, eq. 49 wind as the
-mission files say), two at a time in spawned worker processes. ``--quick`` flies the same seven runs with a
-short hold and no landing and skips the per-run figures (for CI).
+mission files say), two at a time in spawned worker processes. ``--quick`` flies the same runs (group 3: only
+the cable sensor and the sensorless estimate) with a short hold and no landing and skips the per-run figures.
 
 Output (``--out``, default ``runs/experiments-<UTC time>``): ``report.md`` (one table per group, ours next to
 the paper's figures, generated sentences where they disagree), ``experiments.json`` (all numbers),
@@ -37,6 +40,12 @@ GROUP1_FILE = shipped_config("missions/group1.toml")
 GROUP2_FILE = shipped_config("missions/forest.toml")
 GROUP1_CONTROLLERS = ("pid", "smc", "smc_ff")
 GROUP2_PLANNERS = ("traditional", "improved", "safe", "shaped")
+GROUP3_INPUTS = ("cable_sensor", "estimate", "estimate_fixes", "estimate_imu", "none")
+GROUP3_QUICK = ("cable_sensor", "estimate_imu")
+#: issue 11's bounds on the true max swing with the feed-forward on each estimate (Table 2 forest)
+GROUP3_TARGETS = {"estimate": 0.26, "estimate_fixes": 0.26, "estimate_imu": 0.27}
+#: issue 11's bounds on the estimation error (RMS, rad)
+GROUP3_RMS_TARGETS = {"estimate": 0.02, "estimate_fixes": 0.02, "estimate_imu": 0.03}
 
 
 @dataclass(frozen=True)
@@ -85,6 +94,8 @@ def _jobs(out: Path, quick: bool) -> list[Job]:
             for c in GROUP1_CONTROLLERS]
     jobs += [Job(f"group2|{p}", g2.with_(planner=p, controller="smc_ff"), out / "runs" / f"group2-{p}",
                  plots=not quick) for p in GROUP2_PLANNERS]
+    jobs += [Job(f"group3|{i}", g2.with_(controller="smc_ff"), out / "runs" / f"group3-{i}", plots=not quick,
+                 swing_input=i) for i in (GROUP3_QUICK if quick else GROUP3_INPUTS)]
     return jobs
 
 
@@ -164,6 +175,34 @@ def findings(group1: dict[str, dict], group2: dict[str, dict]) -> list[str]:
     return out
 
 
+def findings_group3(group3: dict[str, dict]) -> list[str]:
+    """Sentences where a swing input misses issue 11's bounds (true max swing, estimation RMS)."""
+    out = []
+    for key, r in group3.items():
+        who = f"Group 3, swing input `{key}`"
+        if r.get("class") == "error" or not r.get("reached_goal"):
+            out.append(f"{who}: did not complete the mission ({r.get('error') or r.get('outcome')}).")
+            continue
+        lim = GROUP3_TARGETS.get(key)
+        if lim is not None and (r["max_swing_rad"] or 0.0) > lim:
+            out.append(f"{who}: max swing {r['max_swing_rad']:.3f} rad exceeds issue 11's {lim:g} rad.")
+        err = r.get("swing_estimation_error") or {}
+        lim = GROUP3_RMS_TARGETS.get(key)
+        if lim is not None and err.get("rms_rad") is not None and err["rms_rad"] > lim:
+            out.append(f"{who}: estimation error RMS {err['rms_rad']:.4f} rad exceeds issue 11's {lim:g} rad.")
+    return out
+
+
+def _group3_row(key: str, r: dict[str, Any]) -> str:
+    err = r.get("swing_estimation_error") or {}
+    bounds = [f"max swing <= {GROUP3_TARGETS[key]:g}"] if key in GROUP3_TARGETS else []
+    bounds += [f"RMS <= {GROUP3_RMS_TARGETS[key]:g}"] if key in GROUP3_RMS_TARGETS else []
+    return (f"| {key} | {'yes' if r.get('reached_goal') else 'no'} | {_num(r.get('time_to_goal_s'))} | "
+            f"{_num(r.get('time_to_goal_from_start_s'))} | {_num(r.get('max_swing_rad'), 3)} | "
+            f"{_num(err.get('rms_rad'), 4)} | {_num(err.get('max_rad'), 3)} | {r.get('collisions')} | "
+            f"{_num(r.get('min_clearance_m'), 3)} | {', '.join(bounds) or '—'} |")
+
+
 def _row(r: dict[str, Any]) -> str:
     return (f"{'yes' if r['reached_goal'] else 'no'} | {_num(r['time_to_goal_s'])} | {_num(r['max_swing_rad'], 3)} | "
             f"{_num(r['swing_settle_s'])} | {_num(r['swing_settle_after_arrival_s'])} | {_num(r['path_length_m'])} | "
@@ -222,12 +261,27 @@ def report_markdown(res: dict[str, Any]) -> str:
     for p, r in g2.items():
         lines.append(f"| {p} | {_row(r)} | {_claim_text(PAPER_GROUP2[p])} |")
     lines += ["", "![plan views](group2_plan.png)", "", "![swing per planner](group2_swing.png) ![3-D](group2_3d.png)",
-              "", "## Where we disagree with the paper (generated from the numbers above)", ""]
+              ""]
+    g3 = res.get("group3") or {}
+    if g3:
+        lines += ["## Group 3: the Table 2 forest without the cable sensor (issue 11)", "",
+                  "The bundled vehicle's cable-angle sensor is what no real autopilot has. The companion flies the "
+                  "same forest (planner `safe`, `smc_ff`) on each swing input; the sensor's reading stays the truth "
+                  "the report scores against. *from start* includes the climb's wait for the estimate's trust.", "",
+                  "| swing input | goal | time to goal (s) | from start (s) | max swing (rad) | estimation RMS (rad) "
+                  "| estimation max (rad) | collisions | min clearance (m) | issue 11 |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]
+        lines += [_group3_row(k, r) for k, r in g3.items()]
+        lines += ["", "![estimate against truth](group3_estimate.png)", ""]
+    lines += ["## Where we disagree with the paper (generated from the numbers above)", ""]
     fs = res["findings"]
     lines += [f"- {f}" for f in fs] if fs else ["- Nowhere: every row is within the paper's figures."]
     lines += ["", "## Replay any run", ""]
     for r in list(g1.values()) + list(g2.values()):
         lines.append(f"- `slungpilot fly --sitl --mission {r['mission_file']}` (run folder `{r['run_dir']}`)")
+    for k, r in g3.items():
+        lines.append(f"- `slungpilot fly --sitl --swing-input {k} --mission {r['mission_file']}` "
+                     f"(run folder `{r['run_dir']}`)")
     return "\n".join(lines) + "\n"
 
 
@@ -256,6 +310,10 @@ def _figures(out: Path, res: dict[str, Any], g1_mission: Mission, g2_mission: Mi
         paths.append(figures.plot_swing_comparison(a2, out / "group2_swing.png", "Group 2: swing angles"))
         paths.append(figures.plot_3d_comparison(a2, g2_mission.obstacles, out / "group2_3d.png",
                                                 "Group 2: 3-D trajectories"))
+    a3 = {k: a for k, a in arrays(res.get("group3") or {}).items() if k.startswith("estimate")}
+    if a3:
+        paths.append(figures.plot_estimate_vs_truth(a3, out / "group3_estimate.png",
+                                                    "Group 3: swing estimate (dashed) against the cable sensor"))
     return paths
 
 
@@ -282,13 +340,13 @@ def run_experiments(out: Path, quick: bool = False, workers: int = 2, progress: 
 def _write(out: Path, results: list[dict[str, Any]], planned: int, wall: float, quick: bool) -> dict[str, Any]:
     """experiments.json, report.md and the figures of ``results`` (fewer than ``planned``: interrupted, partial)."""
     res: dict[str, Any] = {"quick": quick, "wall_s": wall, "flights": len(results), "flights_planned": planned,
-                           "interrupted": len(results) < planned, "group1": {}, "group2": {}}
+                           "interrupted": len(results) < planned, "group1": {}, "group2": {}, "group3": {}}
     if res["interrupted"]:
         res["interrupted_text"] = f"interrupted after {len(results)} of {planned} flights (Ctrl-C): partial results"
     for r in results:
         group, key = r["key"].split("|")
         res[group][key] = r
-    res["findings"] = findings(res["group1"], res["group2"])
+    res["findings"] = findings(res["group1"], res["group2"]) + findings_group3(res["group3"])
     g1, g2 = load_mission(GROUP1_FILE), load_mission(GROUP2_FILE)
     res["figures"] = [str(p) for p in _figures(out, res, g1, g2)]
     (out / "experiments.json").write_text(json.dumps(res, indent=2) + "\n")

@@ -55,6 +55,24 @@ def plot_swing_comparison(runs: Mapping[str, Arrays], path: Path, title: str = "
     return _save(fig, path)
 
 
+def plot_estimate_vs_truth(runs: Mapping[str, Arrays], path: Path, title: str = "") -> Path:
+    """The swing estimate (dashed) against the vehicle's cable sensor (solid), α and β, one row per run; the
+    estimate is NaN before the estimator started (it starts after the take-off climb)."""
+    fig, axs = plt.subplots(len(runs), 1, figsize=(8, 2.4 * len(runs) + 0.6), sharex=True, squeeze=False)
+    for ax, (label, a) in zip(axs[:, 0], runs.items(), strict=True):
+        t, s, e = a["t_s"], a["swing"], a["swing_estimate"]
+        for k, (name, colour) in enumerate((("α", "C0"), ("β", "C1"))):
+            ax.plot(t, s[:, k], color=colour, lw=1.0, label=f"{name} true")
+            ax.plot(t, e[:, k], color=colour, lw=1.0, ls="--", label=f"{name} estimate")
+        ax.set_ylabel(f"{label}\nswing (rad)")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=7, ncol=2)
+    axs[-1, 0].set_xlabel("time (s)")
+    if title:
+        axs[0, 0].set_title(title)
+    return _save(fig, path)
+
+
 def plot_position_comparison(runs: Mapping[str, Arrays], goal: Sequence[float], path: Path, title: str = "") -> Path:
     """x, y and altitude over time for every run, with the goal as dashed lines (Fig. 6's position panel)."""
     fig, axs = plt.subplots(3, 1, figsize=(8, 6.5), sharex=True)

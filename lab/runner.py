@@ -27,13 +27,14 @@ MODES = ("mavlink", "inprocess")
 REPORT_KEYS = (
     "reached_goal", "time_to_goal_s", "path_length_m", "payload_path_length_m", "max_swing_rad",
     "swing_settle_s", "swing_settle_after_arrival_s", "min_clearance_m", "collisions", "sim_time_s",
-    "wall_time_s", "outcome",
+    "wall_time_s", "outcome", "time_to_goal_from_start_s", "swing_estimation_error",
 )
 
 
-def fly_args(run_dir: Path, plots: bool, gains: Path | None = None) -> argparse.Namespace:
-    """The parsed arguments of ``slungpilot fly --sitl --no-zenoh --no-recording --run-dir RUN_DIR [--no-plots]``
-    (lockstep, no narration).
+def fly_args(run_dir: Path, plots: bool, gains: Path | None = None,
+             swing_input: str | None = None) -> argparse.Namespace:
+    """The parsed arguments of ``slungpilot fly --sitl --no-zenoh --no-recording --run-dir RUN_DIR [--no-plots]
+    [--gains FILE] [--swing-input S]`` (lockstep, no narration).
 
     No Zenoh: batch flights run side by side and would all want the default listen port. No 3-D recording: it costs
     ~1 s of import and its CPU per flight, and a batch has its own figures."""
@@ -46,6 +47,8 @@ def fly_args(run_dir: Path, plots: bool, gains: Path | None = None) -> argparse.
         argv.append("--no-plots")
     if gains is not None:
         argv += ["--gains", str(gains)]
+    if swing_input is not None:
+        argv += ["--swing-input", swing_input]
     args = p.parse_args(argv)
     args.quiet = True  # the global -q: no narration from batch workers
     return args
@@ -72,7 +75,8 @@ def classify(rep: dict[str, Any]) -> str:
 
 @dataclass(frozen=True)
 class Job:
-    """One flight for a worker: the mission, where its run folder goes, which mode, whether to plot."""
+    """One flight for a worker: the mission, where its run folder goes, which mode, whether to plot, and (MAVLink
+    mode only) the companion's ``--swing-input``."""
 
     key: str
     mission: Mission
@@ -81,12 +85,13 @@ class Job:
     plots: bool = False
     keep_run_dir: bool = True
     gains: Path | None = None
+    swing_input: str | None = None
 
 
 def _fly_mavlink(job: Job) -> dict[str, Any]:
     from companion.cli.fly import fly_async
 
-    args = fly_args(job.run_dir, job.plots, job.gains)
+    args = fly_args(job.run_dir, job.plots, job.gains, job.swing_input)
     result = asyncio.run(fly_async(args, job.mission))
     rep = dict(result.report)
     rep["outcome"] = result.outcome

@@ -72,13 +72,18 @@ def test_experiments_quick_over_mavlink(tmp_path):
     res = json.loads((out / "experiments.json").read_text())
     assert set(res["group1"]) == {"pid", "smc", "smc_ff"}
     assert set(res["group2"]) == {"traditional", "improved", "safe", "shaped"}
-    for group in ("group1", "group2"):
+    assert set(res["group3"]) == {"cable_sensor", "estimate_imu"}  # --quick: the sensor and the sensorless estimate
+    est = res["group3"]["estimate_imu"]["swing_estimation_error"]
+    assert est["ticks"] > 1000 and est["rms_rad"] < 0.1  # scored against the cable sensor's truth
+    assert "## Group 3" in md and "| estimate_imu | yes |" in md
+    for group in ("group1", "group2", "group3"):
         for name, r in res[group].items():
             assert r["class"] != "error", (name, r["error"])
             assert isinstance(r["reached_goal"], bool) and r["collisions"] >= 0
             assert f"| {name} | " in md
             assert (tmp_path / "exp" / "runs" / f"{group}-{name}" / "flight.tlog").stat().st_size > 0  # real MAVLink
-    for fig in ("group1_swing", "group1_position", "group1_3d", "group2_plan", "group2_swing", "group2_3d"):
+    for fig in ("group1_swing", "group1_position", "group1_3d", "group2_plan", "group2_swing", "group2_3d",
+                "group3_estimate"):
         p = out / f"{fig}.png"
         assert p.stat().st_size > 5_000, fig
         assert f"({fig}.png)" in md

@@ -30,6 +30,24 @@ def test_two_pairs_fly_through_one_router_and_every_swing_sample_arrives(tmp_pat
         assert f"vehicle {vid}: completed (exit 0)" in out.stdout
 
 
+def test_rates_downsample_at_the_edge(tmp_path):
+    """--zenoh-rates: one pair, the swing stream at 25 Hz instead of every 4 ms tick, and nothing lost."""
+    out = subprocess.run([sys.executable, "-m", "companion.cli", "fleet", "1", "--lockstep", "--zenoh-rates",
+                          "swing=25,state=10,setpoint=5", "--run-dir", str(tmp_path)], capture_output=True, text=True,
+                         timeout=240)
+    assert out.returncode == 0, out.stdout + out.stderr
+    v = json.loads((tmp_path / "fleet.json").read_text())["vehicles"]["1"]
+    sim_s = v["sim_time_s"]
+    for stream, hz in (("swing", 25), ("state", 10), ("setpoint", 5)):
+        s = v["streams"][stream]
+        assert s["received"] == s["published"] and s["lost"] == 0
+        # sim_time_s is the mission part; streams run from connect to landed too (about 1.5x that)
+        assert 0.5 * hz * sim_s < s["received"] < 2.5 * hz * sim_s, (stream, s, sim_s)
+    bad = subprocess.run([sys.executable, "-m", "companion.cli", "fly", "--sitl", "--zenoh-rates", "swing=fast"],
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "--zenoh-rates" in bad.stderr
+
+
 def test_fleet_size_is_checked():
     out = subprocess.run([sys.executable, "-m", "companion.cli", "fleet", "0"], capture_output=True, text=True,
                          timeout=60)

@@ -38,6 +38,8 @@ def add_fleet_arguments(p: argparse.ArgumentParser) -> None:
                    help="the router's endpoint (default a free tcp/127.0.0.1 port)")
     p.add_argument("--run-dir", type=Path, default=None, help="where the run folders go (default runs/fleet-<time>)")
     p.add_argument("--lockstep", action="store_true", help="fly in lockstep instead of real time")
+    p.add_argument("--zenoh-rates", default=None, metavar="STREAM=HZ,...",
+                   help="each companion's --zenoh-rates (downsampling at the edge, e.g. swing=25,state=10,setpoint=5)")
 
 
 def _free_tcp_port() -> int:
@@ -107,6 +109,8 @@ def run_fleet(args: argparse.Namespace) -> int:
                     "--no-plots", "--run-dir", str(root / f"vehicle-{1 + i}")]
             if not args.lockstep:
                 argv.append("--realtime")
+            if args.zenoh_rates:
+                argv += ["--zenoh-rates", args.zenoh_rates]
             procs.append(subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=(root / f"vehicle-{1 + i}.log")
                                           .open("w"), start_new_session=True))
 

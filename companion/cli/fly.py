@@ -35,7 +35,7 @@ from companion.flight.app import FlightApp, FlyOptions
 from companion.mavlink_io.signing import load_key_file
 from companion.report.run_folder import write_run
 from companion.zenoh_io.session import zenoh_config_from_args
-from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry, ZenohTelemetrySink
+from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry, ZenohTelemetrySink, parse_rates
 
 log = logging.getLogger(__name__)
 
@@ -172,11 +172,15 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
     zt_holder: list[ZenohTelemetry] = []
     if not args.no_zenoh:
         zcfg = zenoh_config_from_args(args, "companion")  # flag errors before anything starts
+        try:
+            rates = parse_rates(getattr(args, "zenoh_rates", None))
+        except ValueError as exc:
+            raise ConfigError(f"--zenoh-rates: {exc}") from None
 
         async def connect_zenoh(app: FlightApp) -> None:
             """Open the Zenoh streams under the vehicle id (default: the autopilot's MAVLink system id)."""
             vid = args.vehicle_id or str(app.state.vehicle_sysid)
-            zt = ZenohTelemetry(zcfg, TelemetryOptions(prefix=args.zenoh_prefix, vehicle_id=vid))
+            zt = ZenohTelemetry(zcfg, TelemetryOptions(prefix=args.zenoh_prefix, vehicle_id=vid, **rates))
             await stack.enter_async_context(zt)
             zt_holder.append(zt)
             zt.set_config_provider(lambda: effective_config(app, args))

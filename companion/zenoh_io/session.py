@@ -50,6 +50,10 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, role: str) -> None:
         g.add_argument("--vehicle-id", default=None,
                        help="vehicle id in the keys <prefix>/<id>/... (default: the MAVLink system id)")
         g.add_argument("--no-zenoh", action="store_true", help="no Zenoh session at all")
+        g.add_argument("--zenoh-rates", default=None, metavar="STREAM=HZ,...",
+                       help="downsample the published streams at the source, e.g. swing=25,state=10,setpoint=5 "
+                            "(defaults: swing every control tick, state 50, setpoint 50, status 1 Hz; 0 = every "
+                            "tick); for fleets (README: bandwidth for 1000 vehicles)")
 
 
 def zenoh_config(

@@ -45,6 +45,30 @@ MAX_QUEUE = 2000
 Vec = Sequence[float] | np.ndarray
 
 
+RATE_STREAMS = ("swing", "state", "setpoint", "status")
+
+
+def parse_rates(text: str | None) -> dict[str, float]:
+    """``"swing=25,state=10"`` → ``{"swing_hz": 25.0, "state_hz": 10.0}`` (:class:`TelemetryOptions` fields);
+    raises ``ValueError`` naming the bad part."""
+    out: dict[str, float] = {}
+    for part in (text or "").split(","):
+        if not part.strip():
+            continue
+        name, sep, value = part.partition("=")
+        name = name.strip()
+        if not sep or name not in RATE_STREAMS:
+            raise ValueError(f"{part.strip()!r}: expected STREAM=HZ with STREAM one of {', '.join(RATE_STREAMS)}")
+        try:
+            hz = float(value)
+        except ValueError:
+            raise ValueError(f"{part.strip()!r}: {value.strip()!r} is not a number of Hz") from None
+        if not (math.isfinite(hz) and hz >= 0.0):
+            raise ValueError(f"{part.strip()!r}: a rate must be finite and >= 0 Hz")
+        out[f"{name}_hz"] = hz
+    return out
+
+
 @dataclass(frozen=True, slots=True)
 class TelemetryOptions:
     """Keys and rates of the telemetry streams (rates in Hz of sim time; 0 means every call).
@@ -56,6 +80,7 @@ class TelemetryOptions:
 
     prefix: str = DEFAULT_PREFIX
     vehicle_id: str = "1"
+    swing_hz: float = 0.0  # 0: every control tick
     state_hz: float = 50.0
     setpoint_hz: float = 50.0
     status_hz: float = 1.0
@@ -72,7 +97,7 @@ class TelemetryOptions:
                 check_key_part(key, getattr(self, key))
             except ConfigError as exc:
                 raise ValueError(str(exc)) from None
-        for key in ("state_hz", "setpoint_hz", "status_hz", "obstacles_min_hz", "obstacles_max_hz"):
+        for key in ("swing_hz", "state_hz", "setpoint_hz", "status_hz", "obstacles_min_hz", "obstacles_max_hz"):
             v = getattr(self, key)
             if not math.isfinite(v) or v < 0.0:
                 raise ValueError(f"{key}: must be a finite rate >= 0 Hz, got {v!r}")
@@ -159,6 +184,7 @@ class ZenohTelemetry:
         self._waiting: dict[str, bytes] = {}  # taken from _latest, not yet parsed (the loop's own)
         self._parser: SampleParser | None = None
         self._provider: Callable[[], Mapping[str, Any]] | None = None
+        self._swing_every = _Every(self.options.swing_hz)
         self._state_every = _Every(self.options.state_hz)
         self._setpoint_every = _Every(self.options.setpoint_hz)
         self._status_every = _Every(self.options.status_hz)
@@ -272,8 +298,10 @@ class ZenohTelemetry:
                       source: str | None = None, truth4: Vec | None = None, sigma_rad: float | None = None,
                       fade: float | None = None) -> bool:
         """Swing (α, β rad; α̇, β̇ rad/s; None = no estimate), envelope radius (m) and mode; where known its
-        source, the vehicle's own measurement beside an estimate, its 1σ and fade; every call."""
+        source, the vehicle's own measurement beside an estimate, its 1σ and fade; every call (or ``swing_hz``)."""
         self._last_t_s = t_s
+        if not self._swing_every.due(t_s):
+            return False
         sw = None if swing4 is None else tuple(map(float, swing4))
         tr = None if truth4 is None else tuple(map(float, truth4))
         return self._emit("swing", ts.encode_swing, t_s, time.time(), sw, r_max_m, envelope_mode, source, tr,
