@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -22,7 +23,7 @@ import numpy as np
 from companion.core.mission import mission_to_toml
 from lab.compare import bound_time_s
 from lab.forests import ForestSpec
-from lab.runner import REPORT_KEYS, Job, classify, run_job
+from lab.runner import REPORT_KEYS, Job, classify, rss_mb, run_job
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +99,8 @@ def run_eval_job(job: Job) -> dict[str, Any]:
             rep = {"error": f"{type(exc).__name__}: {exc}"}
         out = {k: rep.get(k) for k in REPORT_KEYS}
         out.update(error=rep.get("error"), key=job.key, mode=job.mode, job_wall_s=time.perf_counter() - wall0,
-                   run_dir=str(job.run_dir), mission_file=str(mission_file))
+                   run_dir=str(job.run_dir), mission_file=str(mission_file), worker_pid=os.getpid(),
+                   worker_rss_mb=rss_mb(), finished_unix_s=time.time())
     else:
         out = run_job(replace(job, keep_run_dir=True))
     m = job.mission

@@ -49,7 +49,7 @@ from lab.compare import plot_comparison
 from lab.evaljob import SCENARIOS, scenario_spec
 from lab.forests import ForestSpec, generate_forest
 from lab.pool import Interrupted, check_cluster, run_jobs
-from lab.runner import MODES, Job
+from lab.runner import MODES, Job, memory_summary, rss_mb
 
 log = logging.getLogger(__name__)
 
@@ -135,21 +135,24 @@ def evaluate(planners: list[str], densities: list[float], n: int, *, seed0: int 
     out.mkdir(parents=True, exist_ok=True)
     jobs = build_jobs(planners, densities, n, seed0, spec, mode, out, keep_runs, scenarios, movers)
     wall0 = time.monotonic()
+    rss0 = rss_mb()
     try:
         results = run_jobs(jobs, workers, progress, cluster=cluster)
     except Interrupted as exc:
         exc.summary = _write_summary(exc.results, len(jobs), time.monotonic() - wall0, out, mode=mode, n=n,
                                      seed0=seed0, planners=planners, densities=densities, workers=workers, spec=spec,
-                                     scenarios=scenarios, movers=movers, cluster=cluster)
+                                     scenarios=scenarios, movers=movers, cluster=cluster,
+                                     memory=memory_summary(exc.results, rss0, rss_mb()))
         raise
     return _write_summary(results, len(jobs), time.monotonic() - wall0, out, mode=mode, n=n, seed0=seed0,
                           planners=planners, densities=densities, workers=workers, spec=spec, scenarios=scenarios,
-                          movers=movers, cluster=cluster)
+                          movers=movers, cluster=cluster, memory=memory_summary(results, rss0, rss_mb()))
 
 
 def _write_summary(results: list[dict[str, Any]], planned: int, wall: float, out: Path, *, mode: str, n: int,
                    seed0: int, planners: list[str], densities: list[float], workers: int, spec: ForestSpec,
-                   scenarios: tuple[str, ...], movers: int, cluster: str | None) -> dict[str, Any]:
+                   scenarios: tuple[str, ...], movers: int, cluster: str | None,
+                   memory: dict[str, Any] | None = None) -> dict[str, Any]:
     """results.jsonl, summary.json, summary.md and the figures of ``results`` (``planned`` missions were asked
     for; fewer means the run was interrupted and the summary says so)."""
     for r in results:
@@ -170,6 +173,7 @@ def _write_summary(results: list[dict[str, Any]], planned: int, wall: float, out
                              if interrupted else None),
         "wall_s": wall,
         "missions_per_min": len(results) / wall * 60.0 if wall > 0 else None,
+        "memory": memory,
         "per_planner": {p: summarise([r for r in results if r["planner"] == p]) for p in planners},
         "per_scenario": {sc: {p: summarise([r for r in results if r["planner"] == p and r["scenario"] == sc])
                               for p in planners} for sc in scenarios},
@@ -212,6 +216,14 @@ def _where(s: dict[str, Any]) -> str:
     return f"a local Dask cluster of {s['workers']} workers" if c == "local" else f"the Dask cluster at {c}"
 
 
+def _memory_line(m: dict[str, Any]) -> str:
+    """RSS at start and end (parent) and per worker after its first and last job."""
+    ws = m.get("workers") or {}
+    parts = [f"{w['first_mb']:.0f} → {w['last_mb']:.0f} MB over {w['jobs']} jobs" for w in ws.values()]
+    return (f"Memory (RSS): this process {_f(m.get('parent_start_mb'), 0)} → {_f(m.get('parent_end_mb'), 0)} MB; "
+            f"workers after their first → last job: {'; '.join(parts) or '—'}.")
+
+
 def summary_markdown(s: dict[str, Any], png: Path | None = None, cmp_png: Path | None = None) -> str:
     """The human-readable summary (Markdown)."""
     sp = s["spec"]
@@ -226,6 +238,7 @@ def summary_markdown(s: dict[str, Any], png: Path | None = None, cmp_png: Path |
         f"Mode: **{s['mode']}** — {s['mode_text']}. {s['missions']} missions in {s['wall_s']:.0f} s wall with "
         f"{_where(s)}: **{_f(s['missions_per_min'], 1)} missions/min**.",
         "",
+        *([_memory_line(s["memory"]), ""] if s.get("memory") else []),
         f"Forests: corridor {sp['length_m']:g} m × {sp['width_m']:g} m at {sp['altitude_m']:g} m altitude, "
         f"trunk radii {sp['r_min_m']:g}–{sp['r_max_m']:g} m, densities {', '.join(f'{d:g}' for d in s['densities'])}"
         f" trunks/100 m², trap: {sp['trap']}, {var}; seeds {s['seed0']}.."

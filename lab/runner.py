@@ -14,6 +14,7 @@ import argparse
 import asyncio
 import logging
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -130,6 +131,9 @@ def run_job(job: Job) -> dict[str, Any]:
     out["mode"] = job.mode
     out["class"] = classify(rep)
     out["job_wall_s"] = time.perf_counter() - wall0
+    out["worker_pid"] = os.getpid()
+    out["worker_rss_mb"] = rss_mb()
+    out["finished_unix_s"] = time.time()
     out["run_dir"] = str(job.run_dir)
     out["mission_file"] = str(mission_file)
     if not job.keep_run_dir and out["class"] == "success":
@@ -137,6 +141,31 @@ def run_job(job: Job) -> dict[str, Any]:
         out["run_dir"] = None
         out["mission_file"] = None
     return out
+
+
+def rss_mb() -> float | None:
+    """This process's resident set size now (MB; Linux /proc), None where unknown."""
+    try:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def memory_summary(results: list[dict[str, Any]], parent_start_mb: float | None,
+                   parent_end_mb: float | None) -> dict[str, Any]:
+    """RSS of the parent at start and end, and per worker process its RSS after its first and its last job (MB),
+    in completion order: a flat line means no leak over the batch."""
+    workers: dict[str, dict[str, Any]] = {}
+    for r in sorted(results, key=lambda r: r.get("finished_unix_s") or 0.0):
+        pid, mb = r.get("worker_pid"), r.get("worker_rss_mb")
+        if pid is None or mb is None:
+            continue
+        w = workers.setdefault(str(pid), {"jobs": 0, "first_mb": mb, "last_mb": mb, "max_mb": mb})
+        w["jobs"] += 1
+        w["last_mb"] = mb
+        w["max_mb"] = max(w["max_mb"], mb)
+    return {"parent_start_mb": parent_start_mb, "parent_end_mb": parent_end_mb, "workers": workers}
 
 
 def _prune(run_dir: Path) -> None:

@@ -89,6 +89,12 @@ def test_evaluate_mavlink_two_missions_in_workers(tmp_path):
     assert s["mode"] == "mavlink" and s["spec"]["length_m"] == 12.0
     assert "2/2" in proc.stderr  # the progress bar ran to the end
     assert "lockstep MAVLink" in proc.stdout
+    # memory is reported per worker (after its first and its last job) and for the evaluating process
+    mem = s["memory"]
+    assert mem["parent_start_mb"] > 0 and mem["parent_end_mb"] > 0
+    ws = mem["workers"].values()
+    assert sum(w["jobs"] for w in ws) == 2 and all(w["last_mb"] > 0 for w in ws)
+    assert "Memory (RSS)" in proc.stdout
 
 
 def test_evaluate_cli_refuses_bad_arguments(tmp_path, capsys):
