@@ -120,6 +120,8 @@ def main(seconds: float = 3.0) -> int:
     print(f"  real-time factor (sim s / wall s): {res['realtime_factor']:8.1f}x")
     print(f"  control steps: {res['control_steps']:.0f} in {res['wall_s']:.2f} s wall "
           f"({res['us_per_control_step']:.0f} µs each), {res['sim_s']:.2f} s simulated")
+    print(f"  CPU per control step: vehicle {res['vehicle_cpu_us_per_step']:.0f} µs, "
+          f"client {res['client_cpu_us_per_step']:.0f} µs")
     print(f"  hover altitude at the end: {res['final_altitude_m']:.2f} m")
     return 0
 
