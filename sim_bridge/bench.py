@@ -3,7 +3,7 @@
 Starts the vehicle (``python -m sim_bridge --lockstep``, 1 kHz physics, 4 ms control period) as a
 subprocess and drives it from this process over real UDP with a minimal 250 Hz hover client: it decodes
 only the SYSTEM_TIME marker and the vehicle's LOCAL_POSITION_NED (other frames are skipped by message id;
-``companion.mavlink_io.codec``, CRC checked) and answers
+``companion.mavlink_io.codec.decode_fields``, CRC checked) and answers
 each marker with a level-attitude SET_ATTITUDE_TARGET whose thrust holds 2 m. Prints and returns simulated
 seconds per wall second and the CPU time per control step of either side (less sensitive than the
 real-time factor to other processes competing for the cores). Nothing is asserted.
@@ -16,12 +16,13 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.mavlink_io.codec import decode_lite, send_set_attitude_target
+from companion.mavlink_io.codec import decode_fields, send_set_attitude_target
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 
 M = mavlink2
 _ID_SYSTEM_TIME = M.MAVLINK_MSG_ID_SYSTEM_TIME
 _ID_LOCAL_POSITION_NED = M.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+_STX = M.PROTOCOL_MARKER_V2
 
 
 _LEVEL = (1.0, 0.0, 0.0, 0.0)
@@ -54,6 +55,7 @@ def run_bench_sitl(seconds: float = 3.0) -> dict[str, float]:
 def _fast_loop(c: MavClient, seconds: float) -> dict[str, float]:
     sock = c.sock
     sock.settimeout(5.0)
+    sysid = c.target_sysid
     z, vz = 0.0, 0.0
     t_ms = c.sim_time_ms
     t_start_ms = t_ms
@@ -70,16 +72,16 @@ def _fast_loop(c: MavClient, seconds: float) -> dict[str, float]:
             continue
         new_step = False
         i, n = 0, len(data)
-        while i + 12 <= n and data[i] == M.PROTOCOL_MARKER_V2:  # walk the frames of the datagram
+        while i + 12 <= n and data[i] == _STX:  # walk the frames of the datagram
             end = i + 12 + data[i + 1]
             msgid = data[i + 7] | (data[i + 8] << 8) | (data[i + 9] << 16)
-            if msgid == _ID_LOCAL_POSITION_NED and data[i + 5] == c.target_sysid:
-                m = decode_lite(data[i:end])
-                z, vz = m.z, m.vz
+            if msgid == _ID_LOCAL_POSITION_NED and data[i + 5] == sysid:
+                f = decode_fields(data[i:end])  # (time_boot_ms, x, y, z, vx, vy, vz)
+                z, vz = f[3], f[6]
             elif msgid == _ID_SYSTEM_TIME:
-                m = decode_lite(data[i:end])
-                if m.time_boot_ms > t_ms:
-                    t_ms = m.time_boot_ms
+                t_boot_ms = decode_fields(data[i:end])[1]  # (time_unix_usec, time_boot_ms)
+                if t_boot_ms > t_ms:
+                    t_ms = t_boot_ms
                     new_step = True
             i = end
         if not new_step:
@@ -120,6 +122,8 @@ def main(seconds: float = 3.0) -> int:
     print(f"  real-time factor (sim s / wall s): {res['realtime_factor']:8.1f}x")
     print(f"  control steps: {res['control_steps']:.0f} in {res['wall_s']:.2f} s wall "
           f"({res['us_per_control_step']:.0f} µs each), {res['sim_s']:.2f} s simulated")
+    print(f"  CPU per control step: vehicle {res['vehicle_cpu_us_per_step']:.0f} µs, "
+          f"client {res['client_cpu_us_per_step']:.0f} µs")
     print(f"  hover altitude at the end: {res['final_altitude_m']:.2f} m")
     return 0
 

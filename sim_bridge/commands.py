@@ -92,7 +92,8 @@ def parse_attitude_target(msg: Any) -> tuple[str | None, np.ndarray | None, np.n
     thrust = None
     isfinite = math.isfinite
     if not mask & ATTITUDE_IGNORE:
-        q0, q1, q2, q3 = (float(c) for c in msg.q)
+        c0, c1, c2, c3 = msg.q
+        q0, q1, q2, q3 = float(c0), float(c1), float(c2), float(c3)
         if not (isfinite(q0) and isfinite(q1) and isfinite(q2) and isfinite(q3)):
             return "nonfinite", None, None, None
         if abs(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3) - 1.0) > 1e-3:

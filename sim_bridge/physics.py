@@ -36,7 +36,7 @@ from companion.core.model import (
     payload_offset_ned_m,
     rotation_body_to_ned,
 )
-from companion.core.rotations import euler_from_quat, quat_from_euler
+from companion.core.rotations import euler_tuple_from_quat, quat_from_euler
 from companion.core.wind import WindConfig, eq49_signal, wind_scale_factor
 from companion.errors import ModelError
 from sim_bridge.inner_loop import (
@@ -295,19 +295,18 @@ class VehicleSim:
         (rad/s), and collective thrust (N). ``None`` keeps the previous value; attitude None with body
         rates given means a rate-only target. Tilt is limited to ``gains.max_tilt_rad``."""
         if q_wxyz is not None:
-            eul = euler_from_quat(q_wxyz)
+            phi, theta, psi = euler_tuple_from_quat(q_wxyz)
             tilt_max = self.gains.max_tilt_rad
-            eul[0] = min(max(eul[0], -tilt_max), tilt_max)
-            eul[1] = min(max(eul[1], -tilt_max), tilt_max)
-            self.target_euler_rad = eul
+            self.target_euler_rad = np.array([min(max(phi, -tilt_max), tilt_max),
+                                              min(max(theta, -tilt_max), tilt_max), psi])
             self.rates_only = False
         elif body_rates_frd_rad_s is not None:
             self.rates_only = True
         self.target_rates_frd_rad_s = None if body_rates_frd_rad_s is None else np.asarray(
             body_rates_frd_rad_s, dtype=np.float64
         )
-        if thrust_n is not None:
-            self.target_thrust_n = float(min(max(thrust_n, 0.0), self.max_thrust_n))
+        if thrust_n is not None:  # max_thrust_n from the cached rotor limit (same value)
+            self.target_thrust_n = float(min(max(thrust_n, 0.0), 4.0 * self._kernel_constants()[3]))
 
     def set_euler_target(self, euler_rad: np.ndarray, thrust_n: float) -> None:
         """Convenience for internal controllers: Euler target [φ, θ, ψ] (rad) and thrust (N)."""

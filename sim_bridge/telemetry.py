@@ -7,6 +7,7 @@ Every message carries simulated time (time_boot_ms / time_usec).
 
 from __future__ import annotations
 
+import functools
 import math
 import struct
 from typing import Any
@@ -133,13 +134,20 @@ class RateScheduler:
 
 def ned_to_geodetic(ned_m: np.ndarray, lat0_deg: float, lon0_deg: float, alt0_m: float) -> tuple[float, float, float]:
     """Latitude, longitude (deg) and altitude AMSL (m) of a NED offset from home (WGS-84 local radii)."""
+    lat_div, lon_div = _geodetic_divisors(lat0_deg, alt0_m)
+    lat = lat0_deg + math.degrees(float(ned_m[0]) / lat_div)
+    lon = lon0_deg + math.degrees(float(ned_m[1]) / lon_div)
+    return lat, lon, alt0_m - float(ned_m[2])
+
+
+@functools.lru_cache(maxsize=8)
+def _geodetic_divisors(lat0_deg: float, alt0_m: float) -> tuple[float, float]:
+    """(r_N + h, (r_E + h)·cos φ0) in m: what a north and an east offset are divided by (WGS-84 local radii)."""
     lat0 = math.radians(lat0_deg)
     s2 = math.sin(lat0) ** 2
     r_n = _WGS84_A * (1.0 - _WGS84_E2) / (1.0 - _WGS84_E2 * s2) ** 1.5  # meridian radius
     r_e = _WGS84_A / math.sqrt(1.0 - _WGS84_E2 * s2)  # prime vertical radius
-    lat = lat0_deg + math.degrees(float(ned_m[0]) / (r_n + alt0_m))
-    lon = lon0_deg + math.degrees(float(ned_m[1]) / ((r_e + alt0_m) * math.cos(lat0)))
-    return lat, lon, alt0_m - float(ned_m[2])
+    return r_n + alt0_m, (r_e + alt0_m) * math.cos(lat0)
 
 
 class ProtocolVersionMessage(mavlink2.MAVLink_message):
@@ -174,45 +182,88 @@ class SwingMessage(mavlink2.MAVLink_debug_float_array_message):
         return self._pack(mav, self.crc_extra, payload, force_mavlink1=False)
 
 
-def hot_payload(msgid: int, v: Any) -> tuple[int, bytes] | None:
-    """(CRC extra, payload) of a streamed vehicle message at the vehicle's current time; None for others."""
-    sim = v.sim
-    t_ms = v.t_us // 1000
+class Snapshot:
+    """The vehicle's state at one simulated instant as Python floats, shared by the messages of that instant.
+
+    Built once per control period (``x.tolist()``: no numpy scalars in the packing); derived values (body rates,
+    attitude quaternion) are computed on first use with the same floating-point operations, in the same order,
+    as :class:`sim_bridge.physics.VehicleSim`'s properties, so the packed bytes do not change.
+    """
+
+    __slots__ = ("_quat", "_rates", "payloads", "sim", "t_ms", "t_us", "v", "x")
+
+    def __init__(self, v: Any) -> None:
+        self.v = v
+        self.sim = v.sim
+        self.x = v.sim.x.tolist()
+        self.t_us = v.t_us
+        self.t_ms = v.t_us // 1000
+        self._rates: tuple[float, float, float] | None = None
+        self._quat: np.ndarray | None = None
+        self.payloads: dict[int, tuple[int, bytes]] = {}  # msgid → (CRC extra, payload) packed at this instant
+
+    @property
+    def rates(self) -> tuple[float, float, float]:
+        """Body rates FRD (rad/s), as ``VehicleSim.body_rates_frd_rad_s``."""
+        r = self._rates
+        if r is None:
+            x = self.x
+            phi, th = x[3], x[4]
+            dphi, dth, dpsi = x[11], x[12], x[13]
+            sf, cf, ct = math.sin(phi), math.cos(phi), math.cos(th)
+            r = self._rates = (dphi - math.sin(th) * dpsi, cf * dth + sf * ct * dpsi, -sf * dth + cf * ct * dpsi)
+        return r
+
+    @property
+    def quat(self) -> np.ndarray:
+        """Attitude quaternion [w x y z], as ``VehicleSim.quat_wxyz``."""
+        q = self._quat
+        if q is None:
+            x = self.x
+            q = self._quat = quat_from_euler(x[3], x[4], x[5])
+        return q
+
+
+def hot_payload(msgid: int, v: Any, snap: Snapshot | None = None) -> tuple[int, bytes] | None:
+    """(CRC extra, payload) of a streamed vehicle message at the vehicle's current time; None for others.
+
+    ``snap``: the :class:`Snapshot` of the current instant (made here if not given)."""
+    if msgid == MSG_SYSTEM_TIME:  # the lockstep marker: nothing but the time
+        return mf.CRC_SYSTEM_TIME, mf.P_SYSTEM_TIME.pack(0, (v.t_us // 1000) & 0xFFFFFFFF)
+    s = snap if snap is not None else Snapshot(v)
+    x = s.x
+    t_ms = s.t_ms
     if msgid == MSG_DEBUG_FLOAT_ARRAY:
-        s = sim.swing
+        sim = s.sim
         # data[4]: the cable's length while it is taut; while the payload rests on the ground (cable slack) the
         # airframe-payload distance, shorter: a slack cable has no swing angle worth the name
         reach = sim.params.l if not sim.payload_on_ground else float(
             np.linalg.norm(sim.payload_pos_ned_m - sim.pos_ned_m))
-        return mf.CRC_DEBUG_FLOAT_ARRAY, mf.P_SWING.pack(v.t_us, SWING_ARRAY_ID, SWING_NAME, s[0], s[1], s[2], s[3],
-                                                         reach)
+        return mf.CRC_DEBUG_FLOAT_ARRAY, mf.P_SWING.pack(s.t_us, SWING_ARRAY_ID, SWING_NAME, x[6], x[7], x[14],
+                                                         x[15], reach)
     if msgid == MSG_ATTITUDE:
-        e = sim.euler_rad
-        w = sim.body_rates_frd_rad_s
-        return mf.CRC_ATTITUDE, mf.P_ATTITUDE.pack(t_ms, e[0], e[1], e[2], w[0], w[1], w[2])
+        w = s.rates
+        return mf.CRC_ATTITUDE, mf.P_ATTITUDE.pack(t_ms, x[3], x[4], x[5], w[0], w[1], w[2])
     if msgid == MSG_LOCAL_POSITION_NED:
-        p, vel = sim.pos_ned_m, sim.vel_ned_mps
-        return mf.CRC_LOCAL_POSITION_NED, mf.P_LOCAL_POSITION_NED.pack(t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
+        return mf.CRC_LOCAL_POSITION_NED, mf.P_LOCAL_POSITION_NED.pack(t_ms, x[0], x[1], x[2], x[8], x[9], x[10])
     if msgid == MSG_ATTITUDE_QUATERNION:
-        q = sim.quat_wxyz
-        w = sim.body_rates_frd_rad_s
+        q = s.quat
+        w = s.rates
         return mf.CRC_ATTITUDE_QUATERNION, mf.P_ATTITUDE_QUATERNION.pack(t_ms, q[0], q[1], q[2], q[3], w[0], w[1],
                                                                          w[2])
     if msgid == MSG_GLOBAL_POSITION_INT:
-        return mf.CRC_GLOBAL_POSITION_INT, _global_payload(t_ms, sim.pos_ned_m, sim.vel_ned_mps,
-                                                           float(sim.euler_rad[2]), v.origin,
+        return mf.CRC_GLOBAL_POSITION_INT, _global_payload(t_ms, x[0:3], x[8:11], x[5], v.origin,
                                                            v.home_local_ned_m[2])
+    sim = s.sim
     if msgid == MSG_ATTITUDE_TARGET:
         q = quat_from_euler(*sim.target_euler_rad)
         r = sim.target_rates_frd_rad_s if sim.target_rates_frd_rad_s is not None else _ZERO3
         return mf.CRC_ATTITUDE_TARGET, mf.P_ATTITUDE_TARGET.pack(
             t_ms, q[0], q[1], q[2], q[3], r[0], r[1], r[2], v.normalized_thrust(sim.target_thrust_n), 0)
-    if msgid == MSG_SYSTEM_TIME:
-        return mf.CRC_SYSTEM_TIME, mf.P_SYSTEM_TIME.pack(0, t_ms & 0xFFFFFFFF)
     if msgid == MSG_HIGHRES_IMU:
         acc, gyro, mag, press_hpa, alt_m, temp_c = v.imu_sample()
         return CRC_HIGHRES_IMU, P_HIGHRES_IMU.pack(
-            v.t_us, acc[0], acc[1], acc[2], gyro[0], gyro[1], gyro[2], mag[0], mag[1], mag[2], press_hpa, 0.0,
+            s.t_us, acc[0], acc[1], acc[2], gyro[0], gyro[1], gyro[2], mag[0], mag[1], mag[2], press_hpa, 0.0,
             alt_m, temp_c, HIGHRES_FIELDS, 0)
     if msgid == MSG_EXTENDED_SYS_STATE:
         return mf.CRC_EXTENDED_SYS_STATE, mf.P_EXTENDED_SYS_STATE.pack(mavlink2.MAV_VTOL_STATE_UNDEFINED,
@@ -220,18 +271,20 @@ def hot_payload(msgid: int, v: Any) -> tuple[int, bytes] | None:
     return None
 
 
-def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any,
-                         cache: dict[int, tuple[int, bytes]] | None = None) -> bool:
+def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any, snap: Snapshot | None = None) -> bool:
     """Send one message of the vehicle system, ``v`` being the running vehicle; False if unknown here.
 
-    ``cache`` (msgid → packed payload) lets the links of one control period share the packing work; the
-    caller keeps it for one instant of simulated time only.
+    ``snap`` (a :class:`Snapshot` the caller keeps for one instant of simulated time only) lets the links of
+    one control period share the packing work: each message is packed once per instant.
     """
-    hot = cache.get(msgid) if cache is not None else None
-    if hot is None:
+    if snap is None:
         hot = hot_payload(msgid, v)
-        if hot is not None and cache is not None:
-            cache[msgid] = hot
+    else:
+        hot = snap.payloads.get(msgid)
+        if hot is None:
+            hot = hot_payload(msgid, v, snap)
+            if hot is not None:
+                snap.payloads[msgid] = hot
     if hot is not None:
         mf.send_payload(mav, msgid, hot[0], hot[1])
     elif msgid == MSG_HEARTBEAT:
@@ -265,20 +318,30 @@ def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any,
     return True
 
 
-def send_payload_messages(mav: mavlink2.MAVLink, v: Any, heartbeat: bool) -> None:
+def send_payload_messages(mav: mavlink2.MAVLink, v: Any, heartbeat: bool, snap: Snapshot | None = None) -> None:
     """The payload as ArduPilot's SITL slung payload (SIM_SlungPayload.cpp) announces itself: HEARTBEAT (if
     ``heartbeat``) with type AIRSHIP, autopilot INVALID, base_mode 0, status 0; GLOBAL_POSITION_INT (altitude
     above home in relative_alt, heading 0) and ATTITUDE (all zero: a point mass); plus our LOCAL_POSITION_NED
-    of the payload point (same local frame as the vehicle's)."""
-    sim = v.sim
-    t_ms = v.t_us // 1000
+    of the payload point (same local frame as the vehicle's). ``snap``: as in :func:`send_vehicle_message`
+    (the payloads are packed once per instant for all links)."""
     if heartbeat:
         mf.send_heartbeat(mav, mavlink2.MAV_TYPE_AIRSHIP, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-    p, vel = sim.payload_pos_ned_m, sim.payload_vel_ned_mps
-    mf.send_payload(mav, mf.ID_GLOBAL_POSITION_INT, mf.CRC_GLOBAL_POSITION_INT,
-                    _global_payload(t_ms, p, vel, 0.0, v.origin, v.home_local_ned_m[2]))
-    mf.send_attitude(mav, t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    mf.send_local_position_ned(mav, t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2])
+    packed = snap.payloads.get(_PAYLOAD_KEY) if snap is not None else None
+    if packed is None:
+        sim = v.sim
+        t_ms = v.t_us // 1000
+        p, vel = sim.payload_pos_ned_m, sim.payload_vel_ned_mps
+        packed = (_global_payload(t_ms, p, vel, 0.0, v.origin, v.home_local_ned_m[2]),
+                  mf.P_ATTITUDE.pack(t_ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+                  mf.P_LOCAL_POSITION_NED.pack(t_ms, p[0], p[1], p[2], vel[0], vel[1], vel[2]))
+        if snap is not None:
+            snap.payloads[_PAYLOAD_KEY] = packed
+    mf.send_payload(mav, mf.ID_GLOBAL_POSITION_INT, mf.CRC_GLOBAL_POSITION_INT, packed[0])
+    mf.send_payload(mav, mf.ID_ATTITUDE, mf.CRC_ATTITUDE, packed[1])
+    mf.send_payload(mav, mf.ID_LOCAL_POSITION_NED, mf.CRC_LOCAL_POSITION_NED, packed[2])
+
+
+_PAYLOAD_KEY = -1  # Snapshot.payloads key of the payload system's three packed payloads
 
 
 # SYS_STATUS, as PX4's SYS_STATUS stream fills it from its health report: a component is *present* if the

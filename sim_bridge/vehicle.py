@@ -246,17 +246,25 @@ class SitlVehicle:
 
     def _send_due_telemetry(self) -> None:
         hb = False
-        cache: dict[int, tuple[int, bytes]] = {}  # the same message on both links is packed once
+        snap = None  # the state of this instant, made when the first message is due; each message packed once
+        t_us = self.t_us
         for lk in self._links():
-            for msgid in lk.scheduler.due(self.t_us):
-                telemetry.send_vehicle_message(msgid, lk.mav, self, cache)
-                hb = hb or msgid == M.MAVLINK_MSG_ID_HEARTBEAT
+            due = lk.scheduler.due(t_us)
+            if not due:
+                continue
+            if snap is None:
+                snap = telemetry.Snapshot(self)
+            for msgid in due:
+                telemetry.send_vehicle_message(msgid, lk.mav, self, snap)
+            hb = hb or M.MAVLINK_MSG_ID_HEARTBEAT in due
         if self.t_us >= self._next_payload_us:
             self._next_payload_us += self.cfg.payload_interval_us
             hb = self._payload_hb_count % max(1, 1_000_000 // self.cfg.payload_interval_us) == 0
             self._payload_hb_count += 1
+            if snap is None:
+                snap = telemetry.Snapshot(self)
             for pm in self._payload_mavs:
-                telemetry.send_payload_messages(pm, self, hb)
+                telemetry.send_payload_messages(pm, self, hb, snap)
         if hb:
             self._last_hb_wall = time.monotonic()
 

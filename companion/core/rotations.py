@@ -28,7 +28,13 @@ def quat_from_euler(phi: float, theta: float, psi: float) -> np.ndarray:
 
 def euler_from_quat(q) -> np.ndarray:
     """ZYX Euler angles [φ, θ, ψ] (rad) of a quaternion [w, x, y, z]; the quaternion is normalized first."""
-    w, x, y, z = (float(v) for v in q)
+    return np.array(euler_tuple_from_quat(q))
+
+
+def euler_tuple_from_quat(q) -> tuple[float, float, float]:
+    """:func:`euler_from_quat` as a tuple of floats (φ, θ, ψ) in rad, for hot paths that need no array."""
+    w, x, y, z = q
+    w, x, y, z = float(w), float(x), float(y), float(z)
     n = math.sqrt(w * w + x * x + y * y + z * z)
     if not (n > 0.0 and math.isfinite(n)):
         raise ValueError(f"quaternion {list(q)} has no direction")
@@ -36,7 +42,7 @@ def euler_from_quat(q) -> np.ndarray:
     phi = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
     theta = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
     psi = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return np.array([phi, theta, psi])
+    return phi, theta, psi
 
 
 def wrap_pi(a: float) -> float:

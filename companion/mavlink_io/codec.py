@@ -249,6 +249,14 @@ def decode_frame(frame: bytes) -> Any:
     return _build_full(_checked_plan(frame), frame)
 
 
+def decode_fields(frame: bytes) -> tuple:
+    """The payload fields of one complete, unsigned MAVLink 2 frame as a plain tuple in wire order (arrays
+    flattened, as ``struct`` unpacks them; trailing zeros restored), CRC and length checked as in
+    :func:`decode_frame` (:class:`FrameError` otherwise). No message object is made: for hot loops that
+    read one or two known message types (e.g. SYSTEM_TIME → (time_unix_usec, time_boot_ms))."""
+    return _unpack(_checked_plan(frame), frame)
+
+
 def _build_full(p: _Plan, frame: bytes) -> Any:
     t = _unpack(p, frame)
     if p.simple:
