@@ -57,6 +57,7 @@ START_MAX_CLIMB_MPS = 0.6
 START_MAX_WAIT_S = 3.0
 ESTIMATOR_INPUTS = ("estimate", "estimate_imu", "estimate_fixes")
 _GLOBAL_HISTORY = 64
+_PENDING_FIXES = 16  # payload fixes waiting for a vehicle fix after them (1.6 s at 10 Hz)
 
 
 @dataclass
@@ -73,6 +74,8 @@ class SwingFeed:
     _ground_z: float | None = None  # where the vehicle stood (local NED z, m), seen while on the ground
     _taut_since_s: float | None = None  # when the vehicle first was a cable's length up (vehicle time, s)
     payload_offset: tuple[float, np.ndarray] | None = None  # (t, payload − airframe NED m) of the newest fix
+    fresh_offsets: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
+    _pending_fixes: list[tuple[float, tuple[float, float, float], np.ndarray]] = field(default_factory=list)
     _vglobal_t: list[float] = field(default_factory=list)
     _vglobal: list[tuple[float, float, float]] = field(default_factory=list)
 
@@ -128,10 +131,12 @@ class SwingFeed:
                 self._vglobal.append((msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3))
                 if len(self._vglobal_t) > _GLOBAL_HISTORY:
                     del self._vglobal_t[0], self._vglobal[0]
+                self._complete_payload_fixes()
             return
         src = msg.get_srcSystem()
         if src == state.payload_sysid and mtype == "GLOBAL_POSITION_INT":
             self._payload_global(msg)
+            return
         est = self.estimator
         if est is None:
             return
@@ -149,36 +154,60 @@ class SwingFeed:
                 est.update_imu(msg.time_boot_ms * 1e-3,
                                (msg.xacc * MG_TO_MPS2, msg.yacc * MG_TO_MPS2, msg.zacc * MG_TO_MPS2))
                 self._count("imu")
-        elif src == state.payload_sysid and self.use_fixes:
-            if mtype == "GLOBAL_POSITION_INT":
-                po = self.payload_offset
-                if po is None or po[0] != msg.time_boot_ms * 1e-3:
-                    return  # not differenced (no vehicle position at its time)
-                if float(np.linalg.norm(po[1])) < SLACK_FRACTION * self.params.l:
-                    self._count("slack_fix")
-                    return
-                est.update_payload_offset(po[0], po[1])
+        elif src == state.payload_sysid and self.use_fixes and mtype == "LOCAL_POSITION_NED":
+            p = (msg.x, msg.y, msg.z)
+            if not all(math.isfinite(c) for c in p):
+                return
+            if state.pos_ned_m is not None and math.dist(p, state.pos_ned_m) < SLACK_FRACTION * self.params.l:
+                self._count("slack_fix")
+                return
+            if est.update_payload_position(msg.time_boot_ms * 1e-3, p):
                 self._count("payload_fix")
-            elif mtype == "LOCAL_POSITION_NED":
-                p = (msg.x, msg.y, msg.z)
-                if not all(math.isfinite(c) for c in p):
-                    return
-                if state.pos_ned_m is not None and math.dist(p, state.pos_ned_m) < SLACK_FRACTION * self.params.l:
-                    self._count("slack_fix")
-                    return
-                if est.update_payload_position(msg.time_boot_ms * 1e-3, p):
-                    self._count("payload_fix")
 
     def _payload_global(self, msg: Any) -> None:
-        """A payload GLOBAL_POSITION_INT (ArduPilot's convention) as an offset from the airframe, against the
-        vehicle's own GLOBAL_POSITION_INT at the fix's time; kept in :attr:`payload_offset`."""
+        """A payload GLOBAL_POSITION_INT (ArduPilot's convention): kept until the vehicle's own GLOBAL_POSITION_INT
+        brackets its time, then differenced against the vehicle's position interpolated there.
+
+        Both arrive at 10 Hz from ArduCopter, the payload's ~80 ms after the vehicle's: differenced against the
+        newest vehicle fix instead, the offset was off by the vehicle's travel in between (0.4 m at 5 m/s)."""
         t = msg.time_boot_ms * 1e-3
-        v = self._vehicle_global_at(t)
-        if v is None:
-            return
-        off = payload_offset_from_global(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3, *v)
-        if np.all(np.isfinite(off)):
+        fix = (t, (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3), np.array([msg.vx, msg.vy, msg.vz]) * 1e-2)
+        self._pending_fixes.append(fix)
+        if len(self._pending_fixes) > _PENDING_FIXES:
+            del self._pending_fixes[0]
+            self._count("payload_fix_unpaired")
+        self._complete_payload_fixes()
+
+    def _complete_payload_fixes(self) -> None:
+        """Difference the pending payload fixes the vehicle's history now covers (see :meth:`_payload_global`)."""
+        ts = self._vglobal_t
+        while self._pending_fixes and ts and self._pending_fixes[0][0] <= ts[-1]:
+            t, (lat, lon, alt), vel = self._pending_fixes.pop(0)
+            v = self._vehicle_global_at(t)
+            if v is None:
+                self._count("payload_fix_unpaired")
+                continue
+            off = payload_offset_from_global(lat, lon, alt, *v)
+            if not np.all(np.isfinite(off)):
+                continue
             self.payload_offset = (t, off)
+            self.fresh_offsets.append((t, off, vel))
+            self._use_payload_offset(t, off)
+
+    def _use_payload_offset(self, t: float, off: np.ndarray) -> None:
+        """One differenced payload fix for the estimator (skipped while the cable is slack)."""
+        if self.estimator is None or not self.use_fixes:
+            return
+        if float(np.linalg.norm(off)) < SLACK_FRACTION * self.params.l:
+            self._count("slack_fix")
+            return
+        self.estimator.update_payload_offset(t, off)
+        self._count("payload_fix")
+
+    def take_fresh_offsets(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
+        """The payload fixes differenced since the last call: (t s, payload − airframe NED m, payload NED m/s)."""
+        out, self.fresh_offsets = self.fresh_offsets, []
+        return out
 
     def _vehicle_global_at(self, t: float) -> tuple[float, float, float] | None:
         """The vehicle's (lat, lon, alt) at ``t``, linearly interpolated; None outside the history (+0.2 s)."""

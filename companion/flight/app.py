@@ -258,11 +258,10 @@ class FlightApp:
         mtype = self.state.ingest(msg, wall)
         if mtype != "REJECTED":
             self.swing_feed.ingest(mtype, msg, self.state)
-            if mtype == "GLOBAL_POSITION_INT" and msg.get_srcSystem() == self.state.payload_sysid:
-                po = self.swing_feed.payload_offset  # ArduPilot's payload: a fix relative to the airframe
-                if po is not None and po[0] == msg.time_boot_ms * 1e-3 and self.state.pos_ned_m is not None:
-                    self.state.set_payload_fix(po[0], self.state.pos_ned_m + po[1],
-                                               np.array([msg.vx, msg.vy, msg.vz]) * 1e-2)
+            if mtype == "GLOBAL_POSITION_INT":  # ArduPilot's payload: fixes relative to the airframe, once paired
+                for t_fix, off, vel in self.swing_feed.take_fresh_offsets():
+                    if self.state.pos_ned_m is not None:  # the angles come from ``off`` alone
+                        self.state.set_payload_fix(t_fix, self.state.pos_ned_m + off, vel)
         if not known and self.state.vehicle_sysid is not None:
             self._vehicle_found()
         src = msg.get_srcSystem()

@@ -17,8 +17,9 @@ Failures, checked every step, first match wins:
 ==========================================  ============================================================
 what                                        what the sequence does
 ==========================================  ============================================================
-no HEARTBEAT for 1.5 s, or no position/     ``link_lost``: stop streaming (the autopilot's own offboard-loss
-attitude for 0.5 s (wall clock)             failsafe takes over), finish
+no HEARTBEAT for 1.5 s (5 s before          ``link_lost``: stop streaming (the autopilot's own offboard-loss
+setpoints flow), or no position/attitude    failsafe takes over), finish
+for 0.5 s (wall clock)
 the vehicle leaves our mode, or is          ``preempted``: stop streaming, finish (the vehicle's last
 disarmed in flight, by someone else         STATUSTEXT says who/why when it said so)
 Ctrl-C / abort                              HOLD, then LAND (unless told to hold only)
@@ -104,6 +105,9 @@ class SequenceConfig:
     ready_timeout_s: float = 90.0  # telemetry and "ready to arm" (PX4 SITL can take ~40 s after boot)
     prestream_s: float = 1.0  # setpoints stream this long before arming / taking over (PX4 needs >= 1)
     heartbeat_loss_s: float = 1.5  # no HEARTBEAT for this long: link lost
+    # ... before setpoints flow (CONFIGURE, WAIT_READY) nothing depends on us yet, and PX4 SIH was seen to miss
+    # its 1 Hz HEARTBEAT for over 1.5 s while its estimator started: only this long ends the wait then
+    heartbeat_loss_waiting_s: float = 5.0
     telemetry_loss_s: float = 0.5  # no position or attitude for this long: link lost
     stale_s: float = 0.3  # position or attitude older than this in flight: hold
     invalid_estimate_s: float = 0.3  # invalid estimates for this long: hold (the last valid setpoint until then)
@@ -371,9 +375,10 @@ class FlightSequence:
         # Before setpoints flow, an autopilot that pauses its telemetry (PX4 while its estimator starts) is only
         # not ready yet; from then on the vehicle may depend on us, and silence is a lost link.
         telemetry_counts = s not in (State.CONFIGURE, State.WAIT_READY)
-        if hb_age > self.cfg.heartbeat_loss_s or (telemetry_counts and obs.telemetry_ready
-                                                  and tel_age > self.cfg.telemetry_loss_s):
-            what = (f"no HEARTBEAT for {hb_age:.1f} s" if hb_age > self.cfg.heartbeat_loss_s
+        hb_limit = self.cfg.heartbeat_loss_s if telemetry_counts else max(self.cfg.heartbeat_loss_s,
+                                                                         self.cfg.heartbeat_loss_waiting_s)
+        if hb_age > hb_limit or (telemetry_counts and obs.telemetry_ready and tel_age > self.cfg.telemetry_loss_s):
+            what = (f"no HEARTBEAT for {hb_age:.1f} s" if hb_age > hb_limit
                     else f"no position/attitude for {tel_age:.2f} s")
             if self.outcome == "stale_telemetry":  # that was the first sign of this: name the real cause
                 self.outcome = "running"
