@@ -99,3 +99,13 @@ def test_profiles_carry_the_mode_family():
     assert profile_for_autopilot(12, 0.45).name == "px4" and profile_for_autopilot(12, 0.45).hover_thrust_norm == 0.45
     with pytest.raises(ValueError, match="mode"):
         px4.mode_params("acro")
+
+
+def test_a_payload_on_the_ground_is_lifted_straight_up_before_the_vehicle_moves_sideways():
+    """From the ground, a mission starting lower than a cable's length + 0.3 m climbs to that first; from the air,
+    or for missions starting higher, the climb ends at the start altitude."""
+    from companion.flight.core import LIFT_MARGIN_M, climb_altitude_ned_m
+
+    assert climb_altitude_ned_m(0.0, 0.0, 1.0) == -(1.0 + LIFT_MARGIN_M)  # Group 1: start on the ground
+    assert climb_altitude_ned_m(0.0, -2.0, 1.0) == -2.0  # the forest: 2 m is higher anyway
+    assert climb_altitude_ned_m(-3.0, -1.0, 1.0) == -1.0  # already flying with the payload up: no detour

@@ -99,6 +99,22 @@ class Command:
     no_route: bool = False
 
 
+LIFT_MARGIN_M = 0.3  # a payload lifted off the ground hangs this far clear of it before the vehicle moves sideways
+
+
+def climb_altitude_ned_m(z0_ned_m: float, start_z_ned_m: float, cable_m: float) -> float:
+    """Where the vertical climb ends (NED z, m): the mission's start altitude, but a vehicle taking off with its
+    payload on the ground (less than a cable's length up) first lifts it straight up, to a cable's length plus
+    LIFT_MARGIN_M, before it moves sideways.
+
+    Moving off diagonally drags the payload: the cable snaps taut at an angle and the payload swings from there
+    (Group 1, origin to 5 m above (3, 4), took off at 45°: 0.55 rad at lift-off, against 0.2 rad in flight)."""
+    lift_z = -(cable_m + LIFT_MARGIN_M)
+    if z0_ned_m > -cable_m and start_z_ned_m > lift_z:
+        return lift_z
+    return start_z_ned_m
+
+
 class FlightCore:
     """Per-tick flight logic for one mission; call :meth:`update` with each new estimate."""
 
@@ -122,6 +138,7 @@ class FlightCore:
         #: swung the payload to 0.35 rad in the first second (bundled vehicle, sensorless). 0 = never wait.
         self.swing_wait_s = 0.0
         self.t_swing_wait_s: float | None = None  # when the climb started waiting for the estimate
+        self._climb_z = float(mission.start_ned_m[2])  # where the climb ends (NED z, m; see climb_altitude_ned_m)
         self.timed_out = False
         self.t0_s: float | None = None
         self.t_prev_s: float | None = None
@@ -206,8 +223,8 @@ class FlightCore:
             self.phase = "done"
         if self.phase == "climb":
             assert self.ref is not None
-            if abs(float(est.pos_ned_m[2]) - m.start_ned_m[2]) < ARRIVE_VERT_M and abs(
-                self.ref.p[2] - m.start_ned_m[2]
+            if abs(float(est.pos_ned_m[2]) - self._climb_z) < ARRIVE_VERT_M and abs(
+                self.ref.p[2] - self._climb_z
             ) < 0.02 and self._swing_ready(est):
                 self.phase = "cruise"
         elif self.phase == "cruise":
@@ -247,7 +264,8 @@ class FlightCore:
             self.ref = ReferenceGenerator(self.cfg.planner, np.asarray(pos, dtype=np.float64))
             self.t0_s = est.t_s
             self.yaw_rad = float(est.euler_rad[2])
-            if abs(z - m.start_ned_m[2]) < ARRIVE_VERT_M:
+            self._climb_z = climb_altitude_ned_m(z, float(m.start_ned_m[2]), self.params.l)
+            if abs(z - self._climb_z) < ARRIVE_VERT_M:
                 self.phase = "cruise"
         dt = 0.004 if self.t_prev_s is None else est.t_s - self.t_prev_s
         self.t_prev_s = est.t_s
@@ -284,7 +302,7 @@ class FlightCore:
             acc_ctl = self._acc_for_controller(out, est)
         elif self.phase == "climb":
             vdx = vdy = 0.0
-            vdz = self._vertical_speed(float(m.start_ned_m[2]))
+            vdz = self._vertical_speed(self._climb_z)
         elif self.phase == "cruise":
             inp = PlanInput(
                 t_s=est.t_s, pos_m=np.asarray(pos[:2], dtype=np.float64), vel_mps=np.asarray(vel[:2], dtype=np.float64),
