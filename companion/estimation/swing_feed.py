@@ -70,6 +70,8 @@ class SwingFeed:
     config: SwingEstimatorConfig = field(default_factory=SwingEstimatorConfig)
     estimator: SwingEstimator | None = None
     last: SwingEstimate | None = None
+    ran: SwingEstimator | None = None  # the estimator of this flight, kept after it stopped (for the report)
+    last_seen: SwingEstimate | None = None  # its newest estimate, kept after it stopped
     counts: dict[str, int] = field(default_factory=dict)
     _ground_z: float | None = None  # where the vehicle stood (local NED z, m), seen while on the ground
     _taut_since_s: float | None = None  # when the vehicle first was a cable's length up (vehicle time, s)
@@ -98,8 +100,17 @@ class SwingFeed:
     # ------------------------------------------------------------------------------------------ start
     def maybe_start(self, state: Any) -> None:
         """Start the estimator at lift-off (airborne and armed), if this swing input wants it and — for
-        ``auto`` — the vehicle has no cable sensor."""
-        if self.estimator is not None or not self.wants_estimator or state.vel_ned_mps is None:
+        ``auto`` — the vehicle has no cable sensor; stop it once the payload is down again (the vehicle on the
+        ground, or lower than a cable's length over where it took off: the cable is slack, there is no swing)."""
+        if self.estimator is not None:
+            low = (self._ground_z is not None and state.pos_ned_m is not None
+                   and float(state.pos_ned_m[2]) > self._ground_z - self.params.l)
+            if state.on_ground or low:
+                self.estimator = None
+                self._taut_since_s = None
+                self._count("stopped_payload_down")
+            return
+        if not self.wants_estimator or state.vel_ned_mps is None:
             return
         if self.swing_input == "auto" and state.swing_sensor is not None:
             return
@@ -118,6 +129,7 @@ class SwingFeed:
         # the cable has just snapped taut: the payload may already swing, so the start is uncertain
         self.estimator = SwingEstimator(self.params, self.config, t0_s=state.t_s, vel0_ned_mps=state.vel_ned_mps,
                                         swing_sigma0_rad=START_SWING_SIGMA_RAD)
+        self.ran = self.estimator
         if state.euler_rad is not None:
             self.estimator.set_attitude_euler(state.t_s, state.euler_rad, state.rates_frd_rad_s)
 
@@ -242,7 +254,7 @@ class SwingFeed:
         if self.swing_input == "auto" and est.swing_source == "cable_sensor":
             return est
         se = self.estimator.estimate(est.t_s)
-        self.last = se
+        self.last = self.last_seen = se
         if not np.all(np.isfinite(se.swing)):
             return replace(est, swing=None, swing_source="none")
         return replace(est, swing=se.swing, swing_source="estimate", swing_fade=se.fade,

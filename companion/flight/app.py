@@ -665,11 +665,11 @@ class FlightApp:
     def _estimator_facts(self) -> dict[str, Any] | None:
         """What the swing estimator ran on, when it ran."""
         feed = self.swing_feed
-        if feed.estimator is None:
+        if feed.ran is None:
             return None
-        last = feed.last
+        last = feed.last_seen
         return {"inputs": dict(feed.counts), "rejected": None if last is None else last.rejected,
-                "dropped_late": feed.estimator.dropped_late,
+                "dropped_late": feed.ran.dropped_late,
                 "sources_last_second": None if last is None else list(last.sources),
                 "fade_last": None if last is None else last.fade}
 
