@@ -50,7 +50,9 @@ def test_phases_cruise_hold_done():
     assert core.phase == "cruise"
     assert cmd.ref_vel_ned_mps[0] >= 0.0
     core.update(_est(0.1, [3.95, 0.0, -2.0]))
-    assert core.phase == "hold"
+    assert core.phase == "cruise"  # within the tolerance, but not yet for the dwell time
+    core.update(_est(0.45, [3.97, 0.0, -2.0]))
+    assert core.phase == "hold" and core.t_arrived_s == 0.1  # arrived when it first got there
     core.update(_est(0.6, [4.0, 0.0, -2.0]))
     assert core.phase == "hold"
     cmd = core.update(_est(1.2, [4.0, 0.0, -2.0]))
@@ -109,3 +111,17 @@ def test_a_payload_on_the_ground_is_lifted_straight_up_before_the_vehicle_moves_
     assert climb_altitude_ned_m(0.0, 0.0, 1.0) == -(1.0 + LIFT_MARGIN_M)  # Group 1: start on the ground
     assert climb_altitude_ned_m(0.0, -2.0, 1.0) == -2.0  # the forest: 2 m is higher anyway
     assert climb_altitude_ned_m(-3.0, -1.0, 1.0) == -1.0  # already flying with the payload up: no detour
+
+
+def test_arrival_tolerance_follows_the_autopilots_reported_accuracy():
+    """0.1 m where the autopilot reports nothing; twice its 1σ horizontal accuracy where it is coarser."""
+    from companion.flight.core import ARRIVE_DWELL_S, FlightCore
+
+    def est(acc):
+        return Estimate(t_s=0.0, pos_ned_m=np.zeros(3), vel_ned_mps=np.zeros(3), euler_rad=np.zeros(3),
+                        rates_frd_rad_s=np.zeros(3), pos_accuracy_m=acc)
+
+    assert FlightCore.arrival_tolerance_m(est(None)) == 0.1
+    assert FlightCore.arrival_tolerance_m(est(0.02)) == 0.1
+    assert FlightCore.arrival_tolerance_m(est(0.2)) == pytest.approx(0.4)
+    assert ARRIVE_DWELL_S > 0.0

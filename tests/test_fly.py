@@ -38,6 +38,8 @@ def test_forest_mission_flies_over_mavlink_in_lockstep(forest_run):
     assert rep["collisions"] == 0 and rep["min_clearance_m"] > 0.0
     assert rep["time_to_goal_s"] <= 10.0
     assert rep["lockstep"] is True and rep["outcome"] == "completed"
+    # the arrival rule is recorded: 0.1 m (the bundled vehicle reports no accuracy), held for the dwell time
+    assert rep["arrival"]["tolerance_m"] == 0.1 and rep["arrival"]["dwell_s"] > 0 and rep["arrival"]["t_s"] is not None
     assert rep["loop"]["ticks"] > 1000
     for key in ("path_length_m", "payload_path_length_m", "max_swing_rad", "swing_settle_s", "sim_time_s",
                 "wall_time_s", "planner", "controller"):

@@ -32,7 +32,7 @@ def classify(custom_mode: int) -> str:
 
 def setup(opts: SetupOptions) -> tuple[tuple[str, float], ...]:
     """Message rates (attitude and position at the control rate), the IMU for the swing estimator, the home
-    position, the version, the hover thrust."""
+    position, the estimator's accuracy (for the arrival tolerance; optional), the version, the hover thrust."""
     fast = interval_us(opts.rate_hz)
     items = [
         ("message_interval:ATTITUDE", fast),
@@ -40,6 +40,7 @@ def setup(opts: SetupOptions) -> tuple[tuple[str, float], ...]:
         ("message_interval:EXTENDED_SYS_STATE", 1e5),
         ("message_interval:SYS_STATUS", 2e5),
         ("message_interval:HOME_POSITION", 1e6),
+        ("message_interval:ESTIMATOR_STATUS", 2e5),
     ]
     if opts.imu:
         items.append(("message_interval:HIGHRES_IMU", fast))

@@ -37,6 +37,7 @@ class Estimate:
     swing_source: str = "none"
     swing_fade: float = 1.0
     swing_bound_rad: float | None = None
+    pos_accuracy_m: float | None = None  # 1σ horizontal position accuracy the autopilot reports (m), if it does
 
 
 def swing_from_payload(

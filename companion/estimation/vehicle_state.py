@@ -109,6 +109,7 @@ class VehicleState:
     att_t_s: float = -1e9
     swing_sensor: np.ndarray | None = None
     swing_sensor_t_s: float = -1e9
+    pos_accuracy_m: float | None = None  # ESTIMATOR_STATUS.pos_horiz_accuracy (PX4), m
     payload_pos_ned_m: np.ndarray | None = None
     payload_vel_ned_mps: np.ndarray | None = None
     payload_t_s: float = -1e9
@@ -286,6 +287,10 @@ class VehicleState:
                 "flight_custom_version": bytes(msg.flight_custom_version).hex()
                 if not isinstance(msg.flight_custom_version, str) else msg.flight_custom_version,
             }
+        elif mtype == "ESTIMATOR_STATUS":  # PX4: the estimator's own horizontal position accuracy (1σ, m)
+            acc = float(msg.pos_horiz_accuracy)
+            if isfinite(acc) and 0.0 < acc < 100.0:
+                self.pos_accuracy_m = acc
         elif mtype == "SYS_STATUS":
             self.sys_status_seen = True
             self.sensors_present = int(msg.onboard_control_sensors_present)
@@ -369,4 +374,5 @@ class VehicleState:
             rates_frd_rad_s=self.rates_frd_rad_s,
             swing=swing,
             swing_source=source,
+            pos_accuracy_m=self.pos_accuracy_m,
         )

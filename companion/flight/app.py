@@ -70,6 +70,7 @@ ATT_TYPE_MASK = (
 TICK_ONLY_MASK = ATT_TYPE_MASK | mavlink2.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE | \
     mavlink2.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE
 _LEVEL_Q = np.array([1.0, 0.0, 0.0, 0.0])
+OPTIONAL_STREAMS = {"message_interval:ESTIMATOR_STATUS"}  # nice to have: refusing them is no warning
 SWING_WAIT_S = 5.0  # with a swing estimator: the longest the climb waits at the start altitude for its trust (s)
 RELEVANT_RADIUS_M = 20.0  # obstacles farther than this from the vehicle are not given to the planner
 MAX_OBSTACLES_SEEN = 4096  # the report's record of obstacles met is bounded too
@@ -481,6 +482,8 @@ class FlightApp:
                         raise RuntimeError("injected tick fault (SLUNGPILOT_INJECT_TICK_ERROR_AT_S)")
                     obstacles = self._obstacles(est)
                     cmd = self.core.update(est, obstacles)
+                    if self.core.arrival["t_s"] is not None:  # the report's "at the goal" follows the flight's
+                        self.log.goal_tol_m = self.core.arrival["tolerance_m"]
                     self.swing_feed.commanded(est.t_s, cmd.thrust_n)
                     self.last_cmd = cmd
                     setpoint = (est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm)
@@ -568,8 +571,8 @@ class FlightApp:
         """Use what the set-up learned: the hover thrust parameter; say which streams were refused."""
         for key, value in answers.items():
             if key.startswith("message_interval:") and (value != value or int(value) != mavlink2.MAV_RESULT_ACCEPTED):
-                log.warning("the vehicle refused or ignored %s (answer %s); flying with the rates it sends", key,
-                            value)
+                (log.info if key in OPTIONAL_STREAMS else log.warning)(
+                    "the vehicle refused or ignored %s (answer %s); flying with the rates it sends", key, value)
         if self.opts.hover_thrust_norm is None:
             value = answers.get(f"param_read:{self.profile.hover_param}")
             if value is not None and 0.05 <= float(value) <= 0.95:  # NaN (never answered) fails this too
@@ -660,6 +663,7 @@ class FlightApp:
                           "mav_type": self.state.vehicle_type, "version": self.state.autopilot_version},
             "autopilot_params": self.params,
             "mission_frame": {"origin_local_ned_m": self.origin_ned_m.tolist(), "origin": self.origin_source},
+            "arrival": dict(self.core.arrival),
         }
 
     def _estimator_facts(self) -> dict[str, Any] | None:

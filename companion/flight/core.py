@@ -62,7 +62,9 @@ log = logging.getLogger(__name__)
 
 PHASES = ("climb", "cruise", "hold", "no_route", "done", "hold_here", "descend")
 DESCENT_MPS = 0.5  # the companion's own landing descent (when the autopilot's land mode is not confirmed)
-ARRIVE_HORIZ_M = 0.1
+ARRIVE_HORIZ_M = 0.1  # arrival tolerance (m) where the autopilot reports no position accuracy, and the least
+ARRIVE_ACCURACY_K = 2.0  # ... otherwise ARRIVE_ACCURACY_K × its 1σ horizontal accuracy (PX4's ESTIMATOR_STATUS)
+ARRIVE_DWELL_S = 0.3  # the vehicle must stay within the tolerance this long for the arrival to count
 ARRIVE_VERT_M = 0.25
 SWING_READY_FADE = 0.9  # the swing estimate carries this much feed-forward: trusted enough to start the cruise
 TIMED_PHASES = ("cruise", "hold", "no_route", "done")  # where a time-parameterised planner gives the reference
@@ -143,6 +145,10 @@ class FlightCore:
         self.t0_s: float | None = None
         self.t_prev_s: float | None = None
         self.t_arrived_s: float | None = None
+        self._t_within_s: float | None = None  # since when the vehicle is within the arrival tolerance
+        #: the arrival rule of this flight, for the report: tolerance (m), dwell (s), the accuracy it came from
+        self.arrival: dict[str, float | None] = {"tolerance_m": ARRIVE_HORIZ_M, "dwell_s": ARRIVE_DWELL_S,
+                                                 "accuracy_m": None, "t_s": None}
         self.yaw_rad = 0.0
         hover = self.params.hover_thrust_n
         lim = self.cfg.limits
@@ -198,6 +204,13 @@ class FlightCore:
         v = min(p.vz_max_mps, math.sqrt(2.0 * 0.5 * p.az_max_mps2 * abs(dz)), p.ka * abs(dz))
         return math.copysign(v, dz)
 
+    @staticmethod
+    def arrival_tolerance_m(est: Estimate) -> float:
+        """How close (m, horizontally) counts as at the goal: ARRIVE_HORIZ_M, widened to ARRIVE_ACCURACY_K times
+        the autopilot's reported 1σ position accuracy (an estimate good to 0.2 m cannot confirm 0.1 m)."""
+        acc = est.pos_accuracy_m
+        return ARRIVE_HORIZ_M if acc is None else max(ARRIVE_HORIZ_M, ARRIVE_ACCURACY_K * acc)
+
     def _swing_ready(self, est: Estimate) -> bool:
         """Whether the swing input is ready for the cruise (see :attr:`swing_wait_s`); starts the wait clock."""
         if self.swing_wait_s <= 0.0 or (est.swing is not None and est.swing_source != "estimate"):
@@ -229,9 +242,16 @@ class FlightCore:
                 self.phase = "cruise"
         elif self.phase == "cruise":
             dh = math.hypot(est.pos_ned_m[0] - m.goal_ned_m[0], est.pos_ned_m[1] - m.goal_ned_m[1])
-            if dh < ARRIVE_HORIZ_M and abs(float(est.pos_ned_m[2]) - m.goal_ned_m[2]) < ARRIVE_VERT_M:
-                self.phase = "hold"
-                self.t_arrived_s = t
+            tol = self.arrival_tolerance_m(est)
+            if dh < tol and abs(float(est.pos_ned_m[2]) - m.goal_ned_m[2]) < ARRIVE_VERT_M:
+                if self._t_within_s is None:
+                    self._t_within_s = t
+                if t - self._t_within_s >= ARRIVE_DWELL_S:
+                    self.phase = "hold"
+                    self.t_arrived_s = self._t_within_s
+                    self.arrival.update(tolerance_m=tol, accuracy_m=est.pos_accuracy_m, t_s=self._t_within_s)
+            else:
+                self._t_within_s = None
         elif self.phase == "hold":
             assert self.t_arrived_s is not None
             if t - self.t_arrived_s >= m.hold_s:

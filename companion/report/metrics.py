@@ -3,7 +3,8 @@
 The same :class:`FlightLog` is filled by the in-process runner (``lab.inprocess``) and can be filled
 by the MAVLink app, so both report identical keys (issue 4's report):
 
-reached_goal, time_to_goal_s (first time within 0.1 m of the goal horizontally, counted from the start of
+reached_goal, time_to_goal_s (first time within 0.1 m of the goal horizontally, or the flight's wider arrival
+tolerance where the autopilot reports a coarser position accuracy, counted from the start of
 the cruise phase, i.e. once the vehicle is at mission altitude; ``time_to_goal_from_start_s`` counts from
 the first log row), path_length_m (airframe, horizontal, until the goal), payload_path_length_m (same
 interval), max_swing_rad (max of |α|, |β|), swing_settle_s (time from cruise start after which both stay
@@ -38,6 +39,7 @@ class FlightLog:
     controller: str = ""
     mission: str = ""
     obstacles: tuple[Obstacle, ...] = ()
+    goal_tol_m: float = GOAL_TOL_M  # "at the goal" horizontally (the flight's arrival tolerance, m)
     t: list[float] = field(default_factory=list)
     pos: list[np.ndarray] = field(default_factory=list)
     vel: list[np.ndarray] = field(default_factory=list)
@@ -172,7 +174,7 @@ def compute_metrics(log: FlightLog, mission) -> dict[str, Any]:
     i_cruise = _first_index(phases == "cruise")
     t_cruise = float(t[i_cruise]) if i_cruise is not None else float(t[0])
     d_goal = np.hypot(pos[:, 0] - goal[0], pos[:, 1] - goal[1])
-    i_goal = _first_index(d_goal < GOAL_TOL_M)
+    i_goal = _first_index(d_goal < log.goal_tol_m)
     end = (i_goal + 1) if i_goal is not None else len(t)
     obstacles = log.obstacles or tuple(mission.obstacles)
     vp = mission.vehicle
