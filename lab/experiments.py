@@ -239,7 +239,7 @@ def report_markdown(res: dict[str, Any]) -> str:
         f"Every row is one `slungpilot fly --sitl` flight: the companion streams SET_ATTITUDE_TARGET over MAVLink/UDP "
         f"to the bundled vehicle (separate process, lockstep), wind of eq. 49 on. Mode: "
         f"{f'quick (hold {QUICK_HOLD_S:g} s, no landing)' if res['quick'] else 'full (mission files as committed)'}; "
-        f"{res['wall_s']:.0f} s wall for {len(g1) + len(g2)} flights, 2 at a time.",
+        f"{res['wall_s']:.0f} s wall for {len(g1) + len(g2) + len(res.get('group3') or {})} flights.",
         "",
         "Times are counted from the start of the cruise (at mission altitude); *settled* = both swing angles stay "
         "below 0.05 rad from then on; clearance = min over time and trunks of airframe circle (r_uav + L_uav) and "
