@@ -12,7 +12,7 @@ import pytest
 from lab.evaluate import evaluate
 from lab.forests import ForestSpec
 
-WALL_CLOCK = ("wall_time_s", "job_wall_s")
+WALL_CLOCK = ("wall_time_s", "job_wall_s", "finished_unix_s", "worker_pid", "worker_rss_mb")  # where and when, not what
 ROOT = Path(__file__).resolve().parents[1]
 
 
