@@ -72,7 +72,7 @@ def test_experiments_quick_over_mavlink(tmp_path):
     res = json.loads((out / "experiments.json").read_text())
     assert set(res["group1"]) == {"pid", "smc", "smc_ff"}
     assert set(res["group2"]) == {"traditional", "improved", "safe", "shaped"}
-    assert set(res["group3"]) == {"cable_sensor", "estimate_imu"}  # --quick: the sensor and the sensorless estimate
+    assert set(res["group3"]) == {"estimate_imu"}  # --quick: the sensorless estimate (the sensor is Group 2's safe)
     est = res["group3"]["estimate_imu"]["swing_estimation_error"]
     assert est["ticks"] > 1000 and est["rms_rad"] < 0.1  # scored against the cable sensor's truth
     assert "## Group 3" in md and "| estimate_imu | yes |" in md
