@@ -121,26 +121,35 @@ class _Cmd:
                 os.kill(pid, signal.SIGKILL)
 
 
-@pytest.mark.slow
-def test_evaluate_ctrl_c_to_the_process_group_stops_with_a_partial_summary(tmp_path):
-    out = tmp_path / "ev"
-    cmd = _Cmd(["evaluate", "--n", "6", "--planners", "safe", "--mode", "mavlink", "--workers", "2", "--length", "12",
-                "--out", str(out)])
+def _interrupt_evaluate(out: Path, *extra: str, wait_s: float = 120.0) -> tuple[_Cmd, float, list, list, dict]:
+    """Start ``evaluate`` on six 12 m forests over MAVLink, Ctrl-C its process group once the first mission has
+    finished and a vehicle flies: (command, seconds to stop, vehicles running at the time, processes left, the
+    summary)."""
+    cmd = _Cmd(["evaluate", "--n", "6", "--planners", "safe", "--mode", "mavlink", "--length", "12",
+                "--out", str(out), *extra])
     try:
-        cmd.wait_for("1/6", 120)
+        cmd.wait_for("1/6", wait_s)
         time.sleep(0.5)  # the freed worker has started its next vehicle
         running = [c for _, c in _tagged(cmd.tag) if "sim_bridge" in c]
         dt = cmd.interrupt(group=True)
         left = cmd.leftovers()
     finally:
         cmd.cleanup()
-    print(f"evaluate stopped {dt:.2f} s after SIGINT; vehicles running at the time: {len(running)}")
     assert cmd.proc.returncode == 130, cmd.err.decode()[-3000:]
     assert dt < STOP_LIMIT_S
     assert running, "the test should interrupt while a bundled vehicle flies"
     assert left == [], left
+    assert "Traceback" not in cmd.err.decode()
     s = json.loads((out / "summary.json").read_text())
     assert s["interrupted"] and s["missions_planned"] == 6 and 1 <= s["missions"] < 6
+    return cmd, dt, running, left, s
+
+
+@pytest.mark.slow
+def test_evaluate_ctrl_c_to_the_process_group_stops_with_a_partial_summary(tmp_path):
+    out = tmp_path / "ev"
+    cmd, dt, running, _, s = _interrupt_evaluate(out, "--workers", "2")
+    print(f"evaluate stopped {dt:.2f} s after SIGINT; vehicles running at the time: {len(running)}")
     lines = [json.loads(x) for x in (out / "results.jsonl").read_text().splitlines()]
     assert len(lines) == s["missions"] and all(r["class"] != "error" for r in lines)
     assert s["per_planner"]["safe"]["n"] == s["missions"]
@@ -148,7 +157,6 @@ def test_evaluate_ctrl_c_to_the_process_group_stops_with_a_partial_summary(tmp_p
     assert f"interrupted after {s['missions']} of 6 missions" in md and "PARTIAL" in md
     assert md in cmd.out.decode()  # printed too
     assert f"interrupted after {s['missions']} of 6 missions" in cmd.err.decode()
-    assert "Traceback" not in cmd.err.decode()
 
 
 @pytest.mark.slow
@@ -177,24 +185,10 @@ def test_experiments_ctrl_c_to_the_main_process_stops_with_a_partial_report(tmp_
 @pytest.mark.slow
 def test_evaluate_ctrl_c_with_a_local_dask_cluster(tmp_path):
     pytest.importorskip("distributed")
-    out = tmp_path / "evc"
-    cmd = _Cmd(["evaluate", "--n", "6", "--planners", "safe", "--mode", "mavlink", "--workers", "2", "--length", "12",
-                "--cluster", "local", "--out", str(out)])
-    try:
-        cmd.wait_for("1/6", 150)
-        time.sleep(0.5)
-        running = [c for _, c in _tagged(cmd.tag) if "sim_bridge" in c]
-        dt = cmd.interrupt(group=True)
-        left = cmd.leftovers()
-    finally:
-        cmd.cleanup()
+    _, dt, running, _, s = _interrupt_evaluate(tmp_path / "evc", "--workers", "2", "--cluster", "local",
+                                               wait_s=150.0)
     print(f"evaluate --cluster local stopped {dt:.2f} s after SIGINT; vehicles running: {len(running)}")
-    assert cmd.proc.returncode == 130, cmd.err.decode()[-3000:]
-    assert dt < STOP_LIMIT_S
-    assert running and left == [], left
-    s = json.loads((out / "summary.json").read_text())
-    assert s["interrupted"] and s["cluster"] == "local" and 1 <= s["missions"] < 6
-    assert "Traceback" not in cmd.err.decode()
+    assert s["cluster"] == "local"
 
 
 @pytest.mark.slow
@@ -202,21 +196,7 @@ def test_evaluate_ctrl_c_without_workers_drops_the_flight_it_cut_short(tmp_path)
     """--workers 1 flies in the command itself: a MAVLink flight takes the SIGINT (holds, lands, returns
     'aborted'); that flight is not counted, the finished ones are."""
     out = tmp_path / "ev1"
-    cmd = _Cmd(["evaluate", "--n", "6", "--planners", "safe", "--mode", "mavlink", "--workers", "1", "--length", "12",
-                "--out", str(out)])
-    try:
-        cmd.wait_for("1/6", 120)
-        time.sleep(0.5)
-        running = [c for _, c in _tagged(cmd.tag) if "sim_bridge" in c]
-        dt = cmd.interrupt(group=True)
-        left = cmd.leftovers()
-    finally:
-        cmd.cleanup()
+    _, dt, _, _, _ = _interrupt_evaluate(out, "--workers", "1")
     print(f"evaluate --workers 1 stopped {dt:.2f} s after SIGINT")
-    assert cmd.proc.returncode == 130, cmd.err.decode()[-3000:]
-    assert dt < STOP_LIMIT_S
-    assert running and left == [], left
-    s = json.loads((out / "summary.json").read_text())
-    assert s["interrupted"] and 1 <= s["missions"] < 6
     lines = [json.loads(x) for x in (out / "results.jsonl").read_text().splitlines()]
     assert all(r["outcome"] != "aborted" for r in lines)
