@@ -114,7 +114,7 @@ def test_a_payload_on_the_ground_is_lifted_straight_up_before_the_vehicle_moves_
 
 
 def test_arrival_tolerance_follows_the_autopilots_reported_accuracy():
-    """0.1 m where the autopilot reports nothing; twice its 1σ horizontal accuracy where it is coarser."""
+    """0.1 m where the autopilot reports nothing; its 1σ horizontal accuracy where that is coarser."""
     from companion.flight.core import ARRIVE_DWELL_S, FlightCore
 
     def est(acc):
@@ -123,5 +123,5 @@ def test_arrival_tolerance_follows_the_autopilots_reported_accuracy():
 
     assert FlightCore.arrival_tolerance_m(est(None)) == 0.1
     assert FlightCore.arrival_tolerance_m(est(0.02)) == 0.1
-    assert FlightCore.arrival_tolerance_m(est(0.2)) == pytest.approx(0.4)
+    assert FlightCore.arrival_tolerance_m(est(0.2)) == pytest.approx(0.2)
     assert ARRIVE_DWELL_S > 0.0

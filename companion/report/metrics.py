@@ -105,7 +105,8 @@ class FlightLog:
     def select(self, keep: np.ndarray) -> FlightLog:
         """A new log with only the rows where ``keep`` (bool, (N,)) is true."""
         idx = np.flatnonzero(keep)
-        out = FlightLog(self.planner, self.controller, self.mission, self.obstacles, wall_time_s=self.wall_time_s)
+        out = FlightLog(self.planner, self.controller, self.mission, self.obstacles, wall_time_s=self.wall_time_s,
+                        goal_tol_m=self.goal_tol_m)
         for f in dataclasses.fields(self):
             col = getattr(self, f.name)
             if isinstance(col, list):
