@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -23,7 +22,7 @@ import numpy as np
 from companion.core.mission import mission_to_toml
 from lab.compare import bound_time_s
 from lab.forests import ForestSpec
-from lab.runner import REPORT_KEYS, Job, classify, rss_mb, run_job
+from lab.runner import REPORT_KEYS, Job, classify, process_facts, run_job
 
 log = logging.getLogger(__name__)
 
@@ -99,8 +98,7 @@ def run_eval_job(job: Job) -> dict[str, Any]:
             rep = {"error": f"{type(exc).__name__}: {exc}"}
         out = {k: rep.get(k) for k in REPORT_KEYS}
         out.update(error=rep.get("error"), key=job.key, mode=job.mode, job_wall_s=time.perf_counter() - wall0,
-                   run_dir=str(job.run_dir), mission_file=str(mission_file), worker_pid=os.getpid(),
-                   worker_rss_mb=rss_mb(), finished_unix_s=time.time())
+                   run_dir=str(job.run_dir), mission_file=str(mission_file), **process_facts())
     else:
         out = run_job(replace(job, keep_run_dir=True))
     m = job.mission

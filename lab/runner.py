@@ -131,9 +131,7 @@ def run_job(job: Job) -> dict[str, Any]:
     out["mode"] = job.mode
     out["class"] = classify(rep)
     out["job_wall_s"] = time.perf_counter() - wall0
-    out["worker_pid"] = os.getpid()
-    out["worker_rss_mb"] = rss_mb()
-    out["finished_unix_s"] = time.time()
+    out.update(process_facts())
     out["run_dir"] = str(job.run_dir)
     out["mission_file"] = str(mission_file)
     if not job.keep_run_dir and out["class"] == "success":
@@ -150,6 +148,11 @@ def rss_mb() -> float | None:
             return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
     except (OSError, ValueError, IndexError):
         return None
+
+
+def process_facts() -> dict[str, Any]:
+    """Which worker process finished a job, its RSS then (MB) and when (Unix s): for :func:`memory_summary`."""
+    return {"worker_pid": os.getpid(), "worker_rss_mb": rss_mb(), "finished_unix_s": time.time()}
 
 
 def memory_summary(results: list[dict[str, Any]], parent_start_mb: float | None,

@@ -105,12 +105,10 @@ class FlightLog:
     def select(self, keep: np.ndarray) -> FlightLog:
         """A new log with only the rows where ``keep`` (bool, (N,)) is true."""
         idx = np.flatnonzero(keep)
-        out = FlightLog(self.planner, self.controller, self.mission, self.obstacles, wall_time_s=self.wall_time_s,
-                        goal_tol_m=self.goal_tol_m)
-        for f in dataclasses.fields(self):
+        out = FlightLog()
+        for f in dataclasses.fields(self):  # per-tick columns are lists; everything else is the flight's own
             col = getattr(self, f.name)
-            if isinstance(col, list):
-                setattr(out, f.name, [col[i] for i in idx])
+            setattr(out, f.name, [col[i] for i in idx] if isinstance(col, list) else col)
         return out
 
     def arr(self, name: str) -> np.ndarray:
