@@ -275,19 +275,22 @@ def companion_killed_report(workdir: Path, *, after_s: float = 3.0) -> dict[str,
             "lost_s": max(0.0, flown_s - rows / 250.0), "stderr": rb.stderr[-500:]}
 
 
-def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256) -> dict[str, Any]:
+def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt_priority: int = 0,
+                vary: bool = False) -> dict[str, Any]:
     """A local Zenoh peer floods valid obstacle lists (far-away trunks) at ``rate_hz`` during a real-time
-    forest flight: the mission must complete with the tick's p99 under 1 ms."""
-    run_dir = workdir / "zenoh-flood"
+    forest flight: the mission must complete with the tick's p99 under 1 ms. ``rt_priority`` > 0: fly with
+    ``--rt-priority``; ``vary``: every list differs (no list can be adopted again unparsed)."""
+    run_dir = workdir / ("zenoh-flood" + ("-vary" if vary else "") + (f"-rt{rt_priority}" if rt_priority else ""))
     port = free_tcp_port()
     ep = f"tcp/127.0.0.1:{port}"
-    fly = Proc.start(fly_argv(run_dir, "--sitl", "--realtime", "--zenoh-listen", ep))
+    extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
+    fly = Proc.start(fly_argv(run_dir, "--sitl", "--realtime", "--zenoh-listen", ep, *extra))
     flood = None
     try:
         fly.wait_for("zenoh: publishing under")
-        flood = subprocess.Popen([sys.executable, "-m", "lab.faults", "flood", "--connect", ep, "--rate-hz",
-                                  str(rate_hz), "--trunks", str(trunks)], cwd=ROOT, stdout=subprocess.PIPE,
-                                 stderr=subprocess.PIPE, text=True)
+        flood_argv = [sys.executable, "-m", "lab.faults", "flood", "--connect", ep, "--rate-hz", str(rate_hz),
+                      "--trunks", str(trunks), *(["--vary"] if vary else [])]
+        flood = subprocess.Popen(flood_argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         code = fly.finish(180)
     finally:
         if flood is not None:
@@ -302,6 +305,9 @@ def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256) ->
     rep = read_report(run_dir)
     return {"exit_code": code, "outcome": rep["outcome"], "reached_goal": rep["reached_goal"], "flood_sent": sent,
             "tick_ms_p99": rep["loop"]["tick_ms_p99"], "tick_ms_max": rep["loop"]["tick_ms_max"],
+            "tick_cpu_ms_p99": rep["loop"]["tick_cpu_ms_p99"], "ingest_ms_p99": rep["loop"]["ingest_ms_p99"],
+            "preempted_ticks": rep["loop"]["preempted_ticks"], "scheduling": rep["loop"]["scheduling"],
+            "jitter_ms_p99": rep["loop"]["jitter_ms_p99"],
             "late_ticks": rep["loop"]["late_ticks"], "max_swing_rad": rep["max_swing_rad"],
             "collisions": rep["collisions"], "zenoh": rep.get("zenoh", {}),
             "telemetry_age_ms_p99": rep["link"]["telemetry_age_ms_p99"]}
@@ -319,6 +325,7 @@ def flood_main(argv: list[str]) -> int:
     p.add_argument("--trunks", type=int, default=256, help="far-away trunks per list (without --payload)")
     p.add_argument("--payload", default=None, help="the JSON to put instead of far-away trunks")
     p.add_argument("--key", default="slungpilot/1/obstacles/in/flood")
+    p.add_argument("--vary", action="store_true", help="move the first trunk by 1 µm per list: every list differs")
     p.add_argument("--user", default=None, help="log in with this user (Zenoh usrpwd authentication) ...")
     p.add_argument("--password", default=None, help="... and password; client mode")
     a = p.parse_args(argv)
@@ -348,7 +355,11 @@ def flood_main(argv: list[str]) -> int:
         period = 1.0 / a.rate_hz
         t_next = time.monotonic()
         while not stop:
-            pub.put(payload)
+            if a.vary and a.payload is None:
+                head = json.dumps({"x_m": 100.0 + 1e-6 * sent, "y_m": 150.0, "radius_m": 0.3}).encode()
+                pub.put(payload[:len(b'{"obstacles": [')] + head + b", " + payload[len(b'{"obstacles": ['):])
+            else:
+                pub.put(payload)
             sent += 1
             t_next += period
             delay = t_next - time.monotonic()
@@ -555,6 +566,10 @@ SCENARIOS = {
     "tick_exception": tick_exception,
     "companion_killed_report": companion_killed_report,
     "zenoh_flood": zenoh_flood,
+    # the same flood, the control loops SCHED_FIFO (fly --rt-priority): what the kernel's preemption costs
+    "zenoh_flood_rt": lambda workdir: zenoh_flood(workdir, rt_priority=10),
+    # every list different: none can be adopted again unparsed
+    "zenoh_flood_varying_rt": lambda workdir: zenoh_flood(workdir, rt_priority=10, vary=True),
     "jitter": jitter,
     "signed_forced_disarm": signed_forced_disarm,
 }

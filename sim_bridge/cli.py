@@ -12,6 +12,7 @@ from companion.config import dataclass_from_table
 from companion.core.model import VehicleParams, load_vehicle_params
 from companion.core.wind import WindConfig
 from companion.errors import ConfigError
+from companion.flight.scheduling import RT_PRIORITY_MAX, request_fifo
 from companion.mavlink_io.signing import load_key_file
 from sim_bridge.imu import ImuNoise
 from sim_bridge.vehicle import SitlConfig, SitlVehicle
@@ -55,6 +56,10 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--onboard-peer", metavar="HOST:PORT",
                    help="lock the onboard link to this peer from the start (default: the first sender)")
     g.add_argument("--gcs-peer", metavar="HOST:PORT", help="lock the GCS link to this peer from the start")
+    g.add_argument("--rt-priority", type=int, default=0, metavar="N",
+                   help="run the vehicle's loop SCHED_FIFO at priority N (1..99), as PX4 runs its tasks on Linux "
+                        "(needs CAP_SYS_NICE or `ulimit -r` >= N, else it runs at normal priority and says so); "
+                        "`fly --sitl --rt-priority N` passes it on. Real time only (ignored with --lockstep)")
     g.add_argument("--signing-key", metavar="FILE",
                    help="MAVLink 2 signing on both links with this key file (64 hex characters, or a passphrase "
                         "hashed with SHA-256 as MAVProxy does); unsigned, forged and replayed input is rejected")
@@ -127,8 +132,13 @@ def run_sitl(args: argparse.Namespace) -> int:
         print(f"SITL READY onboard={cfg.onboard_bind[0]}:{cfg.onboard_bind[1]} "
               f"gcs={cfg.gcs_bind[0]}:{cfg.gcs_bind[1]} sysid={cfg.sysid}", flush=True)
 
+    if not 0 <= args.rt_priority <= RT_PRIORITY_MAX:
+        raise ConfigError(f"--rt-priority: must be in 0..{RT_PRIORITY_MAX} (0 = normal scheduling)")
     try:
-        return asyncio.run(SitlVehicle(cfg).run(ready_cb=ready))
+        vehicle = SitlVehicle(cfg)  # start-up work (model kernels) at normal priority
+        if args.rt_priority and not args.lockstep:  # lockstep runs flat out: FIFO would starve the rest
+            request_fifo(args.rt_priority)
+        return asyncio.run(vehicle.run(ready_cb=ready))
     except OSError as exc:
         raise ConfigError(f"cannot bind the SITL ports: {exc}") from None
     except KeyboardInterrupt:

@@ -90,7 +90,7 @@ def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
     run_dir = tmp_path / "abort"
     proc = subprocess.Popen(
         [sys.executable, "-m", "companion.cli.main", "-v", "fly", "--sitl", "--realtime", "--no-zenoh", "--mission",
-         str(FOREST),
+         str(FOREST), "--rt-priority", "5",  # Ctrl-C works the same with the control loops SCHED_FIFO (or refused)
          "--run-dir", str(run_dir)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
     )
@@ -112,6 +112,9 @@ def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
     assert rep["outcome"] == "aborted" and rep["reached_goal"] is False
     assert rep["final_phase"] in ("landed", "land_timeout")
     assert rep["sim_time_s"] > 1.0  # it was flying (mission rows only; the landing is not counted)
+    sched = rep["loop"]["scheduling"]
+    assert sched == "SCHED_FIFO 5" or sched.startswith("SCHED_OTHER (SCHED_FIFO 5 refused"), sched
+    assert rep["loop"]["preempted_ticks"] >= 0
     from pymavlink import mavutil
 
     mlog = mavutil.mavlink_connection(str(run_dir / "flight.tlog"))

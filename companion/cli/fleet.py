@@ -41,6 +41,10 @@ def add_fleet_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rate-hz", type=float, default=None,
                    help="each companion's control rate (default fly's 250 Hz; 100 Hz flies the missions as well and "
                         "costs 2.5x less CPU per pair)")
+    p.add_argument("--rt-priority", type=int, default=10, metavar="N",
+                   help="each companion's --rt-priority (default 10: control threads SCHED_FIFO, so the 2N "
+                        "processes sharing this machine cannot preempt a tick; 0 = normal scheduling; refused "
+                        "without CAP_SYS_NICE or `ulimit -r`, and the per-vehicle line says so; not in --lockstep)")
     p.add_argument("--zenoh-rates", default=None, metavar="STREAM=HZ,...",
                    help="each companion's --zenoh-rates (downsampling at the edge, e.g. swing=25,state=10,setpoint=5)")
 
@@ -116,6 +120,8 @@ def run_fleet(args: argparse.Namespace) -> int:
                 argv += ["--zenoh-rates", args.zenoh_rates]
             if args.rate_hz is not None:
                 argv += ["--rate-hz", f"{args.rate_hz:g}"]
+            if args.rt_priority and not args.lockstep:  # lockstep has no deadlines (and would run FIFO flat out)
+                argv += ["--rt-priority", str(args.rt_priority)]
             procs.append(subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=(root / f"vehicle-{1 + i}.log")
                                           .open("w"), start_new_session=True))
 
@@ -147,14 +153,16 @@ def run_fleet(args: argparse.Namespace) -> int:
         total_bytes = sum(v["bytes"] for v in streams.values())
         per_vehicle[vid] = {"exit": code, "outcome": rep.get("outcome"), "tick_ms_p99": loop.get("tick_ms_p99"),
                             "tick_cpu_ms_p99": loop.get("tick_cpu_ms_p99"),
-                            "late_ticks": loop.get("late_ticks"), "sim_time_s": sim_s, "streams": streams,
+                            "late_ticks": loop.get("late_ticks"), "preempted_ticks": loop.get("preempted_ticks"),
+                            "scheduling": loop.get("scheduling"), "sim_time_s": sim_s, "streams": streams,
                             "bytes_per_sim_s": total_bytes / sim_s if sim_s > 0 else None}
         ok = ok and code == 0
         sw = streams["swing"]
         print(f"  vehicle {vid}: {rep.get('outcome', '?')} (exit {code}), tick p99 "
               f"{loop.get('tick_ms_p99', float('nan')):.3f} ms "
               f"(CPU {loop.get('tick_cpu_ms_p99', float('nan')):.3f} ms), "
-              f"late ticks {loop.get('late_ticks')}, swing samples "
+              f"late ticks {loop.get('late_ticks')}, preempted {loop.get('preempted_ticks')} "
+              f"({loop.get('scheduling')}), swing samples "
               f"{sw['received']} of {sw['published']} published, {sw['lost']} lost in sequence; "
               f"{total_bytes / 1e3:.0f} kB over Zenoh ({total_bytes / sim_s / 1e3:.1f} kB/s)", flush=True)
     summary = {"router": ep, "n": n, "mission": args.mission, "lockstep": bool(args.lockstep), "codes": codes,

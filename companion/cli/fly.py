@@ -160,12 +160,14 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
         swing_input=args.swing_input, heartbeat_timeout_s=args.heartbeat_timeout,
         ready_timeout_s=args.ready_timeout, land_on_abort=not args.no_land_on_abort,
         tlog_path=run_dir / "flight.tlog", run_dir=run_dir, allow_param_writes=not args.no_param_writes,
-        start_here=args.start_here,
+        start_here=args.start_here, rt_priority=args.rt_priority,
         signing_key=None if args.signing_key is None else load_key_file(args.signing_key),
         inject_tick_error_at_s=_env_float("SLUNGPILOT_INJECT_TICK_ERROR_AT_S"),
     )
     if opts.rate_hz <= 0 or opts.rate_hz > 2000:
         raise ConfigError(f"--rate-hz: must be in (0, 2000], got {opts.rate_hz}")
+    if not 0 <= opts.rt_priority <= 99:
+        raise ConfigError(f"--rt-priority: must be in 0..99 (0 = normal scheduling), got {opts.rt_priority}")
     wall0 = time.monotonic()
     stack = contextlib.AsyncExitStack()
     view = flight_view(args, mission, run_dir)  # recording.rrd, and the live viewer with --view
@@ -188,6 +190,7 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
             if view is not None:
                 view.sink.current_obstacles = lambda: zt.last_obstacles
             app.obstacle_source = zt.obstacle_source(mission.obstacles)
+            app.obstacle_ingest = zt.ingest
 
         opts.on_connected = connect_zenoh
     app: FlightApp | None = None
@@ -204,6 +207,8 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
                 period_args += ["--instance", str(args.instance)]
             if args.signing_key is not None:
                 period_args += ["--signing-key", str(args.signing_key)]
+            if opts.rt_priority and not opts.lockstep:  # the simulated autopilot at the same priority, as PX4's
+                period_args += ["--rt-priority", str(opts.rt_priority)]
             sitl = await stack.enter_async_context(
                 SitlProcess(mission, run_dir, lockstep=opts.lockstep, extra_args=period_args)
             )
@@ -263,7 +268,8 @@ def run_options(app: FlightApp, args: argparse.Namespace, mission: Mission, run_
         zt = zt_holder[0]
         out["zenoh"] = {"keys_prefix": f"{args.zenoh_prefix}/{zt.options.vehicle_id}", "published": dict(zt.seq),
                         "obstacles_in_accepted": zt.store.accepted_count,
-                        "obstacles_in_rejected": zt.store.rejected_count}
+                        "obstacles_in_rejected": zt.store.rejected_count,
+                        "obstacles_in_unchanged": zt.unchanged, "obstacles_in_superseded": zt.superseded}
     return out
 
 

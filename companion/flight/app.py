@@ -51,6 +51,7 @@ from companion.estimation.swing_feed import SwingFeed
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
 from companion.flight.health import LinkHealth
+from companion.flight.scheduling import involuntary_switches, request_fifo, restore_normal
 from companion.flight.sequence import FlightSequence, Observation, SequenceConfig, Stream
 from companion.mavlink_io.codec import send_set_attitude_target
 from companion.mavlink_io.commands import RequestLink
@@ -107,6 +108,8 @@ class FlyOptions:
     run_dir: Path | None = None  # where the journal (per-tick log, provisional report) is flushed each second
     wall_timeout_s: float | None = None
     obstacle_source: Callable[[float], Sequence[Obstacle]] | None = None
+    # Parses waiting live obstacle input at app time t_s; called right after each tick, outside its timing
+    obstacle_ingest: Callable[[float], None] | None = None
     sinks: list[TelemetrySink] = field(default_factory=list)
     # Awaited once the autopilot is known, outside the tick (its system id decides e.g. the Zenoh vehicle id);
     # may add to ``app.sinks`` and set ``app.obstacle_source``.
@@ -117,6 +120,7 @@ class FlyOptions:
     allow_param_writes: bool = True  # False: refuse a vehicle whose parameters would have to change (ArduPilot)
     start_here: bool = False  # fly the mission from where the vehicle stands (its start moved there)
     signing_key: bytes | None = None  # MAVLink 2 signing: sign everything sent, accept only signed frames
+    rt_priority: int = 0  # > 0: the control thread runs SCHED_FIFO at this priority while flying (scheduling.py)
     # Fault injection for the fault suite: from this vehicle time (s) on, every tick that would compute a setpoint
     # raises (``SLUNGPILOT_INJECT_TICK_ERROR_AT_S`` sets it for ``slungpilot fly``). None in normal use.
     inject_tick_error_at_s: float | None = None
@@ -128,11 +132,15 @@ class LoopStats:
 
     ticks: int = 0
     late_ticks: int = 0
+    preempted_ticks: int = 0  # ticks during which the kernel switched the control thread out
+    scheduling: str = "SCHED_OTHER"  # what the control thread ran as
     tick_errors: int = 0
+    ingest_errors: int = 0
     watchdog_steps: int = 0
     tick_s: list[float] = field(default_factory=list)
     tick_cpu_s: list[float] = field(default_factory=list)  # the same ticks in this thread's CPU time
     send_s: list[float] = field(default_factory=list)
+    ingest_s: list[float] = field(default_factory=list)  # live obstacle parsing after each tick (outside it)
     jitter_s: list[float] = field(default_factory=list)
     first: tuple[float, float] | None = None  # (wall monotonic s, vehicle time s) of the first tick with telemetry
     last: tuple[float, float] | None = None
@@ -140,7 +148,7 @@ class LoopStats:
     def summary(self) -> dict[str, float | int | None]:
         """ticks; tick (compute) and send time p50/p99/max (ms); the tick's CPU time p50/p99 (ms: what it costs
         when not preempted; on a busy machine the wall time includes other processes' time slices); late ticks;
-        jitter p99 (ms, real time only)."""
+        preempted ticks and the thread's scheduling policy; jitter p99 (ms, real time only)."""
         t = np.array(self.tick_s) if self.tick_s else np.zeros(1)
         tc = np.array(self.tick_cpu_s) if self.tick_cpu_s else np.zeros(1)
         snd = np.array(self.send_s) if self.send_s else np.zeros(1)
@@ -154,8 +162,12 @@ class LoopStats:
             "tick_cpu_ms_p99": float(np.percentile(tc, 99) * 1e3),
             "send_ms_p50": float(np.percentile(snd, 50) * 1e3),
             "send_ms_p99": float(np.percentile(snd, 99) * 1e3),
+            "ingest_ms_p99": float(np.percentile(self.ingest_s, 99) * 1e3) if self.ingest_s else 0.0,
             "late_ticks": self.late_ticks,
+            "preempted_ticks": self.preempted_ticks,
+            "scheduling": self.scheduling,
             "tick_errors": self.tick_errors,
+            "ingest_errors": self.ingest_errors,
             "watchdog_steps": self.watchdog_steps,
             "jitter_ms_p99": float(np.percentile(np.abs(j), 99) * 1e3),
             "realtime_factor": self.realtime_factor(),
@@ -212,6 +224,7 @@ class FlightApp:
         self.last_cmd: Command | None = None
         self.sinks: list[TelemetrySink] = list(opts.sinks)
         self.obstacle_source: Callable[[float], Sequence[Obstacle]] | None = opts.obstacle_source
+        self.obstacle_ingest: Callable[[float], None] | None = opts.obstacle_ingest
         self.params: dict[str, dict[str, float]] = {"read": {}, "set": {}}  # the autopilot parameters we read/set
         self._last_obstacles: Sequence[Obstacle] | None = None
         self._obstacles_seen: dict[tuple, Obstacle] = {}
@@ -314,6 +327,7 @@ class FlightApp:
         self._marker_pending = False
         if self.opts.lockstep and not self._done.is_set():
             self._tick()
+            self._ingest()
 
     # ------------------------------------------------------------------ public
     def request_abort(self, reason: str = "operator abort (Ctrl-C)") -> None:
@@ -324,6 +338,12 @@ class FlightApp:
 
     async def run(self) -> str:
         """Fly the mission; returns the outcome (see :data:`companion.flight.sequence.OUTCOMES`)."""
+        if self.opts.rt_priority > 0 and self.opts.lockstep:
+            # lockstep has no deadlines, and its loop runs flat out: SCHED_FIFO would starve every other thread
+            log.info("lockstep: --rt-priority ignored (no deadlines to meet)")
+            self.stats.scheduling = "SCHED_OTHER (lockstep: --rt-priority ignored)"
+        elif self.opts.rt_priority > 0:
+            self.stats.scheduling = request_fifo(self.opts.rt_priority)
         try:
             async with self.link, asyncio.TaskGroup() as tg:
                 if not self.opts.lockstep:
@@ -332,6 +352,8 @@ class FlightApp:
                 tg.create_task(self._housekeeping_loop())
                 tg.create_task(self._connected_hook())
         finally:
+            if self.opts.rt_priority > 0 and not self.opts.lockstep:
+                restore_normal()
             if self.journal is not None:
                 self.journal.close(self._provisional())
         return self.outcome
@@ -392,6 +414,24 @@ class FlightApp:
                 self.stats.late_ticks += 1
                 k += int(lateness // self.period_s)  # skip the missed deadlines, no catch-up burst
             self._tick()
+            self._ingest()
+
+    def _ingest(self) -> None:
+        """After a tick: let the obstacle input parse what waits (its own time budget), timed apart from the tick;
+        its failures are counted like a tick's, never raised into the loop."""
+        if self.obstacle_ingest is None:
+            return
+        start = time.perf_counter()
+        try:
+            self.obstacle_ingest(self.state.t_s)
+        except Exception:
+            self.stats.ingest_errors += 1
+            wall = time.monotonic()
+            if wall - self._last_error_log >= 1.0:
+                self._last_error_log = wall
+                log.exception("obstacle input failed (%d times); flying with the obstacles adopted so far",
+                              self.stats.ingest_errors)
+        self.stats.ingest_s.append(time.perf_counter() - start)
 
     # ------------------------------------------------------------------ the tick
     def _update_origin(self) -> float:
@@ -453,6 +493,7 @@ class FlightApp:
         """
         start = time.perf_counter()
         cpu_start = time.thread_time()
+        switches = involuntary_switches()
         wall = time.monotonic()
         self._last_tick_wall = wall
         est: Estimate | None = None
@@ -504,6 +545,7 @@ class FlightApp:
             cmd = None
         computed = time.perf_counter()
         computed_cpu = time.thread_time()
+        preempted = involuntary_switches() > switches
         if not watchdog:
             if setpoint is not None:
                 self._send_setpoint(*setpoint)
@@ -521,6 +563,7 @@ class FlightApp:
         self.stats.ticks += 1
         self.stats.tick_s.append(computed - start)
         self.stats.tick_cpu_s.append(computed_cpu - cpu_start)
+        self.stats.preempted_ticks += preempted
         self.stats.send_s.append(sent - computed)
         if est is None:
             return

@@ -134,7 +134,8 @@ def summary_text(rep: dict[str, Any]) -> str:
     if loop:
         lines.append(
             f"  loop                {loop.get('ticks')} ticks, tick p50 {_fmt(loop.get('tick_ms_p50'), ' ms', 3)}, "
-            f"p99 {_fmt(loop.get('tick_ms_p99'), ' ms', 3)}, late {loop.get('late_ticks')}"
+            f"p99 {_fmt(loop.get('tick_ms_p99'), ' ms', 3)}, late {loop.get('late_ticks')}, preempted "
+            f"{loop.get('preempted_ticks')} ({loop.get('scheduling', 'SCHED_OTHER')})"
         )
     if rep.get("run_dir"):
         lines.append(f"  run folder          {rep['run_dir']}")

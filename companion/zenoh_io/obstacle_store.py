@@ -122,7 +122,7 @@ class SampleParser:
 
     def __init__(self, key: str, raw: bytes | str) -> None:
         self.key = key
-        self._raw: bytes | str | None = raw
+        self.raw = raw  # the sample as received
         self._items: list | None = None
         self._out: list[Obstacle] = []
         self.obstacles: tuple[Obstacle, ...] = ()
@@ -133,9 +133,7 @@ class SampleParser:
         """Parse until done (True) or until ``clock()`` passes ``deadline_s`` (False: call again)."""
         try:
             if self._items is None:
-                assert self._raw is not None
-                self._items, self.expires_s = _decode_sample(self._raw)
-                self._raw = None
+                self._items, self.expires_s = _decode_sample(self.raw)
             items, out, key = self._items, self._out, self.key
             while len(out) < len(items):
                 out.append(_obstacle_of(len(out), items[len(out)], key))

@@ -8,10 +8,12 @@ Streams (``<prefix>/<id>/...``, prefix default ``slungpilot``, id the vehicle id
 Threading: Zenoh callbacks run on Zenoh's threads. They never block and never touch app state: an obstacle
 sample only replaces its publisher's previous unread sample in a small locked table (newest wins; the
 superseded ones are counted, never parsed), and config queries are handed to the asyncio loop with
-``loop.call_soon_threadsafe``. Obstacle samples are parsed by :meth:`obstacles_now` inside the control tick,
-within a time budget (``ingest_budget_s``, 0.3 ms): a list too long for one tick is parsed over several
-(:class:`~companion.zenoh_io.obstacle_store.SampleParser`). So a flood — any rate, any size — costs each tick at
-most the budget, and the newest list of every publisher still gets through.
+``loop.call_soon_threadsafe``. Obstacle samples are parsed by :meth:`ingest` on the app's thread right after
+each control tick (outside it: the tick only reads the adopted set, :meth:`obstacles_current`), within a time
+budget (``ingest_budget_s``, 0.3 ms): a list too long for one budget is parsed over several
+(:class:`~companion.zenoh_io.obstacle_store.SampleParser`). So a flood — any rate, any size — costs each control
+period at most the budget (plus one ``json.loads`` of a sample), never the tick itself, and the newest list of
+every publisher still gets through.
 """
 
 from __future__ import annotations
@@ -183,6 +185,10 @@ class ZenohTelemetry:
         self._latest_lock = threading.Lock()
         self._waiting: dict[str, bytes] = {}  # taken from _latest, not yet parsed (the loop's own)
         self._parser: SampleParser | None = None
+        # per publisher: the raw bytes of its last adopted sample and what they parsed to; a sample with the same
+        # bytes (a static map re-sent, a flood) is adopted again without parsing
+        self._adopted: dict[str, tuple[bytes, tuple[Obstacle, ...], float | None]] = {}
+        self.unchanged = 0  # samples adopted again without parsing (same bytes as the publisher's last)
         self._provider: Callable[[], Mapping[str, Any]] | None = None
         self._swing_every = _Every(self.options.swing_hz)
         self._state_every = _Every(self.options.state_hz)
@@ -330,7 +336,7 @@ class ZenohTelemetry:
         body = _body(payload)
         body.setdefault("obstacles_in", {
             "accepted": self.store.accepted_count, "rejected": self.store.rejected_count,
-            "inbox_dropped": self.inbox_dropped, "superseded": self.superseded,
+            "inbox_dropped": self.inbox_dropped, "superseded": self.superseded, "unchanged": self.unchanged,
             "pending": len(self._waiting) + len(self._latest) + (self._parser is not None),
             "sources": list(self.store.sources()),
         })
@@ -370,8 +376,20 @@ class ZenohTelemetry:
             self._latest[key] = raw
 
     def obstacles_now(self, now_s: float, mission_obstacles: Sequence[Obstacle] = ()) -> tuple[Obstacle, ...]:
+        """:meth:`ingest` then :meth:`obstacles_current`: parse what waits (within the budget), then the merged
+        set to plan with now."""
+        self.ingest(now_s)
+        return self.obstacles_current(now_s, mission_obstacles)
+
+    def obstacles_current(self, now_s: float, mission_obstacles: Sequence[Obstacle] = ()) -> tuple[Obstacle, ...]:
+        """The mission's obstacles and every live publisher's adopted, unexpired ones at app time ``now_s`` (s);
+        parses nothing (cheap: cached until the set changes)."""
+        self.last_obstacles = self.store.current(now_s, mission_obstacles)
+        return self.last_obstacles
+
+    def ingest(self, now_s: float) -> None:
         """Parse waiting live samples for at most ``ingest_budget_s`` and adopt the finished ones at app time
-        ``now_s``; the merged set to plan with now."""
+        ``now_s`` (s). The app calls this after each tick."""
         if self._latest:
             with self._latest_lock:
                 latest, self._latest = self._latest, {}
@@ -386,23 +404,29 @@ class ZenohTelemetry:
                     if not self._waiting:
                         break
                     key = next(iter(self._waiting))
-                    self._parser = SampleParser(key, self._waiting.pop(key))
+                    raw = self._waiting.pop(key)
+                    prev = self._adopted.get(key)
+                    if prev is not None and prev[0] == raw:
+                        self.unchanged += 1
+                        self.store.adopt(key, prev[1], prev[2], now_s)  # refreshes its age and expiry
+                        continue
+                    self._parser = SampleParser(key, raw)
                 p = self._parser
                 if not p.work(deadline):
                     break
                 self._parser = None
                 if p.error is not None:
                     self.store.reject(p.key, p.error)
-                else:
-                    self.store.adopt(p.key, p.obstacles, p.expires_s, now_s)
+                    self._adopted.pop(p.key, None)
+                elif self.store.adopt(p.key, p.obstacles, p.expires_s, now_s):
+                    self._adopted[p.key] = (p.raw, p.obstacles, p.expires_s)
                 if time.perf_counter() > deadline:
                     break
-        self.last_obstacles = self.store.current(now_s, mission_obstacles)
-        return self.last_obstacles
 
     def obstacle_source(self, mission_obstacles: Sequence[Obstacle]) -> Callable[[float], tuple[Obstacle, ...]]:
-        """``t_s -> obstacles`` for ``FlyOptions.obstacle_source``."""
-        return lambda t_s: self.obstacles_now(t_s, mission_obstacles)
+        """``t_s -> obstacles`` for ``FlyOptions.obstacle_source`` (no parsing: pair it with :meth:`ingest` as
+        ``FlyOptions.obstacle_ingest``)."""
+        return lambda t_s: self.obstacles_current(t_s, mission_obstacles)
 
     # -- config queryable ------------------------------------------------------------------------------
     def set_config_provider(self, provider: Callable[[], Mapping[str, Any]]) -> None:
@@ -444,8 +468,8 @@ class ZenohTelemetrySink:
 
     Per tick: swing (``est.swing``, ``cmd.r_max_m``, ``cmd.envelope_mode``), state (payload position from the
     swing and ``cable_l_m``), setpoint (every field of ``cmd``), status (``status_fn(app)``, default empty)
-    and the obstacle set last returned by ``zt.obstacles_now`` (use ``zt.obstacle_source(...)`` as the
-    app's obstacle source). Duck-typed: only those attribute names are read.
+    and the obstacle set last returned by ``zt.obstacles_current`` (use ``zt.obstacle_source(...)`` as the
+    app's obstacle source and ``zt.ingest`` as its obstacle ingest). Duck-typed: only those attribute names are read.
     """
 
     def __init__(self, zt: ZenohTelemetry, cable_l_m: float,

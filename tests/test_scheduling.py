@@ -1,0 +1,72 @@
+"""Real-time scheduling of the control thread (companion/flight/scheduling.py): granted or refused, never fatal."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+
+import pytest
+
+from companion.flight.scheduling import involuntary_switches, request_fifo, restore_normal
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "SCHED_FIFO"), reason="POSIX real-time scheduling not available")
+
+
+def test_granted_or_refused_in_a_thread_of_its_own():
+    """Only the calling thread changes; granted -> SCHED_FIFO at that priority and back; refused -> a reason."""
+    seen: dict[str, object] = {}
+
+    def worker() -> None:
+        seen["result"] = request_fifo(7)
+        seen["policy"] = os.sched_getscheduler(0)
+        seen["priority"] = os.sched_getparam(0).sched_priority
+        restore_normal()
+        seen["after"] = os.sched_getscheduler(0)
+
+    t = threading.Thread(target=worker)
+    t.start()
+    t.join()
+    if seen["result"] == "SCHED_FIFO 7":
+        assert seen["policy"] & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO and seen["priority"] == 7
+    else:
+        assert str(seen["result"]).startswith("SCHED_OTHER (SCHED_FIFO 7 refused")
+    assert seen["after"] == os.SCHED_OTHER
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER, "the test's own thread was not touched"
+
+
+def test_refused_without_privilege_says_how_to_get_it():
+    """No CAP_SYS_NICE and `ulimit -r` 0: refused with the reason, and the process goes on."""
+    code = (
+        "import os, resource\n"
+        "from companion.flight.scheduling import request_fifo\n"
+        "resource.setrlimit(resource.RLIMIT_RTPRIO, (0, 0))\n"
+        "if os.getuid() == 0:  # root: become nobody, which has no CAP_SYS_NICE\n"
+        "    os.setgid(65534); os.setuid(65534)\n"
+        "print(request_fifo(10)); print(os.sched_getscheduler(0) == os.SCHED_OTHER)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                         cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert out.returncode == 0, out.stderr
+    first, second = out.stdout.splitlines()
+    assert first.startswith("SCHED_OTHER (SCHED_FIFO 10 refused") and "ulimit -r" in first
+    assert second == "True"
+
+
+def test_priority_out_of_range_is_an_error():
+    with pytest.raises(ValueError, match=r"1\.\.99"):
+        request_fifo(0)
+    with pytest.raises(ValueError, match=r"1\.\.99"):
+        request_fifo(100)
+
+
+def test_involuntary_switches_counts_up():
+    a = involuntary_switches()
+    assert a >= 0 and involuntary_switches() >= a
+
+
+def test_fly_refuses_an_out_of_range_priority(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "companion.cli", "fly", "--sitl", "--rt-priority", "100",
+                          "--run-dir", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "--rt-priority" in out.stderr
