@@ -231,6 +231,8 @@ def test_bad_input_is_refused():
 @pytest.mark.parametrize("changes,key", [
     ({"q_force": 0.0}, "q_force"), ({"history_s": -1.0}, "history_s"), ({"fade_nis": (5.0, 2.0)}, "fade_nis"),
     ({"imu_sigma_mps2": (0.1, 0.1)}, "imu_sigma_mps2"), ({"fix_sigma_m": math.nan}, "fix_sigma_m"),
+    ({"q_swing_adapt_max": 0.5}, "q_swing_adapt_max"), ({"fix_reset_after": 0}, "fix_reset_after"),
+    ({"reset_swing_sigma_rad": -0.1}, "reset_swing_sigma_rad"),
 ])
 def test_config_validation(changes, key):
     with pytest.raises(ValueError, match=key):
@@ -251,3 +253,48 @@ def test_widened_swing_keeps_the_direction():
     assert math.isclose(math.hypot(a, b), 0.13) and math.isclose(a / b, 0.06 / -0.08)
     z = replace(s, swing=np.zeros(4), bound_rad=0.05)
     assert widened_swing(z) == (0.05, 0.0)
+
+
+
+def _unmodelled_pendulum(freq_ratio: float, **cfg) -> tuple[SwingEstimator, float]:
+    """Fixes (10 Hz, 2 cm noise) of a payload swinging at ``freq_ratio`` × the model's pendulum frequency (an
+    elastic tether, say: what the model cannot explain), airframe still; returns the estimator and its swing RMS
+    error (rad) after 3 s."""
+    w = freq_ratio * math.sqrt(P.g / P.l)
+    rng = np.random.default_rng(0)
+    est = SwingEstimator(P, replace(SwingEstimatorConfig(fix_sigma_m=0.02, vel_sigma_mps=0.02), **cfg), t0_s=0.0,
+                         swing_sigma0_rad=0.3)
+    errs = []
+    for k in range(2500):
+        t = k * 0.004
+        a, b = 0.25 * math.cos(w * t), 0.15 * math.sin(w * t)
+        est.set_attitude_euler(t, (0.0, 0.0, 0.0))
+        est.set_thrust(t, P.hover_thrust_n)
+        if k % 5 == 0:
+            est.update_velocity(t, (0.0, 0.0, 0.0))
+        if k % 25 == 0:
+            est.update_payload_offset(t, np.array(payload_offset_ned_m(a, b, P.l)) + rng.normal(0.0, 0.02, 3))
+        s = est.estimate(t)
+        if t > 3.0:
+            errs.append((s.swing[0] - a, s.swing[1] - b))
+    return est, float(np.sqrt(np.mean(np.square(errs))))
+
+
+def test_fixes_rejected_in_a_row_reset_the_swing_and_it_locks_on_again():
+    """A payload swinging 1.3× faster than the model: the prediction drifts off, every fix is gated as an outlier
+    and the filter never recovers; with the reset after ``fix_reset_after`` rejections in a row it re-locks."""
+    stuck, e_stuck = _unmodelled_pendulum(1.3, q_swing_adapt_max=1.0, fix_reset_after=10**6)
+    reset, e_reset = _unmodelled_pendulum(1.3, q_swing_adapt_max=1.0)
+    assert stuck.resets == 0 and stuck.rejected_total > 50 and e_stuck > 0.15
+    assert reset.resets >= 1 and reset.rejected_total < 30 and e_reset < 0.5 * e_stuck
+
+
+def test_fixes_raise_the_process_noise_when_the_model_does_not_fit():
+    """The same unmodelled pendulum: the fixes' NIS scales q_swing up, the model is trusted less, the error drops;
+    a payload the model fits keeps (about) the configured process noise and the same error."""
+    _, e_reset_only = _unmodelled_pendulum(1.3, q_swing_adapt_max=1.0)
+    adaptive, e_adapt = _unmodelled_pendulum(1.3)
+    assert adaptive.q_swing_scale > 10.0 and e_adapt < 0.6 * e_reset_only and e_adapt < 0.05
+    fits, e_fits = _unmodelled_pendulum(1.0)
+    _, e_fits_fixed = _unmodelled_pendulum(1.0, q_swing_adapt_max=1.0)
+    assert fits.q_swing_scale < 2.0 and fits.resets == 0 and e_fits < 1.05 * e_fits_fixed + 1e-4

@@ -50,3 +50,28 @@ def test_unpaired_payload_fixes_are_dropped_and_counted():
     for k in range(20):  # the vehicle's own fixes never come
         feed.ingest("GLOBAL_POSITION_INT", _gpi(2, 35, 1.0 + 0.1 * k, 0.0, ALT0 - 1.0), state)
     assert feed.counts["payload_fix_unpaired"] == 4 and feed.take_fresh_offsets() == []
+
+
+def test_a_diverged_estimator_is_dropped_counted_and_started_again():
+    """An estimator whose state went non-finite (numerical divergence on inputs its model cannot explain) gives no
+    swing, is counted and logged, and a fresh one starts at the next tick while the vehicle is still airborne."""
+    from companion.estimation.estimate import Estimate
+
+    feed = SwingFeed(VehicleParams(), "estimate_fixes")
+    v0 = np.zeros(3)
+    state = SimpleNamespace(vehicle_sysid=1, payload_sysid=2, swing_sensor=None, vel_ned_mps=v0, armed=True,
+                            on_ground=False, pos_ned_m=np.array([0.0, 0.0, -3.0]), t_s=5.0,
+                            euler_rad=np.zeros(3), rates_frd_rad_s=np.zeros(3))
+    feed.maybe_start(state)
+    assert feed.estimator is not None
+    est = Estimate(t_s=5.0, pos_ned_m=state.pos_ned_m, vel_ned_mps=v0, euler_rad=v0, rates_frd_rad_s=v0,
+                   swing=None, swing_source="none")
+    assert feed.choose(est).swing_source == "estimate"
+    first = feed.estimator
+    first._base.x[:] = np.nan  # what an overflow leaves behind
+    out = feed.choose(est)
+    assert out.swing is None and out.swing_source == "none"
+    assert feed.counts["estimator_failed"] == 1 and feed.estimator is None and feed.last is None
+    feed.maybe_start(state)
+    assert feed.estimator is not None and feed.estimator is not first
+    assert feed.choose(est).swing_source == "estimate"

@@ -68,9 +68,16 @@ class SwingEstimatorConfig:
     prediction step; ``history_s``: how late a measurement may arrive and still be fused at its time;
     ``reorder_s``: measurements wait this long to be fused, so that those a few milliseconds apart on different
     streams are taken in time order without a replay (the estimate is predicted over it); ``gate_nis``:
-    innovations with NIS above it (3 dof) are rejected as outliers; ``trust_window_s``: window of
-    the NIS averages; ``fade_bound3_rad`` (lo, hi): the 3σ swing bound over which fade goes 1 → 0;
-    ``fade_nis`` (lo, hi): the averaged NIS per dof over which fade goes 1 → 0.
+    innovations with NIS above it (3 dof) are rejected as outliers; ``fix_reset_after``: after that many payload
+    fixes rejected in a row the filter, not the fixes, is taken to be wrong (its model does not fit the payload,
+    e.g. an elastic tether): at the next rejected one the swing's covariance is reset to ``reset_swing_sigma_rad``
+    / ``reset_rate_sigma_rad_s`` and the fix is fused (GNSS-aided filters reset on a persistently rejected position
+    the same way; the wide σ then fades the feed-forward and widens the envelope until it has re-locked);
+    ``q_swing_adapt_max``: the payload fixes also scale ``q_swing`` by up to this factor (1 = off): each fix
+    multiplies the scale by (NIS/3)^¼, kept within [1, q_swing_adapt_max], so a model that does not fit the payload
+    (residuals larger than its covariance explains) trusts its own prediction less and the fixes more;
+    ``trust_window_s``: window of the NIS averages; ``fade_bound3_rad`` (lo, hi): the 3σ swing bound over which
+    fade goes 1 → 0; ``fade_nis`` (lo, hi): the averaged NIS per dof over which fade goes 1 → 0.
     """
 
     q_swing: float = 0.0005
@@ -92,6 +99,10 @@ class SwingEstimatorConfig:
     history_s: float = 1.0
     reorder_s: float = 0.01
     gate_nis: float = 30.0
+    fix_reset_after: int = 3
+    q_swing_adapt_max: float = 100.0
+    reset_swing_sigma_rad: float = 0.3
+    reset_rate_sigma_rad_s: float = 1.0
     trust_window_s: float = 1.0
     fade_bound3_rad: tuple[float, float] = (0.12, 0.30)
     fade_nis: tuple[float, float] = (3.0, 10.0)
@@ -104,10 +115,14 @@ class SwingEstimatorConfig:
         for key in ("q_swing", "q_vel", "q_force", "q_bias", "fix_sigma_m", "vel_sigma_mps",
                     "init_swing_sigma_rad", "init_rate_sigma_rad_s", "init_vel_sigma_mps", "init_force_sigma_n",
                     "init_bias_sigma_mps2", "init_thrust_sigma_n", "q_thrust", "step_s", "cov_step_s", "history_s",
-                    "gate_nis", "trust_window_s"):
+                    "gate_nis", "trust_window_s", "reset_swing_sigma_rad", "reset_rate_sigma_rad_s"):
             v = getattr(self, key)
             if not (math.isfinite(v) and v > 0.0):
                 raise ValueError(f"{key}: must be > 0, got {v}")
+        if not (math.isfinite(self.q_swing_adapt_max) and self.q_swing_adapt_max >= 1.0):
+            raise ValueError(f"q_swing_adapt_max: must be >= 1 (1 = off), got {self.q_swing_adapt_max}")
+        if not (isinstance(self.fix_reset_after, int) and self.fix_reset_after >= 1):
+            raise ValueError(f"fix_reset_after: must be an integer >= 1, got {self.fix_reset_after!r}")
         if not (math.isfinite(self.reorder_s) and 0.0 <= self.reorder_s < self.history_s):
             raise ValueError(f"reorder_s: must be in [0, history_s), got {self.reorder_s}")
         for key in ("fade_bound3_rad", "fade_nis"):
@@ -255,6 +270,9 @@ class SwingEstimator:
                             + [c.q_thrust])
         self.dropped_late = 0
         self.rejected_total = 0
+        self.resets = 0  # swing covariance resets after fixes rejected in a row (see fix_reset_after)
+        self._fixes_rejected_in_row = 0
+        self.q_swing_scale = 1.0  # q_swing's current factor (q_swing_adapt_max)
         self._trust_cache: tuple[int, float, dict, tuple, int] | None = None
 
     # ------------------------------------------------------------------------------------------- inputs
@@ -541,6 +559,26 @@ class SwingEstimator:
             nis_gate = float(nu @ Sinv @ nu)
         else:
             nis_gate = nis
+        if ev.kind == "fix" and nis_gate > self.cfg.gate_nis:
+            self._fixes_rejected_in_row += 1
+            if self._fixes_rejected_in_row > self.cfg.fix_reset_after:
+                # the fixes keep disagreeing: the filter has lost the swing; forget what it believed and re-lock
+                P, x = self._reset_swing(P, x)
+                PHt = P @ H.T
+                S = H @ PHt
+                S[0, 0] += r2[0]
+                S[1, 1] += r2[1]
+                S[2, 2] += r2[2]
+                Sinv = _inv3(S)
+                nis_gate = 0.0
+                self._fixes_rejected_in_row = 0
+                self.resets += 1
+        elif ev.kind == "fix":
+            self._fixes_rejected_in_row = 0
+        if ev.kind == "fix" and self.cfg.q_swing_adapt_max > 1.0:
+            ratio = max(min(nis, _NIS_CAP) / 3.0, 1e-6)
+            self.q_swing_scale = min(max(self.q_swing_scale * ratio ** 0.25, 1.0), self.cfg.q_swing_adapt_max)
+            self._Qc[2] = self._Qc[3] = self.cfg.q_swing * self.q_swing_scale
         if nis_gate <= self.cfg.gate_nis:
             K = PHt @ Sinv
             x = x + K @ nu
@@ -555,6 +593,18 @@ class SwingEstimator:
             ev.T = Phi
             self.rejected_total += 1
         ev.x, ev.P = x, P
+
+    def _reset_swing(self, P: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Covariance with the swing block [α, β, α̇, β̇] reset to the reset sigmas and decorrelated from the rest;
+        the rates set to zero (a diverged filter's rates are its worst part)."""
+        c = self.cfg
+        P = P.copy()
+        P[0:4, :] = 0.0
+        P[:, 0:4] = 0.0
+        P[0:4, 0:4] = np.diag([c.reset_swing_sigma_rad ** 2] * 2 + [c.reset_rate_sigma_rad_s ** 2] * 2)
+        x = x.copy()
+        x[2:4] = 0.0
+        return P, x
 
     def _replay(self, start: int, dx: np.ndarray, dP: np.ndarray) -> None:
         """Events[start:] again after the one before them changed by (dx, dP) because of a late measurement. With

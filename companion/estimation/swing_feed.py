@@ -32,6 +32,7 @@ payload position fix.
 from __future__ import annotations
 
 import bisect
+import logging
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -42,6 +43,8 @@ from companion.core.model import VehicleParams
 from companion.estimation.estimate import Estimate
 from companion.estimation.swing_estimator import SwingEstimate, SwingEstimator, SwingEstimatorConfig
 from companion.estimation.swing_model import payload_offset_from_global
+
+log = logging.getLogger(__name__)
 
 MG_TO_MPS2 = 9.80665e-3
 SLACK_FRACTION = 0.95  # a payload fix nearer than this fraction of the cable: the payload lies on the ground
@@ -96,6 +99,13 @@ class SwingFeed:
 
     def _count(self, what: str) -> None:
         self.counts[what] = self.counts.get(what, 0) + 1
+
+    def _failed(self, exc: Exception) -> None:
+        """The estimator broke (a numerical failure on inputs its model cannot explain): drop it, fly on without
+        its swing until :meth:`maybe_start` starts a fresh one (the next tick, if still airborne)."""
+        self._count("estimator_failed")
+        log.warning("swing estimator failed (%r, %d times): restarting it", exc, self.counts["estimator_failed"])
+        self.estimator = None
 
     # ------------------------------------------------------------------------------------------ start
     def maybe_start(self, state: Any) -> None:
@@ -152,6 +162,12 @@ class SwingFeed:
         est = self.estimator
         if est is None:
             return
+        try:
+            self._ingest_into(est, src, mtype, msg, state)
+        except (ArithmeticError, np.linalg.LinAlgError) as exc:
+            self._failed(exc)
+
+    def _ingest_into(self, est: SwingEstimator, src: int, mtype: str, msg: Any, state: Any) -> None:
         if src == state.vehicle_sysid:
             if mtype == "ATTITUDE":
                 est.set_attitude_euler(msg.time_boot_ms * 1e-3, state.euler_rad, state.rates_frd_rad_s)
@@ -213,7 +229,11 @@ class SwingFeed:
         if float(np.linalg.norm(off)) < SLACK_FRACTION * self.params.l:
             self._count("slack_fix")
             return
-        self.estimator.update_payload_offset(t, off)
+        try:
+            self.estimator.update_payload_offset(t, off)
+        except (ArithmeticError, np.linalg.LinAlgError) as exc:
+            self._failed(exc)
+            return
         self._count("payload_fix")
 
     def take_fresh_offsets(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
@@ -239,7 +259,10 @@ class SwingFeed:
     def commanded(self, t_s: float, thrust_n: float) -> None:
         """The collective thrust (N) the companion commanded at ``t_s`` (an input of the estimator's model)."""
         if self.estimator is not None and math.isfinite(thrust_n):
-            self.estimator.set_thrust(t_s, thrust_n)
+            try:
+                self.estimator.set_thrust(t_s, thrust_n)
+            except (ArithmeticError, np.linalg.LinAlgError) as exc:
+                self._failed(exc)
 
     # ------------------------------------------------------------------------------------------ choice
     def choose(self, est: Estimate) -> Estimate:
@@ -253,9 +276,16 @@ class SwingFeed:
             return est
         if self.swing_input == "auto" and est.swing_source == "cable_sensor":
             return est
-        se = self.estimator.estimate(est.t_s)
-        self.last = self.last_seen = se
-        if not np.all(np.isfinite(se.swing)):
+        try:
+            se = self.estimator.estimate(est.t_s)
+        except (ArithmeticError, np.linalg.LinAlgError) as exc:
+            self._failed(exc)
+            self.last = None
             return replace(est, swing=None, swing_source="none")
+        if not np.all(np.isfinite(se.swing)):
+            self._failed(FloatingPointError("non-finite swing estimate"))
+            self.last = None
+            return replace(est, swing=None, swing_source="none")
+        self.last = self.last_seen = se
         return replace(est, swing=se.swing, swing_source="estimate", swing_fade=se.fade,
                        swing_bound_rad=se.bound_rad)

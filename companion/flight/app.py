@@ -716,7 +716,8 @@ class FlightApp:
             return None
         last = feed.last_seen
         return {"inputs": dict(feed.counts), "rejected": None if last is None else last.rejected,
-                "dropped_late": feed.ran.dropped_late,
+                "dropped_late": feed.ran.dropped_late, "rejected_total": feed.ran.rejected_total,
+                "swing_resets": feed.ran.resets, "q_swing_scale": round(feed.ran.q_swing_scale, 3),
                 "sources_last_second": None if last is None else list(last.sources),
                 "fade_last": None if last is None else last.fade}
 
