@@ -298,3 +298,5 @@ def test_fixes_raise_the_process_noise_when_the_model_does_not_fit():
     fits, e_fits = _unmodelled_pendulum(1.0)
     _, e_fits_fixed = _unmodelled_pendulum(1.0, q_swing_adapt_max=1.0)
     assert fits.q_swing_scale < 2.0 and fits.resets == 0 and e_fits < 1.05 * e_fits_fixed + 1e-4
+    # the feed-forward is derived from the same model: fade it out for the payload the model does not fit
+    assert adaptive.estimate(9.996).fade < 0.5 < 0.9 < fits.estimate(9.996).fade

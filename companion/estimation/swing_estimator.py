@@ -77,7 +77,9 @@ class SwingEstimatorConfig:
     multiplies the scale by (NIS/3)^¼, kept within [1, q_swing_adapt_max], so a model that does not fit the payload
     (residuals larger than its covariance explains) trusts its own prediction less and the fixes more;
     ``trust_window_s``: window of the NIS averages; ``fade_bound3_rad`` (lo, hi): the 3σ swing bound over which
-    fade goes 1 → 0; ``fade_nis`` (lo, hi): the averaged NIS per dof over which fade goes 1 → 0.
+    fade goes 1 → 0; ``fade_nis`` (lo, hi): the averaged NIS per dof over which fade goes 1 → 0; ``fade_q_scale``
+    (lo, hi): the q_swing scale over which fade goes 1 → 0 (a payload the pendulum model does not fit: the
+    feed-forward, derived from that model, would push it at the wrong frequency).
     """
 
     q_swing: float = 0.0005
@@ -106,6 +108,7 @@ class SwingEstimatorConfig:
     trust_window_s: float = 1.0
     fade_bound3_rad: tuple[float, float] = (0.12, 0.30)
     fade_nis: tuple[float, float] = (3.0, 10.0)
+    fade_q_scale: tuple[float, float] = (2.0, 20.0)
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for non-positive or inconsistent values."""
@@ -125,7 +128,7 @@ class SwingEstimatorConfig:
             raise ValueError(f"fix_reset_after: must be an integer >= 1, got {self.fix_reset_after!r}")
         if not (math.isfinite(self.reorder_s) and 0.0 <= self.reorder_s < self.history_s):
             raise ValueError(f"reorder_s: must be in [0, history_s), got {self.reorder_s}")
-        for key in ("fade_bound3_rad", "fade_nis"):
+        for key in ("fade_bound3_rad", "fade_nis", "fade_q_scale"):
             lo, hi = getattr(self, key)
             if not (0.0 <= lo < hi):
                 raise ValueError(f"{key}: needs 0 <= lo < hi, got {(lo, hi)}")
@@ -674,9 +677,10 @@ class SwingEstimator:
         c = self.cfg
         f_sigma = _ramp_down(3.0 * sigma, *c.fade_bound3_rad)
         f_nis = _ramp_down(max(nis.values()), *c.fade_nis) if nis else 1.0
+        f_fit = _ramp_down(self.q_swing_scale, *c.fade_q_scale)
         return SwingEstimate(
             t_s=t_x, swing=x[0:4].copy(), swing_acc=np.array([a[0], a[1]]), cov=P[0:4, 0:4].copy(),
-            sigma_rad=sigma, bound_rad=bound, fade=f_sigma * f_nis, force_ned_n=x[7:10].copy(),
+            sigma_rad=sigma, bound_rad=bound, fade=f_sigma * f_nis * f_fit, force_ned_n=x[7:10].copy(),
             accel_bias_frd_mps2=x[10:13].copy(), nis=nis, sources=sources, rejected=rejected,
             dropped_late=self.dropped_late,
         )
