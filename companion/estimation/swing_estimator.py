@@ -226,6 +226,16 @@ def _inv3(S: np.ndarray) -> np.ndarray:
     return np.array([[c00 * k, c01 * k, c02 * k], [c01 * k, c11 * k, c12 * k], [c02 * k, c12 * k, c22 * k]])
 
 
+def _innovation(P: np.ndarray, H: np.ndarray, r2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """P·Hᵀ, the innovation covariance S = H·P·Hᵀ + diag(r2) and its inverse, for a 3-row measurement."""
+    PHt = P @ H.T
+    S = H @ PHt
+    S[0, 0] += r2[0]
+    S[1, 1] += r2[1]
+    S[2, 2] += r2[2]
+    return PHt, S, _inv3(S)
+
+
 class SwingEstimator:
     """EKF over [α, β, α̇, β̇, v_NED, d_NED, b_FRD, δT] (see :mod:`companion.estimation.swing_model`).
 
@@ -538,13 +548,8 @@ class SwingEstimator:
             H[0, 4] = H[1, 5] = H[2, 6] = 1.0
             h = x[4:7]
         r2 = ev.sigma * ev.sigma
-        PHt = P @ H.T
-        S = H @ PHt
-        S[0, 0] += r2[0]
-        S[1, 1] += r2[1]
-        S[2, 2] += r2[2]
+        PHt, S, Sinv = _innovation(P, H, r2)
         nu = ev.z - h
-        Sinv = _inv3(S)
         nis = float(nu @ Sinv @ nu)
         ev.nis = nis
         hz = H[2, I_THRUST]
@@ -553,12 +558,7 @@ class SwingEstimator:
             # q_thrust allows (a rotor saturating while the attitude loop fights a torque); let δT take it
             P = P.copy()
             P[I_THRUST, I_THRUST] += (nu[2] / hz) ** 2
-            PHt = P @ H.T
-            S = H @ PHt
-            S[0, 0] += r2[0]
-            S[1, 1] += r2[1]
-            S[2, 2] += r2[2]
-            Sinv = _inv3(S)
+            PHt, S, Sinv = _innovation(P, H, r2)
             nis_gate = float(nu @ Sinv @ nu)
         else:
             nis_gate = nis
@@ -567,12 +567,7 @@ class SwingEstimator:
             if self._fixes_rejected_in_row > self.cfg.fix_reset_after:
                 # the fixes keep disagreeing: the filter has lost the swing; forget what it believed and re-lock
                 P, x = self._reset_swing(P, x)
-                PHt = P @ H.T
-                S = H @ PHt
-                S[0, 0] += r2[0]
-                S[1, 1] += r2[1]
-                S[2, 2] += r2[2]
-                Sinv = _inv3(S)
+                PHt, S, Sinv = _innovation(P, H, r2)
                 nis_gate = 0.0
                 self._fixes_rejected_in_row = 0
                 self.resets += 1
