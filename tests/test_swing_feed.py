@@ -75,3 +75,32 @@ def test_a_diverged_estimator_is_dropped_counted_and_started_again():
     feed.maybe_start(state)
     assert feed.estimator is not None and feed.estimator is not first
     assert feed.choose(est).swing_source == "estimate"
+
+
+def test_each_payload_fix_is_scored_against_the_estimate_of_its_own_time():
+    """The report's error_at_fixes: a fix 0.2 m east of straight-below (β ≈ −0.2 rad) against an estimate that
+    still says "hanging still" at the fix's time is an error of ≈ 0.2 rad; scored once, at t_fix, not at arrival."""
+    from companion.estimation.estimate import Estimate
+    from companion.estimation.swing_model import swing_from_offset
+
+    feed = SwingFeed(VehicleParams(), "estimate_fixes")
+    v0 = np.zeros(3)
+    state = SimpleNamespace(vehicle_sysid=1, payload_sysid=2, swing_sensor=None, vel_ned_mps=v0, armed=True,
+                            on_ground=False, pos_ned_m=np.array([0.0, 0.0, -3.0]), t_s=5.0,
+                            euler_rad=np.zeros(3), rates_frd_rad_s=np.zeros(3))
+    feed.maybe_start(state)
+    for k in range(100):  # the controller's estimates, every 4 ms from 5.0 s
+        t = 5.0 + 0.004 * k
+        feed.choose(Estimate(t_s=t, pos_ned_m=state.pos_ned_m, vel_ned_mps=v0, euler_rad=v0, rates_frd_rad_s=v0,
+                             swing=None, swing_source="none"))
+    at_fix = feed.estimator.estimate(5.2).swing[:2]
+    feed.ingest("GLOBAL_POSITION_INT", _gpi(1, 1, 5.1, 0.0, ALT0), state)
+    feed.ingest("GLOBAL_POSITION_INT", _gpi(2, 35, 5.2, 0.2, ALT0 - 0.98), state)
+    assert feed.fix_errors_rad == []  # not paired yet
+    feed.ingest("GLOBAL_POSITION_INT", _gpi(1, 1, 5.3, 0.0, ALT0), state)
+    (err,) = feed.fix_errors_rad
+    a, b = swing_from_offset(feed.payload_offset[1])
+    assert b < -0.19
+    assert abs(err - math.hypot(at_fix[0] - a, at_fix[1] - b)) < 0.02
+    summary = feed.fix_error_summary()
+    assert summary["fixes"] == 1 and summary["rms_rad"] == summary["max_rad"] == err

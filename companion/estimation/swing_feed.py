@@ -42,7 +42,7 @@ import numpy as np
 from companion.core.model import VehicleParams
 from companion.estimation.estimate import Estimate
 from companion.estimation.swing_estimator import SwingEstimate, SwingEstimator, SwingEstimatorConfig
-from companion.estimation.swing_model import payload_offset_from_global
+from companion.estimation.swing_model import payload_offset_from_global, swing_from_offset
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +60,7 @@ START_MAX_CLIMB_MPS = 0.6
 START_MAX_WAIT_S = 3.0
 ESTIMATOR_INPUTS = ("estimate", "estimate_imu", "estimate_fixes")
 _GLOBAL_HISTORY = 64
+_USED_HISTORY = 1000  # estimates kept for scoring fixes (2-4 s at 250 Hz)
 _PENDING_FIXES = 16  # payload fixes waiting for a vehicle fix after them (1.6 s at 10 Hz)
 
 
@@ -83,6 +84,11 @@ class SwingFeed:
     _pending_fixes: list[tuple[float, tuple[float, float, float], np.ndarray]] = field(default_factory=list)
     _vglobal_t: list[float] = field(default_factory=list)
     _vglobal: list[tuple[float, float, float]] = field(default_factory=list)
+    # the estimates the controller got, (t s, α rad, β rad), the last ~2 s: to score each payload fix against the
+    # estimate of its own time (the fix arrives 0.1-0.2 s after it; held until then it is a stale "truth")
+    _used_t: list[float] = field(default_factory=list)
+    _used_ab: list[tuple[float, float]] = field(default_factory=list)
+    fix_errors_rad: list[float] = field(default_factory=list)  # |estimate(t_fix) − angles of the fix|, taut fixes
 
     @property
     def wants_estimator(self) -> bool:
@@ -224,10 +230,13 @@ class SwingFeed:
 
     def _use_payload_offset(self, t: float, off: np.ndarray) -> None:
         """One differenced payload fix for the estimator (skipped while the cable is slack)."""
-        if self.estimator is None or not self.use_fixes:
+        if self.estimator is None:
             return
         if float(np.linalg.norm(off)) < SLACK_FRACTION * self.params.l:
             self._count("slack_fix")
+            return
+        self._score_fix(t, off)  # also when the estimate does not use the fixes (estimate_imu)
+        if not self.use_fixes:
             return
         try:
             self.estimator.update_payload_offset(t, off)
@@ -235,6 +244,25 @@ class SwingFeed:
             self._failed(exc)
             return
         self._count("payload_fix")
+
+    def _score_fix(self, t: float, off: np.ndarray) -> None:
+        """Error of the estimate the controller had at the fix's time t (interpolated between ticks) against the
+        fix's own angles; nothing when no estimate brackets t."""
+        ts = self._used_t
+        i = bisect.bisect_left(ts, t)
+        if i == 0 or i >= len(ts) or ts[i] - ts[i - 1] > 0.1:
+            return
+        w = (t - ts[i - 1]) / (ts[i] - ts[i - 1]) if ts[i] > ts[i - 1] else 0.0
+        (a0, b0), (a1, b1) = self._used_ab[i - 1], self._used_ab[i]
+        a, b = swing_from_offset(off)
+        self.fix_errors_rad.append(math.hypot(a0 + w * (a1 - a0) - a, b0 + w * (b1 - b0) - b))
+
+    def fix_error_summary(self) -> dict[str, float | int] | None:
+        """RMS and max (rad) of :attr:`fix_errors_rad` and how many fixes, or None without any."""
+        e = self.fix_errors_rad
+        if not e:
+            return None
+        return {"fixes": len(e), "rms_rad": math.sqrt(sum(v * v for v in e) / len(e)), "max_rad": max(e)}
 
     def take_fresh_offsets(self) -> list[tuple[float, np.ndarray, np.ndarray]]:
         """The payload fixes differenced since the last call: (t s, payload − airframe NED m, payload NED m/s)."""
@@ -287,5 +315,10 @@ class SwingFeed:
             self.last = None
             return replace(est, swing=None, swing_source="none")
         self.last = self.last_seen = se
+        if not self._used_t or est.t_s > self._used_t[-1]:
+            self._used_t.append(float(est.t_s))
+            self._used_ab.append((float(se.swing[0]), float(se.swing[1])))
+            if len(self._used_t) > _USED_HISTORY:
+                del self._used_t[:_USED_HISTORY // 2], self._used_ab[:_USED_HISTORY // 2]
         return replace(est, swing=se.swing, swing_source="estimate", swing_fade=se.fade,
                        swing_bound_rad=se.bound_rad)

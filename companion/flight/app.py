@@ -718,6 +718,8 @@ class FlightApp:
         return {"inputs": dict(feed.counts), "rejected": None if last is None else last.rejected,
                 "dropped_late": feed.ran.dropped_late, "rejected_total": feed.ran.rejected_total,
                 "swing_resets": feed.ran.resets, "q_swing_scale": round(feed.ran.q_swing_scale, 3),
+                # each taut payload fix against the estimate of its own time (what the controller flew on then)
+                "error_at_fixes": feed.fix_error_summary(),
                 "sources_last_second": None if last is None else list(last.sources),
                 "fade_last": None if last is None else last.fade}
 
