@@ -133,3 +133,22 @@ def test_controller_config_file_and_errors(tmp_path):
 def test_unknown_controller():
     with pytest.raises(ValueError, match="controller"):
         make_position_controller("lqr", ControllerConfig(), P)
+
+
+def test_feedforward_is_bounded():
+    """A large swing asks eq. 48 for far more than max_mps2: the horizontal feed-forward is scaled down to the
+    bound, its direction kept; a small swing is untouched."""
+    from dataclasses import replace
+
+    cfg = ControllerConfig()
+    ctl = make_position_controller("smc_ff", cfg, P)
+    z3 = np.zeros(3)
+    big = ctl.update(z3, z3, z3, z3, z3, np.array([0.6, -0.4, 2.0, -1.5]), np.zeros(2), 0.004).ff_acc_mps2
+    assert math.hypot(big[0], big[1]) == pytest.approx(cfg.feedforward.max_mps2)
+    free = make_position_controller("smc_ff", replace(cfg, feedforward=replace(cfg.feedforward, max_mps2=1e9)), P)
+    raw = free.update(z3, z3, z3, z3, z3, np.array([0.6, -0.4, 2.0, -1.5]), np.zeros(2), 0.004).ff_acc_mps2
+    assert math.hypot(raw[0], raw[1]) > 3.0 * cfg.feedforward.max_mps2
+    np.testing.assert_allclose(big[:2] / np.linalg.norm(big[:2]), raw[:2] / np.linalg.norm(raw[:2]))
+    small = np.array([0.02, 0.01, 0.0, 0.0])
+    np.testing.assert_allclose(ctl.update(z3, z3, z3, z3, z3, small, np.zeros(2), 0.004).ff_acc_mps2,
+                               free.update(z3, z3, z3, z3, z3, small, np.zeros(2), 0.004).ff_acc_mps2)

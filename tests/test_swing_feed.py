@@ -75,6 +75,8 @@ def test_a_diverged_estimator_is_dropped_counted_and_started_again():
     feed.maybe_start(state)
     assert feed.estimator is not None and feed.estimator is not first
     assert feed.choose(est).swing_source == "estimate"
+    feed.estimator._base.x[0] = 3.0  # finite but impossible (ArduCopter SITL's IMU-only estimate reached 1e46)
+    assert feed.choose(est).swing is None and feed.counts["estimator_failed"] == 2
 
 
 def test_each_payload_fix_is_scored_against_the_estimate_of_its_own_time():

@@ -48,7 +48,9 @@ class FeedForwardGains:
     u_x = +l·(k_angle·α + k_rate·α̇ − a1·α̈), u_y = −l·(k_angle·β + k_rate·β̇ − a2·β̈),
     u_z = −l·a3·(α̈ + β̈) (m/s², NED); signs derived in :mod:`companion.control.position`.
     a1, a2, a3 dimensionless (eq. 48), k_angle in 1/s², k_rate in 1/s; ``rate_filter_s`` is the time
-    constant of the filtered derivative that estimates α̈, β̈.
+    constant of the filtered derivative that estimates α̈, β̈; ``max_mps2`` bounds the horizontal feed-forward
+    (m/s²): the bundled vehicle's flights need at most 2.6, while on a vehicle whose attitude loop lags the model's
+    (ArduCopter SITL) an unbounded feed-forward pumped the swing with up to 12.
     """
 
     a1: float = 0.1
@@ -57,6 +59,7 @@ class FeedForwardGains:
     k_angle: float = 8.0
     k_rate: float = 1.9
     rate_filter_s: float = 0.02
+    max_mps2: float = 3.0
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for negative gains or a1, a2 >= 0.5 (algebraic loop gain)."""

@@ -60,6 +60,10 @@ START_MAX_CLIMB_MPS = 0.6
 START_MAX_WAIT_S = 3.0
 ESTIMATOR_INPUTS = ("estimate", "estimate_imu", "estimate_fixes")
 _GLOBAL_HISTORY = 64
+# An estimate beyond these has diverged (a payload hanging under a flying vehicle does not swing past 80° or
+# at 15 rad/s): it is dropped and a fresh estimator started, never handed to the controller
+MAX_SWING_RAD = 1.4
+MAX_SWING_RATE_RAD_S = 15.0
 _USED_HISTORY = 1000  # estimates kept for scoring fixes (2-4 s at 250 Hz)
 _PENDING_FIXES = 16  # payload fixes waiting for a vehicle fix after them (1.6 s at 10 Hz)
 
@@ -310,8 +314,10 @@ class SwingFeed:
             self._failed(exc)
             self.last = None
             return replace(est, swing=None, swing_source="none")
-        if not np.all(np.isfinite(se.swing)):
-            self._failed(FloatingPointError("non-finite swing estimate"))
+        if not (np.all(np.isfinite(se.swing)) and abs(se.swing[0]) <= MAX_SWING_RAD
+                and abs(se.swing[1]) <= MAX_SWING_RAD and abs(se.swing[2]) <= MAX_SWING_RATE_RAD_S
+                and abs(se.swing[3]) <= MAX_SWING_RATE_RAD_S):
+            self._failed(FloatingPointError(f"implausible swing estimate {np.round(se.swing, 3).tolist()}"))
             self.last = None
             return replace(est, swing=None, swing_source="none")
         self.last = self.last_seen = se
