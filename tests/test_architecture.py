@@ -23,7 +23,8 @@ PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "c
 IO_FRAMEWORKS = ("asyncio", "pymavlink", "zenoh", "socket")
 #: What the bundled vehicle may use of the companion: the shared model and MAVLink helpers.
 SIM_MAY_IMPORT = ("companion.core", "companion.mavlink_io.codec", "companion.mavlink_io.signing",
-                  "companion.autopilots", "companion.errors", "companion.config", "companion")
+                  "companion.autopilots", "companion.errors", "companion.config", "companion",
+                  "companion.flight.scheduling")  # real-time priority for the vehicle's loop (`--rt-priority`)
 
 
 def _module_name(path: Path) -> str:
