@@ -81,6 +81,36 @@ def test_reference_generator_respects_limits():
     assert np.linalg.norm(g.vel_ned_mps) < 1e-3
 
 
+def test_gentle_start_limits_the_jerk_only_when_speeding_up_from_rest():
+    """start_jerk_frac 0.4: from rest the horizontal jerk is at most 0.4·j_max (rising with speed to the full limit
+    at start_ramp_mps); braking from speed has the full limit; the default (1) leaves the generator as it was."""
+    from dataclasses import replace
+
+    dt = 0.004
+
+    def jerks(params, v_des, steps, start_v=None):
+        g = ReferenceGenerator(params, np.zeros(3))
+        if start_v is not None:
+            g.reset(np.zeros(3), np.array(start_v))
+        out, prev = [], g.acc_ned_mps2.copy()
+        for _ in range(steps):
+            g.step(np.array(v_des), dt)
+            out.append((float(np.linalg.norm(g.acc_ned_mps2[:2] - prev[:2])) / dt, float(np.linalg.norm(g.v[:2]))))
+            prev = g.acc_ned_mps2.copy()
+        return out
+
+    p = PlannerParams()
+    gentle = replace(p, start_jerk_frac=0.4)
+    start = jerks(gentle, [2.0, 0.0, 0.0], 400)
+    assert start[0][0] <= 0.4 * p.j_max_mps3 + 1e-6
+    assert all(j <= p.j_max_mps3 * (0.4 + 0.6 * min(v, 1.0)) + 0.05 for j, v in start)
+    assert max(j for j, _ in jerks(p, [2.0, 0.0, 0.0], 400)) > 0.9 * p.j_max_mps3  # default: full jerk at once
+    brake = jerks(gentle, [0.0, 0.0, 0.0], 100, start_v=[0.5, 0.0, 0.0])  # slow, slowing down: full limit
+    assert max(j for j, _ in brake) > 0.9 * p.j_max_mps3
+    with pytest.raises(ValueError, match="start_jerk_frac"):
+        replace(p, start_jerk_frac=1.5).validate()
+
+
 def test_predicted_envelope():
     w = math.sqrt(9.81)
     # at rest: airframe circle; swinging through zero at 0.5*w rad/s -> amplitude 0.5 rad
