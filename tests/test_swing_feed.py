@@ -52,17 +52,24 @@ def test_unpaired_payload_fixes_are_dropped_and_counted():
     assert feed.counts["payload_fix_unpaired"] == 4 and feed.take_fresh_offsets() == []
 
 
-def test_a_diverged_estimator_is_dropped_counted_and_started_again():
-    """An estimator whose state went non-finite (numerical divergence on inputs its model cannot explain) gives no
-    swing, is counted and logged, and a fresh one starts at the next tick while the vehicle is still airborne."""
-    from companion.estimation.estimate import Estimate
-
+def _airborne_feed() -> tuple[SwingFeed, SimpleNamespace]:
+    """An ``estimate_fixes`` feed whose estimator has started: the vehicle 3 m up, armed, at rest, t = 5 s."""
     feed = SwingFeed(VehicleParams(), "estimate_fixes")
     v0 = np.zeros(3)
     state = SimpleNamespace(vehicle_sysid=1, payload_sysid=2, swing_sensor=None, vel_ned_mps=v0, armed=True,
                             on_ground=False, pos_ned_m=np.array([0.0, 0.0, -3.0]), t_s=5.0,
                             euler_rad=np.zeros(3), rates_frd_rad_s=np.zeros(3))
     feed.maybe_start(state)
+    return feed, state
+
+
+def test_a_diverged_estimator_is_dropped_counted_and_started_again():
+    """An estimator whose state went non-finite (numerical divergence on inputs its model cannot explain) gives no
+    swing, is counted and logged, and a fresh one starts at the next tick while the vehicle is still airborne."""
+    from companion.estimation.estimate import Estimate
+
+    feed, state = _airborne_feed()
+    v0 = np.zeros(3)
     assert feed.estimator is not None
     est = Estimate(t_s=5.0, pos_ned_m=state.pos_ned_m, vel_ned_mps=v0, euler_rad=v0, rates_frd_rad_s=v0,
                    swing=None, swing_source="none")
@@ -85,12 +92,8 @@ def test_each_payload_fix_is_scored_against_the_estimate_of_its_own_time():
     from companion.estimation.estimate import Estimate
     from companion.estimation.swing_model import swing_from_offset
 
-    feed = SwingFeed(VehicleParams(), "estimate_fixes")
+    feed, state = _airborne_feed()
     v0 = np.zeros(3)
-    state = SimpleNamespace(vehicle_sysid=1, payload_sysid=2, swing_sensor=None, vel_ned_mps=v0, armed=True,
-                            on_ground=False, pos_ned_m=np.array([0.0, 0.0, -3.0]), t_s=5.0,
-                            euler_rad=np.zeros(3), rates_frd_rad_s=np.zeros(3))
-    feed.maybe_start(state)
     for k in range(100):  # the controller's estimates, every 4 ms from 5.0 s
         t = 5.0 + 0.004 * k
         feed.choose(Estimate(t_s=t, pos_ned_m=state.pos_ned_m, vel_ned_mps=v0, euler_rad=v0, rates_frd_rad_s=v0,
