@@ -14,8 +14,9 @@ before it is believed, and what fails is counted in ``rejected`` by kind:
   ~1 in real time, large in lockstep where the simulator runs ahead of the wall clock);
 * ``position_jump``: a position farther from the last than ``max_speed_mps`` allows in the time between;
 * ``attitude_range``: roll or yaw outside ±π, pitch outside ±π/2;
-* ``out_of_order``: a position or attitude older than the one already held (a reordered datagram): the newer
-  one stays.
+* ``out_of_order``: a position, attitude or cable-angle sample older than the one already held (a reordered
+  datagram): the newer one stays. (A reordered swing sample used to be taken: under 50 ± 25 ms of jitter the
+  swing the feed-forward saw jumped back and forth in time, and its derivative terms shook the vehicle.)
 
 A rejected sample leaves the state as it was, so a spoofed or broken sample can make telemetry stale (the
 flight sequence then holds) but never becomes a setpoint.
@@ -263,6 +264,8 @@ class VehicleState:
             if name == "SWING" and len(msg.data) >= 4:
                 d0, d1, d2, d3 = (float(x) for x in msg.data[:4])
                 reach = float(msg.data[4]) if len(msg.data) >= 5 else self.cable_length_m
+                if msg.time_usec * 1e-6 < self.swing_sensor_t_s:
+                    return self._reject("out_of_order")
                 if isfinite(d0) and isfinite(d1) and isfinite(d2) and isfinite(d3):
                     # data[4] shorter than the cable: the payload rests on the ground, the cable is slack
                     slack = isfinite(reach) and reach < SLACK_FRACTION * self.cable_length_m
