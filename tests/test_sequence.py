@@ -85,6 +85,7 @@ class Harness:
     tick_errors: int = 0
     estimate_ok: bool = True
     abort: str | None = None
+    tracking_error_m: float = 0.0
     streams: list[tuple[float, Stream, bool]] = field(default_factory=list)
 
     def step(self) -> Stream:
@@ -94,7 +95,8 @@ class Harness:
                           telemetry_ready=ap.last_tel is not None, vehicle_ready=ap.ready, armed=ap.armed,
                           mode=ap.shown_mode, on_ground=ap.on_ground, heartbeats=ap.heartbeats,
                           estimate_ok=self.estimate_ok, core_result=self.core_result,
-                          tick_errors_in_row=self.tick_errors, abort=self.abort, mission_timeout_s=30.0)
+                          tick_errors_in_row=self.tick_errors, abort=self.abort, mission_timeout_s=30.0,
+                          tracking_error_m=self.tracking_error_m)
         st = self.seq.step(obs)
         for req in st.send:
             ap.handle(self.seq, req)
@@ -295,6 +297,26 @@ def test_invalid_estimate_is_tolerated_for_0_3_s_then_holds():
     t0 = h.ap.t
     h.run_until(lambda: h.seq.state == State.HOLD, max_s=1)
     assert 0.3 <= h.ap.t - t0 <= 0.31 and h.seq.outcome == "invalid_estimate"
+
+
+def test_a_vehicle_far_from_the_reference_for_a_second_is_handed_to_its_own_hold():
+    """The companion's loop gone unstable (the vehicle > 2 m from the reference for > 1 s): outcome ``diverged``,
+    no more of our setpoints, the vehicle's hold, then land. A shorter excursion is tolerated."""
+    h = _harness()
+    h.run_until(lambda: h.seq.state == State.MISSION)
+    h.tracking_error_m = 3.0
+    for _ in range(int(0.8 / DT)):  # 0.8 s: tolerated
+        h.step()
+    h.tracking_error_m = 0.5
+    h.step()
+    assert h.seq.state == State.MISSION and h.seq.outcome == "running"
+    h.tracking_error_m = 2.5
+    t0 = h.ap.t
+    h.run_until(lambda: h.seq.state == State.HOLD, max_s=2)
+    assert 1.0 <= h.ap.t - t0 <= 1.0 + 2 * DT and h.seq.outcome == "diverged"
+    assert "2.5 m from the reference" in h.seq.detail and h.step() == Stream.NONE
+    h.run_until(lambda: h.seq.finished)
+    assert h.seq.final_phase == "landed"
 
 
 def test_arming_temporarily_refused_is_retried_then_works():

@@ -23,13 +23,14 @@ EXIT_CODES = {
     "no_vehicle": 3, "link_lost": 3,
     "not_ready": 4, "refused": 4,
     "preempted": 5,
-    "stale_telemetry": 6, "invalid_estimate": 6, "tick_errors": 6,
+    "stale_telemetry": 6, "invalid_estimate": 6, "tick_errors": 6, "diverged": 6,
     "aborted": 130,
 }
 EXIT_HELP = ("exit codes: 0 goal reached; 1 mission not completed (timeout, no route); 2 broken mission file or "
              "flag; 3 no vehicle or link lost; 4 the autopilot was not ready or refused to arm / give control; "
              "5 preempted (someone else took the vehicle); 6 failsafe (stale telemetry, invalid estimate, failing "
-             "control ticks); 130 interrupted (Ctrl-C/SIGTERM: held and landed); 1 for anything else")
+             "control ticks, the vehicle diverging from the reference); 130 interrupted (Ctrl-C/SIGTERM: held and "
+             "landed); 1 for anything else")
 
 
 

@@ -237,6 +237,7 @@ class FlightApp:
         self._last_answer_wall = 0.0  # lockstep: when we last answered a marker (the vehicle waits on us after)
         self._tick_errors_in_row = 0
         self._last_error_log = -1e9
+        self._tracking_error_m = 0.0  # distance from the last command's reference (m, the sequence's divergence)
         self._last_valid: tuple[float, np.ndarray, float, float] | None = None  # (t_s, q, thrust, wall) sent last
         self._connected_hook_started = False
         self._done = asyncio.Event()
@@ -482,7 +483,7 @@ class FlightApp:
             armed=st.armed, mode=st.mode, on_ground=st.on_ground, heartbeats=st.heartbeats,
             estimate_ok=est is not None, core_result=self.core.result, tick_errors_in_row=self._tick_errors_in_row,
             abort=self.abort_reason, mission_timeout_s=self.mission.timeout_s, last_words=st.last_words,
-            start_error_m=self._update_origin(),
+            start_error_m=self._update_origin(), tracking_error_m=self._tracking_error_m,
         )
 
     def _tick(self, watchdog: bool = False) -> None:
@@ -526,6 +527,9 @@ class FlightApp:
                     if self.core.arrival["t_s"] is not None:  # the report's "at the goal" follows the flight's
                         self.log.goal_tol_m = self.core.arrival["tolerance_m"]
                     self.swing_feed.commanded(est.t_s, cmd.thrust_n)
+                    r = cmd.ref_pos_ned_m
+                    p = est.pos_ned_m
+                    self._tracking_error_m = math.sqrt((p[0] - r[0]) ** 2 + (p[1] - r[1]) ** 2 + (p[2] - r[2]) ** 2)
                     self.last_cmd = cmd
                     setpoint = (est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm)
                 else:

@@ -91,6 +91,8 @@ OUTCOMES = {
     "stale_telemetry": "telemetry stopped arriving in time; the companion handed over to the vehicle's hold",
     "invalid_estimate": "the state estimate was not finite or not physical; hold, then land",
     "tick_errors": "the control tick failed repeatedly; hold, then land",
+    "diverged": "the vehicle stayed far from the companion's reference (a control loop gone unstable); the "
+                "companion handed over to the vehicle's hold, then landed",
     "no_vehicle": "no autopilot heartbeat arrived",
     "not_ready": "the autopilot never reported ready to arm (its reasons are in the report)",
     "refused": "the autopilot refused to arm or to give control (its reasons are in the report)",
@@ -112,6 +114,8 @@ class SequenceConfig:
     stale_s: float = 0.3  # position or attitude older than this in flight: hold
     invalid_estimate_s: float = 0.3  # invalid estimates for this long: hold (the last valid setpoint until then)
     tick_error_limit: int = 3  # consecutive tick exceptions before hold
+    diverged_m: float = 2.0  # the vehicle this far from the reference (m) ...
+    diverged_s: float = 1.0  # ... for this long (wall s): our loop has gone unstable, hand over to the vehicle
     request_timeout_s: float = 1.0  # no answer to a request within this: ask again
     request_attempts: int = 3
     mode_confirm_s: float = 2.0  # a mode accepted but not shown by HEARTBEAT within this: ask again
@@ -158,6 +162,7 @@ class Observation:
     mission_timeout_s: float = math.inf
     last_words: str = ""
     start_error_m: float = 0.0  # horizontal distance of the vehicle from the mission start (mission frame)
+    tracking_error_m: float = 0.0  # the vehicle's distance from the reference of the last command (m)
 
 
 @dataclass(frozen=True, slots=True)
@@ -226,6 +231,7 @@ class FlightSequence:
         self._followup: Callable | None = None
         self._followed_up = False
         self._bad_start: float | None = None
+        self._div_start: float | None = None  # when the vehicle went farther than diverged_m from the reference
 
     # ---------------------------------------------------------------------------------------------- public
     def plan(self, configure: tuple[tuple[str, float], ...], takeover_before_arm: bool,
@@ -412,6 +418,18 @@ class FlightSequence:
             self._fail(obs, "stale_telemetry", f"position/attitude {tel_age:.2f} s old", Stream.NONE)
         elif not obs.estimate_ok and self._bad_since(obs) > self.cfg.invalid_estimate_s:
             self._fail(obs, "invalid_estimate", "the state estimate stayed invalid", Stream.NONE)
+        elif self._diverged_for(obs) > self.cfg.diverged_s:
+            self._fail(obs, "diverged", f"{obs.tracking_error_m:.1f} m from the reference for more than "
+                       f"{self.cfg.diverged_s:g} s", Stream.NONE)
+
+    def _diverged_for(self, obs: Observation) -> float:
+        """Seconds (wall) the vehicle has been farther than ``diverged_m`` from the reference."""
+        if not obs.tracking_error_m > self.cfg.diverged_m:
+            self._div_start = None
+            return 0.0
+        if self._div_start is None:
+            self._div_start = obs.wall_s
+        return obs.wall_s - self._div_start
 
     def _bad_since(self, obs: Observation) -> float:
         """Seconds (wall) the estimate has been invalid; tracked here so the app need not."""
