@@ -125,23 +125,25 @@ class SitlProcess:
                         self.ready_line = text
                         break
         except TimeoutError:
-            await self._stop()
+            await self._stop(graceful=False)
             raise LinkError(f"the SITL vehicle was not ready within {self.ready_timeout_s:.0f} s") from None
         except _PortTaken:
             raise
-        except BaseException:
-            await self._stop()
+        except BaseException:  # e.g. Ctrl-C while it starts: nothing flies yet, so nothing to wait for
+            await self._stop(graceful=False)
             raise
         log.info("%s", self.ready_line)
 
     async def __aexit__(self, *exc: object) -> None:
         await self._stop()
 
-    async def _stop(self) -> None:
+    async def _stop(self, graceful: bool = True) -> None:
+        """Stop the vehicle: SIGINT and up to 5 s to exit, then SIGKILL; at once with ``graceful=False`` (a
+        vehicle still starting, e.g. importing or compiling its model, may not act on SIGINT for seconds)."""
         proc = self.proc
         if proc is not None and proc.returncode is None:
             with contextlib.suppress(ProcessLookupError):
-                proc.send_signal(signal.SIGINT)
+                proc.send_signal(signal.SIGINT if graceful else signal.SIGKILL)
             try:
                 async with asyncio.timeout(5.0):
                     await proc.wait()
