@@ -32,6 +32,7 @@ from companion.control.params import ControllerConfig, load_controller_config
 from companion.core.mission import Mission, load_mission
 from companion.errors import ConfigError, LinkError
 from companion.flight.app import FlightApp, FlyOptions
+from companion.flight.scheduling import RT_PRIORITY_MAX
 from companion.mavlink_io.signing import load_key_file
 from companion.report.run_folder import write_run
 from companion.zenoh_io.session import zenoh_config_from_args
@@ -166,8 +167,9 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
     )
     if opts.rate_hz <= 0 or opts.rate_hz > 2000:
         raise ConfigError(f"--rate-hz: must be in (0, 2000], got {opts.rate_hz}")
-    if not 0 <= opts.rt_priority <= 99:
-        raise ConfigError(f"--rt-priority: must be in 0..99 (0 = normal scheduling), got {opts.rt_priority}")
+    if not 0 <= opts.rt_priority <= RT_PRIORITY_MAX:
+        raise ConfigError(f"--rt-priority: must be in 0..{RT_PRIORITY_MAX} (0 = normal scheduling), got "
+                          f"{opts.rt_priority}")
     wall0 = time.monotonic()
     stack = contextlib.AsyncExitStack()
     view = flight_view(args, mission, run_dir)  # recording.rrd, and the live viewer with --view

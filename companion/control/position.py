@@ -175,14 +175,14 @@ class SmcPositionController:
             al, be, dal, dbe = (float(v) for v in swing)
             dda, ddb = float(swing_acc[0]), float(swing_acc[1])
             f_pay = _payload_reaction(al, be, dal, dbe, dda, ddb, p.m, p.l)
-            ff = (
-                _feedforward(al, be, dal, dbe, dda, ddb, self.ff, p.l, self.ff_sign)
-                if self.ff is not None else (0.0, 0.0, 0.0)
-            )
-            h_ff = math.hypot(ff[0], ff[1])
-            if self.ff is not None and h_ff > self.ff.max_mps2:
-                k = self.ff.max_mps2 / h_ff
-                ff = (ff[0] * k, ff[1] * k, ff[2])
+            if self.ff is not None:
+                ff = _feedforward(al, be, dal, dbe, dda, ddb, self.ff, p.l, self.ff_sign)
+                h_ff = math.hypot(ff[0], ff[1])
+                if h_ff > self.ff.max_mps2:
+                    k = self.ff.max_mps2 / h_ff
+                    ff = (ff[0] * k, ff[1] * k, ff[2])
+            else:
+                ff = (0.0, 0.0, 0.0)
         else:
             f_pay = (0.0, 0.0, 0.0)
             ff = (0.0, 0.0, 0.0)

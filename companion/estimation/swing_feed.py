@@ -64,6 +64,9 @@ _GLOBAL_HISTORY = 64
 # at 15 rad/s): it is dropped and a fresh estimator started, never handed to the controller
 MAX_SWING_RAD = 1.4
 MAX_SWING_RATE_RAD_S = 15.0
+_PLAUSIBLE = np.array([MAX_SWING_RAD, MAX_SWING_RAD, MAX_SWING_RATE_RAD_S, MAX_SWING_RATE_RAD_S])
+# what a numerical failure of the estimator raises (an overflow, a singular innovation covariance)
+_NUMERIC_FAILURES = (ArithmeticError, np.linalg.LinAlgError)
 _USED_HISTORY = 1000  # estimates kept for scoring fixes (2-4 s at 250 Hz)
 _PENDING_FIXES = 16  # payload fixes waiting for a vehicle fix after them (1.6 s at 10 Hz)
 
@@ -174,7 +177,7 @@ class SwingFeed:
             return
         try:
             self._ingest_into(est, src, mtype, msg, state)
-        except (ArithmeticError, np.linalg.LinAlgError) as exc:
+        except _NUMERIC_FAILURES as exc:
             self._failed(exc)
 
     def _ingest_into(self, est: SwingEstimator, src: int, mtype: str, msg: Any, state: Any) -> None:
@@ -244,7 +247,7 @@ class SwingFeed:
             return
         try:
             self.estimator.update_payload_offset(t, off)
-        except (ArithmeticError, np.linalg.LinAlgError) as exc:
+        except _NUMERIC_FAILURES as exc:
             self._failed(exc)
             return
         self._count("payload_fix")
@@ -293,7 +296,7 @@ class SwingFeed:
         if self.estimator is not None and math.isfinite(thrust_n):
             try:
                 self.estimator.set_thrust(t_s, thrust_n)
-            except (ArithmeticError, np.linalg.LinAlgError) as exc:
+            except _NUMERIC_FAILURES as exc:
                 self._failed(exc)
 
     # ------------------------------------------------------------------------------------------ choice
@@ -310,13 +313,11 @@ class SwingFeed:
             return est
         try:
             se = self.estimator.estimate(est.t_s)
-        except (ArithmeticError, np.linalg.LinAlgError) as exc:
+        except _NUMERIC_FAILURES as exc:
             self._failed(exc)
             self.last = None
             return replace(est, swing=None, swing_source="none")
-        if not (np.all(np.isfinite(se.swing)) and abs(se.swing[0]) <= MAX_SWING_RAD
-                and abs(se.swing[1]) <= MAX_SWING_RAD and abs(se.swing[2]) <= MAX_SWING_RATE_RAD_S
-                and abs(se.swing[3]) <= MAX_SWING_RATE_RAD_S):
+        if not np.all(np.abs(se.swing) <= _PLAUSIBLE):  # NaN and inf fail this too
             self._failed(FloatingPointError(f"implausible swing estimate {np.round(se.swing, 3).tolist()}"))
             self.last = None
             return replace(est, swing=None, swing_source="none")

@@ -339,12 +339,13 @@ class FlightApp:
 
     async def run(self) -> str:
         """Fly the mission; returns the outcome (see :data:`companion.flight.sequence.OUTCOMES`)."""
-        if self.opts.rt_priority > 0 and self.opts.lockstep:
-            # lockstep has no deadlines, and its loop runs flat out: SCHED_FIFO would starve every other thread
+        # lockstep has no deadlines, and its loop runs flat out: SCHED_FIFO would starve every other thread
+        fifo = self.opts.rt_priority > 0 and not self.opts.lockstep
+        if fifo:
+            self.stats.scheduling = request_fifo(self.opts.rt_priority)
+        elif self.opts.rt_priority > 0:
             log.info("lockstep: --rt-priority ignored (no deadlines to meet)")
             self.stats.scheduling = "SCHED_OTHER (lockstep: --rt-priority ignored)"
-        elif self.opts.rt_priority > 0:
-            self.stats.scheduling = request_fifo(self.opts.rt_priority)
         try:
             async with self.link, asyncio.TaskGroup() as tg:
                 if not self.opts.lockstep:
@@ -353,7 +354,7 @@ class FlightApp:
                 tg.create_task(self._housekeeping_loop())
                 tg.create_task(self._connected_hook())
         finally:
-            if self.opts.rt_priority > 0 and not self.opts.lockstep:
+            if fifo:
                 restore_normal()
             if self.journal is not None:
                 self.journal.close(self._provisional())

@@ -72,12 +72,13 @@ class ReferenceGenerator:
         jz = (az - a[2]) / tau_s
         n = math.sqrt(jx * jx + jy * jy + jz * jz)
         j_lim = p.j_max_mps3
-        vh = math.hypot(v[0], v[1])
-        if p.start_jerk_frac < 1.0 and vh < p.start_ramp_mps and ax * v[0] + ay * v[1] >= 0.0 and \
-                math.hypot(ax, ay) > math.hypot(a[0], a[1]):
-            # speeding up from (near) rest: a gentler onset of the acceleration excites the payload less (a step
-            # of acceleration swings a pendulum to twice its steady angle; a ramp over ~half its period barely more)
-            j_lim *= p.start_jerk_frac + (1.0 - p.start_jerk_frac) * vh / p.start_ramp_mps
+        if p.start_jerk_frac < 1.0:
+            vh = math.hypot(v[0], v[1])
+            if vh < p.start_ramp_mps and ax * v[0] + ay * v[1] >= 0.0 and math.hypot(ax, ay) > math.hypot(a[0], a[1]):
+                # speeding up from (near) rest: a gentler onset of the acceleration excites the payload less (a
+                # step of acceleration swings a pendulum to twice its steady angle; a ramp over ~half its period
+                # barely more)
+                j_lim *= p.start_jerk_frac + (1.0 - p.start_jerk_frac) * vh / p.start_ramp_mps
         if n > j_lim:
             s = j_lim / n
             jx, jy, jz = jx * s, jy * s, jz * s
