@@ -325,13 +325,13 @@ def flood_main(argv: list[str]) -> int:
     p.add_argument("--trunks", type=int, default=256, help="far-away trunks per list (without --payload)")
     p.add_argument("--payload", default=None, help="the JSON to put instead of far-away trunks")
     p.add_argument("--key", default="slungpilot/1/obstacles/in/flood")
-    p.add_argument("--vary", action="store_true", help="move the first trunk by 1 µm per list: every list differs")
+    p.add_argument("--vary", action="store_true", help="the first trunk moves by 1 µm per list: every list differs")
     p.add_argument("--user", default=None, help="log in with this user (Zenoh usrpwd authentication) ...")
     p.add_argument("--password", default=None, help="... and password; client mode")
     a = p.parse_args(argv)
     payload = (a.payload.encode() if a.payload is not None else
                json.dumps({"obstacles": [{"x_m": 200.0 + 2.0 * i, "y_m": 150.0, "radius_m": 0.3}
-                                         for i in range(a.trunks)]}).encode())
+                                         for i in range(a.trunks - (1 if a.vary else 0))]}).encode())
     cfg = zenoh.Config()
     cfg.insert_json5("mode", '"client"' if a.user else '"peer"')
     cfg.insert_json5("connect/endpoints", json.dumps([a.connect]))

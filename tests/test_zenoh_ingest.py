@@ -10,7 +10,7 @@ import zenoh
 
 from companion.cli.bench_zenoh import free_tcp_port
 from companion.zenoh_io.session import zenoh_config
-from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry
+from companion.zenoh_io.telemetry import INBOX_RING, TelemetryOptions, ZenohTelemetry
 
 KEY = "slungpilot/6/obstacles/in/cam"
 
@@ -60,3 +60,28 @@ def test_parsed_after_the_tick_and_same_bytes_adopted_without_parsing():
         pub.put(_payload(11.0))
         _ingest_until(zt, 0.6, lambda: zt.store.accepted_count == 4)
         assert zt.unchanged == 1, "after a refused sample the same bytes are parsed again, not taken on trust"
+
+
+def test_a_burst_keeps_each_publishers_newest_and_counts_the_rest():
+    """Samples wait in Zenoh's ring (no Python runs per sample) until the app drains them after a tick: a burst
+    from one publisher is reduced to its newest sample, and another publisher's sample in between survives."""
+    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    with ZenohTelemetry(zenoh_config("companion", listen=[ep]), TelemetryOptions(vehicle_id="6")) as zt, \
+            zenoh.open(zenoh_config("listener", connect=[ep])) as s:
+        cam, flood = s.declare_publisher(KEY), s.declare_publisher("slungpilot/6/obstacles/in/flood")
+        deadline = time.monotonic() + 15
+        while not (cam.matching_status.matching and flood.matching_status.matching) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        burst = 30
+        assert burst + 1 < INBOX_RING
+        flood.put(_payload(100.0, n=8))
+        cam.put(_payload(10.0, n=8))
+        for i in range(1, burst):
+            flood.put(_payload(100.0 + i, n=8))
+        time.sleep(1.0)  # all of it waits in the ring: nothing has been drained yet
+        assert zt.superseded == 0 and zt.store.accepted_count == 0
+        zt.ingest(0.1)
+        assert zt.superseded == burst - 1, "the burst's older samples are counted as superseded, never parsed"
+        _ingest_until(zt, 0.2, lambda: zt.store.accepted_count == 2)
+        xs = sorted(o.x_m for o in zt.obstacles_current(0.2))
+        assert xs[0] == 10.0 and 100.0 + burst - 1 in xs and 100.0 not in xs

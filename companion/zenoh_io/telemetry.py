@@ -5,10 +5,13 @@ Streams (``<prefix>/<id>/...``, prefix default ``slungpilot``, id the vehicle id
 (1 Hz), ``obstacles`` (on change, at most 20 Hz, at least 1 Hz), liveliness token ``alive``, queryable
 ``config``. Input: ``<prefix>/<id>/obstacles/in/**`` and ``<prefix>/world/obstacles/**``.
 
-Threading: Zenoh callbacks run on Zenoh's threads. They never block and never touch app state: an obstacle
-sample only replaces its publisher's previous unread sample in a small locked table (newest wins; the
-superseded ones are counted, never parsed), and config queries are handed to the asyncio loop with
-``loop.call_soon_threadsafe``. Obstacle samples are parsed by :meth:`ingest` on the app's thread right after
+Threading: obstacle samples never run Python on Zenoh's threads. Each obstacle subscriber has a Zenoh ring
+channel (``INBOX_RING``, newest samples kept, oldest dropped inside Zenoh) that :meth:`ingest` drains on the app's
+thread, so a flood never takes the GIL from the control thread (a callback per sample did: a Zenoh thread that
+was descheduled while holding the GIL stalled the real-time tick for milliseconds). Drained samples replace
+their publisher's previous unread one (newest wins; superseded ones are counted, never parsed). Config queries
+are handled by a callback that hands them to the asyncio loop with ``loop.call_soon_threadsafe``.
+Obstacle samples are parsed by :meth:`ingest` on the app's thread right after
 each control tick (outside it: the tick only reads the adopted set, :meth:`obstacles_current`), within a time
 budget (``ingest_budget_s``, 0.3 ms): a list too long for one budget is parsed over several
 (:class:`~companion.zenoh_io.obstacle_store.SampleParser`). So a flood — any rate, any size — costs each control
@@ -42,6 +45,10 @@ from companion.zenoh_io.session import DEFAULT_PREFIX, check_key_part, open_sess
 log = logging.getLogger(__name__)
 
 MAX_PUBLISHERS_WAITING = 256  # distinct publishers with an unread sample; beyond this samples are dropped
+# samples each obstacle subscriber holds between two drains (one control period); a flood beyond this many samples
+# per period loses its oldest inside Zenoh (uncounted), so another publisher's sample survives a flood of up to
+# INBOX_RING samples per period (16 kHz at 250 Hz); worst-case memory INBOX_RING x 256 kB per subscriber
+INBOX_RING = 64
 INGEST_BUDGET_S = 0.3e-3  # parsing time one control tick may spend on live obstacle input
 MAX_QUEUE = 2000
 Vec = Sequence[float] | np.ndarray
@@ -181,9 +188,8 @@ class ZenohTelemetry:
         self._session: zenoh.Session | None = None
         self._pubs: dict[str, zenoh.Publisher] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._latest: dict[str, bytes] = {}  # publisher key → newest unread sample (Zenoh threads write)
-        self._latest_lock = threading.Lock()
-        self._waiting: dict[str, bytes] = {}  # taken from _latest, not yet parsed (the loop's own)
+        self._subs: list[zenoh.Subscriber] = []  # obstacle input, each with a ring channel drained by ingest
+        self._waiting: dict[str, bytes] = {}  # publisher key → newest drained sample not yet parsed
         self._parser: SampleParser | None = None
         # per publisher: the raw bytes of its last adopted sample and what they parsed to; a sample with the same
         # bytes (a static map re-sent, a flood) is adopted again without parsing
@@ -219,7 +225,8 @@ class ZenohTelemetry:
             self._subs = []
             if self.options.subscribe_obstacles:
                 for k in ("obstacles_in", "world_obstacles"):
-                    self._subs.append(session.declare_subscriber(self.keys[k], self._on_obstacle_sample))
+                    self._subs.append(session.declare_subscriber(self.keys[k],
+                                                                 zenoh.handlers.RingChannel(INBOX_RING)))
             self._queryable = session.declare_queryable(self.keys["config"], self._on_query)
             self._token = session.liveliness().declare_token(self.keys["alive"])
         except Exception:
@@ -240,6 +247,7 @@ class ZenohTelemetry:
         stack, self._stack = self._stack, None
         self._session = None
         self._pubs = {}
+        self._subs = []
         q, th, self._queue, self._thread = self._queue, self._thread, None, None
         if q is not None and th is not None:
             q.put(None)
@@ -337,7 +345,7 @@ class ZenohTelemetry:
         body.setdefault("obstacles_in", {
             "accepted": self.store.accepted_count, "rejected": self.store.rejected_count,
             "inbox_dropped": self.inbox_dropped, "superseded": self.superseded, "unchanged": self.unchanged,
-            "pending": len(self._waiting) + len(self._latest) + (self._parser is not None),
+            "pending": len(self._waiting) + (self._parser is not None),
             "sources": list(self.store.sources()),
         })
         body.setdefault("zenoh", {"dropped_local": self.dropped_local, "worker_errors": self.worker_errors})
@@ -363,17 +371,19 @@ class ZenohTelemetry:
                           self.store.rejected_count, self.store.version)
 
     # -- obstacles in ----------------------------------------------------------------------------------
-    def _on_obstacle_sample(self, sample: zenoh.Sample) -> None:
-        """Zenoh thread: keep the newest sample per publisher; never blocks, never parses."""
-        key = str(sample.key_expr)
-        raw = sample.payload.to_bytes()
-        with self._latest_lock:
-            if key in self._latest:
-                self.superseded += 1
-            elif len(self._latest) >= MAX_PUBLISHERS_WAITING:
-                self.inbox_dropped += 1
-                return
-            self._latest[key] = raw
+    def _drain(self) -> None:
+        """Move every sample waiting in the subscribers' rings to ``_waiting`` (newest per publisher wins)."""
+        waiting = self._waiting
+        parsing = self._parser.key if self._parser is not None else None
+        for sub in self._subs:
+            while (sample := sub.try_recv()) is not None:
+                key = str(sample.key_expr)
+                if key in waiting or key == parsing:
+                    self.superseded += 1
+                elif len(waiting) >= MAX_PUBLISHERS_WAITING:
+                    self.inbox_dropped += 1
+                    continue
+                waiting[key] = sample.payload.to_bytes()
 
     def obstacles_now(self, now_s: float, mission_obstacles: Sequence[Obstacle] = ()) -> tuple[Obstacle, ...]:
         """:meth:`ingest` then :meth:`obstacles_current`: parse what waits (within the budget), then the merged
@@ -390,13 +400,7 @@ class ZenohTelemetry:
     def ingest(self, now_s: float) -> None:
         """Parse waiting live samples for at most ``ingest_budget_s`` and adopt the finished ones at app time
         ``now_s`` (s). The app calls this after each tick."""
-        if self._latest:
-            with self._latest_lock:
-                latest, self._latest = self._latest, {}
-            for key in latest:
-                if key in self._waiting or (self._parser is not None and self._parser.key == key):
-                    self.superseded += 1
-            self._waiting.update(latest)
+        self._drain()
         if self._parser is not None or self._waiting:
             deadline = time.perf_counter() + self.ingest_budget_s
             while True:
