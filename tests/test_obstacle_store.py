@@ -188,3 +188,64 @@ def test_sample_parser_refuses_a_bad_item_with_its_index():
 
     p = SampleParser("k", b'{"obstacles": [{"x_m": 1, "y_m": 0, "radius_m": 0.3}, {"x_m": 1, "y_m": 0}]}')
     assert p.work(1e9) and p.error == "obstacles[1].radius_m: missing required key"
+
+
+N_MAX = 256 * 1024
+HOSTILE = {  # each one took json.loads 1-15 ms, or raised RecursionError (not a ValueError: it escaped the parser)
+    "256 kB of numbers": (b'{"obstacles": [' + b",".join([b"0"] * (N_MAX // 2 - 20)) + b"]}", "obstacles[0]"),
+    "arrays nested 100k deep": (b'{"obstacles": ' + b"[" * 100_000 + b"]" * 100_000 + b"}", "obstacles[0]"),
+    "a whole sample nested": (b"[" * 100_000 + b"]" * 100_000, "JSON object"),
+    "objects nested in an item": (b'{"obstacles": [{"x_m": ' + b'{"a": ' * 30_000 + b"1" + b"}" * 30_001 + b"]}",
+                                  "obstacles[0]"),
+    "one key repeated 20k times": (b'{"obstacles": [{' + b",".join([b'"x_m": 1'] * 20_000) + b"}]}", "obstacles[0]"),
+    "250 kB of whitespace": (b'{"obstacles": [' + b" " * 250_000 + b"]}", "whitespace"),
+    "a 250 kB key": (b'{"' + b"a" * 250_000 + b'": 1}', "sample"),
+    "a 250 kB number": (b'{"expires_s": 1' + b"0" * 250_000 + b"}", "sample"),
+    "a key given twice": (b'{"obstacles": [], "obstacles": []}', "given twice"),
+    "trailing data": (b'{"obstacles": []} []', "extra data"),
+    "truncated": (b'{"obstacles": [{"x_m": 1, "y_m": 2, "radius_m": 0.3},', "sample"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(HOSTILE))
+def test_samples_built_to_be_slow_or_deep_are_refused_early_with_a_value_error(name: str) -> None:
+    raw, key = HOSTILE[name]
+    assert len(raw) <= N_MAX
+    from companion.zenoh_io.obstacle_store import SampleParser
+
+    p = SampleParser("k", raw)
+    looks = [0]
+
+    def clock() -> float:
+        looks[0] += 1
+        return 0.0
+
+    assert p.work(1.0, clock), "refused within its first slice"
+    assert p.error is not None and key in p.error, p.error
+    assert len(p.error) < 300, "the message quotes at most a short part of what was sent"
+    with pytest.raises(ValueError, match=re.escape(key)):
+        parse_obstacles_in(raw, SRC)
+
+
+def test_the_scanner_reads_what_json_reads() -> None:
+    """Pretty-printed, escaped keys, any member order, exponents, negative zero: the same as json.loads."""
+    body = {"expires_s": 2.5e0, "obstacles": [{"radius_m": 3e-1, "y_m": -0.0, "x_m": 12, "vx_mps": -1.5E-1},
+                                              {"x_m": 1, "y_m": 2, "radius_m": 0.5}], "version": 1}
+    for raw in (json.dumps(body).encode(), json.dumps(body, indent=4).encode(),
+                json.dumps(body, separators=(",", ":")).encode(),
+                b'{"obstacles": [{"x\\u005fm": 1, "y_m": 2, "radius_m": 0.5}]}'):
+        obs, exp = parse_obstacles_in(raw, SRC)
+        ref = json.loads(raw)
+        assert exp == ref.get("expires_s")
+        assert [(o.x_m, o.y_m, o.radius_m, o.vx_mps) for o in obs] == [
+            (it["x_m"], it["y_m"], it["radius_m"], it.get("vx_mps", 0.0)) for it in ref["obstacles"]]
+
+
+def test_an_unexpected_error_in_the_parser_refuses_that_sample_only(caplog) -> None:
+    from companion.zenoh_io.obstacle_store import SampleParser
+
+    p = SampleParser("k", 12345)  # type: ignore[arg-type]  # not bytes: len() raises TypeError inside the parser
+    with caplog.at_level(logging.ERROR):
+        assert p.work(1e9)
+    assert p.error == "sample: could not be parsed (TypeError)" and p.work(1e9)
+    assert "obstacles: parsing a sample from k failed" in caplog.text

@@ -25,8 +25,9 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,6 +38,7 @@ log = logging.getLogger(__name__)
 
 MAX_SAMPLE_BYTES = 256 * 1024
 MAX_OBSTACLES_PER_SAMPLE = 256
+MAX_ITEM_CHARS = 1024  # one obstacle object's JSON text (a full one with long numbers is ~250)
 MAX_SOURCES = 64
 MAX_EXPIRES_S = 3600.0
 _TOP_KEYS = frozenset({"obstacles", "expires_s", "schema", "version"})
@@ -52,34 +54,43 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool)
 
 
-def _decode_sample(raw: bytes | str) -> tuple[list, float | None]:
-    """The sample's JSON object checked at its top level: (the raw obstacle items, expires_s or None)."""
-    if len(raw) > MAX_SAMPLE_BYTES:
-        raise ValueError(f"sample: {len(raw)} bytes is above {MAX_SAMPLE_BYTES}")
+_DECODER = json.JSONDecoder(parse_constant=_reject_constant)
+MAX_WHITESPACE_RUN = 4096  # JSON whitespace in a row (a longer run is refused: keeps every scan step short)
+MAX_SCALAR_CHARS = 256  # a top-level key or value, or a non-object item, as JSON text
+_WS = re.compile(f"[ \\t\\n\\r]{{0,{MAX_WHITESPACE_RUN}}}")
+_TYPE_OF_OPENER = {"{": "dict", "[": "list"}
+
+
+def _short(v: Any) -> str:
+    """``repr(v)`` cut to 60 characters (error messages quote what a publisher sent, which can be 256 kB)."""
+    r = repr(v)
+    return r if len(r) <= 60 else r[:57] + "..."
+
+
+def _not_json(exc: json.JSONDecodeError | str) -> ValueError:
+    return ValueError(f"sample: not JSON ({exc})")
+
+
+def _scalar(s: str, i: int, what: str, want: str) -> tuple[Any, int]:
+    """The JSON string, number, true, false or null at ``s[i]`` and the index after it. An object or array there
+    is refused as ``what: expected <want>, got dict|list`` without being read (bounded time, no recursion)."""
+    opener = s[i:i + 1]
+    if opener in _TYPE_OF_OPENER:
+        raise ValueError(f"{what}: expected {want}, got {_TYPE_OF_OPENER[opener]}")
     try:
-        d = json.loads(raw, parse_constant=_reject_constant)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"sample: not JSON ({exc})") from None
-    if not isinstance(d, dict):
-        raise ValueError(f"sample: expected a JSON object, got {type(d).__name__}")
-    unknown = sorted(set(d) - _TOP_KEYS)
-    if unknown:
-        raise ValueError(f"{unknown[0]}: unknown key (known: {', '.join(sorted(_TOP_KEYS))})")
-    if "schema" in d and d["schema"] != OBSTACLES_IN:
-        raise ValueError(f"schema: expected {OBSTACLES_IN!r}, got {d['schema']!r}")
-    if "version" in d and d["version"] != SCHEMA_VERSION:
-        raise ValueError(f"version: expected {SCHEMA_VERSION}, got {d['version']!r}")
-    if "obstacles" not in d:
-        raise ValueError("obstacles: missing required key")
-    items = d["obstacles"]
-    if not isinstance(items, list):
-        raise ValueError(f"obstacles: expected a list, got {type(items).__name__}")
-    if len(items) > MAX_OBSTACLES_PER_SAMPLE:
-        raise ValueError(f"obstacles: {len(items)} obstacles is above {MAX_OBSTACLES_PER_SAMPLE}")
-    expires = d.get("expires_s")
-    if expires is not None and (not _is_number(expires) or not 0.0 < expires <= MAX_EXPIRES_S):
-        raise ValueError(f"expires_s: must be a number in (0, {MAX_EXPIRES_S}] s or null, got {expires!r}")
-    return items, (None if expires is None else float(expires))
+        v, n = _DECODER.raw_decode(s[i:i + MAX_SCALAR_CHARS])
+    except json.JSONDecodeError as exc:
+        why = f"{exc.msg} (char {i + exc.pos}), or a value longer than {MAX_SCALAR_CHARS} characters"
+        raise _not_json(why) from None
+    return v, i + n
+
+
+def _skip_ws(s: str, i: int) -> int:
+    """The index of the first non-whitespace character at or after ``s[i]``."""
+    j = _WS.match(s, i).end()
+    if j - i == MAX_WHITESPACE_RUN and s[j:j + 1] in (" ", "\t", "\n", "\r"):
+        raise _not_json(f"more than {MAX_WHITESPACE_RUN} whitespace characters in a row at char {i}")
+    return j
 
 
 def _obstacle_of(i: int, it: Any, source: str) -> Obstacle:
@@ -108,45 +119,148 @@ def parse_obstacles_in(raw: bytes | str, source: str) -> tuple[tuple[Obstacle, .
 
     Raises ``ValueError("<key>: message")`` on any problem (the whole sample is refused).
     """
-    items, expires = _decode_sample(raw)
-    return tuple(_obstacle_of(i, it, source) for i, it in enumerate(items)), expires
+    p = SampleParser(source, raw)
+    p.work(math.inf)
+    if p.error is not None:
+        raise ValueError(p.error)
+    return p.obstacles, p.expires_s
 
 
 class SampleParser:
-    """One sample parsed a slice at a time: :meth:`work` stops at a deadline and goes on at the next call, so a
-    list of hundreds of obstacles never costs one control tick more than its budget.
+    """One sample parsed a slice at a time: :meth:`work` stops at a deadline and goes on at the next call, so no
+    sample — a list of hundreds of obstacles, or 256 kB built to be slow — costs one control tick more than its
+    budget (plus one slice: at most ``ITEMS_PER_SLICE`` items of at most ``MAX_ITEM_CHARS`` characters).
+
+    The sample is read by a scanner for exactly the schema's shape (an object whose ``obstacles`` array holds
+    flat objects), never by one ``json.loads`` of the whole text: that took 15 ms for 256 kB of numbers and
+    raised ``RecursionError`` on deeply nested arrays. Each obstacle object is decoded on its own.
 
     After :meth:`work` returned True, ``error`` is None and ``obstacles``/``expires_s`` hold the result, or
     ``error`` says why the sample was refused as a whole.
     """
 
+    ITEMS_PER_SLICE = 4
+
     def __init__(self, key: str, raw: bytes | str) -> None:
         self.key = key
         self.raw = raw  # the sample as received
-        self._items: list | None = None
-        self._out: list[Obstacle] = []
         self.obstacles: tuple[Obstacle, ...] = ()
         self.expires_s: float | None = None
         self.error: str | None = None
+        self._steps = self._scan()
 
     def work(self, deadline_s: float, clock: Callable[[], float] = time.perf_counter) -> bool:
         """Parse until done (True) or until ``clock()`` passes ``deadline_s`` (False: call again)."""
         try:
-            if self._items is None:
-                self._items, self.expires_s = _decode_sample(self.raw)
-            items, out, key = self._items, self._out, self.key
-            while len(out) < len(items):
-                out.append(_obstacle_of(len(out), items[len(out)], key))
-                if len(out) % 8 == 0 and clock() > deadline_s:
-                    return len(out) == len(items) and self._finish()
-        except ValueError as exc:
+            for _ in self._steps:
+                if clock() > deadline_s:
+                    return False
+        except ValueError as exc:  # JSONDecodeError and UnicodeDecodeError are ValueErrors too
             self.error = str(exc)
-            return True
-        return self._finish()
-
-    def _finish(self) -> bool:
-        self.obstacles = tuple(self._out)
+            self._steps = iter(())
+        except Exception as exc:  # a bug here must refuse this sample, never wedge the input behind it
+            log.exception("obstacles: parsing a sample from %s failed", self.key)
+            self.error = f"sample: could not be parsed ({type(exc).__name__})"
+            self._steps = iter(())
         return True
+
+    def _scan(self) -> Iterator[None]:
+        """Generator: the whole parse, yielding after every ``ITEMS_PER_SLICE`` obstacles."""
+        raw = self.raw
+        if len(raw) > MAX_SAMPLE_BYTES:
+            raise ValueError(f"sample: {len(raw)} bytes is above {MAX_SAMPLE_BYTES}")
+        if isinstance(raw, bytes):
+            try:
+                raw = raw.decode("utf-8")
+            except UnicodeDecodeError as exc:
+                raise ValueError(f"sample: not UTF-8 ({exc})") from None
+        s: str = raw
+        i = _skip_ws(s, 0)
+        if s[i:i + 1] != "{":
+            v, i = _scalar(s, i, "sample", "a JSON object")
+            raise ValueError(f"sample: expected a JSON object, got {type(v).__name__}")
+        top: dict[str, Any] = {}
+        out: list[Obstacle] = []
+        i = _skip_ws(s, i + 1)
+        if s[i:i + 1] == "}":
+            i += 1
+        else:
+            while True:
+                if s[i:i + 1] != '"':
+                    raise _not_json(f"expected a key in double quotes at char {i}")
+                name, i = _scalar(s, i, "sample", "a key")
+                i = _skip_ws(s, i)
+                if s[i:i + 1] != ":":
+                    raise _not_json(f"expected ':' at char {i}")
+                i = _skip_ws(s, i + 1)
+                if name not in _TOP_KEYS:
+                    raise ValueError(f"{_short(name)}: unknown key (known: {', '.join(sorted(_TOP_KEYS))})")
+                if name in top:
+                    raise ValueError(f"{name}: given twice")
+                if name == "obstacles" and s[i:i + 1] == "[":
+                    top[name] = out
+                    i = yield from self._scan_items(s, i + 1, out)
+                else:
+                    top[name], i = _scalar(s, i, name, "a list" if name == "obstacles" else "a scalar")
+                i = _skip_ws(s, i)
+                sep = s[i:i + 1]
+                i = _skip_ws(s, i + 1)
+                if sep == "}":
+                    break
+                if sep != ",":
+                    raise _not_json(f"expected ',' or '}}' at char {i}")
+        if _skip_ws(s, i) != len(s):
+            raise _not_json(f"extra data at char {i}")
+        self.expires_s = _check_top(top)
+        self.obstacles = tuple(out)
+
+    def _scan_items(self, s: str, i: int, out: list[Obstacle]) -> Iterator[None]:
+        """Generator: the obstacle objects from ``s[i]`` (just after the ``[``) into ``out``; returns the index
+        after the ``]``."""
+        i = _skip_ws(s, i)
+        if s[i:i + 1] == "]":
+            return i + 1
+        while True:
+            n = len(out)
+            if n >= MAX_OBSTACLES_PER_SAMPLE:
+                raise ValueError(f"obstacles: more than {MAX_OBSTACLES_PER_SAMPLE} obstacles")
+            if s[i:i + 1] != "{":
+                v, i = _scalar(s, i, f"obstacles[{n}]", "an object")
+                raise ValueError(f"obstacles[{n}]: expected an object, got {type(v).__name__}")
+            j = s.find("}", i, i + MAX_ITEM_CHARS)
+            if j < 0:
+                raise ValueError(f"obstacles[{n}]: not a flat object of at most {MAX_ITEM_CHARS} characters")
+            text = s[i:j + 1]
+            if "{" in text[1:] or "[" in text:
+                raise ValueError(f"obstacles[{n}]: values must be numbers, not objects or arrays")
+            try:
+                item = _DECODER.decode(text)
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"obstacles[{n}]: not JSON ({exc})") from None
+            out.append(_obstacle_of(n, item, self.key))
+            i = _skip_ws(s, j + 1)
+            sep = s[i:i + 1]
+            i = _skip_ws(s, i + 1)
+            if sep == "]":
+                return i
+            if sep != ",":
+                raise _not_json(f"expected ',' or ']' at char {i}")
+            if len(out) % self.ITEMS_PER_SLICE == 0:
+                yield
+
+
+def _check_top(top: dict[str, Any]) -> float | None:
+    """The sample's top-level members checked (``obstacles`` already read); returns expires_s or None."""
+    if "schema" in top and top["schema"] != OBSTACLES_IN:
+        raise ValueError(f"schema: expected {OBSTACLES_IN!r}, got {_short(top['schema'])}")
+    if "version" in top and (not _is_number(top["version"]) or top["version"] != SCHEMA_VERSION):
+        raise ValueError(f"version: expected {SCHEMA_VERSION}, got {_short(top['version'])}")
+    if "obstacles" not in top:
+        raise ValueError("obstacles: missing required key")
+    expires = top.get("expires_s")
+    if expires is not None and (not _is_number(expires) or not 0.0 < expires <= MAX_EXPIRES_S):
+        raise ValueError(f"expires_s: must be a number in (0, {MAX_EXPIRES_S}] s or null, got {_short(expires)}")
+    return None if expires is None else float(expires)
 
 
 @dataclass(frozen=True, slots=True)

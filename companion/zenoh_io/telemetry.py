@@ -7,15 +7,15 @@ Streams (``<prefix>/<id>/...``, prefix default ``slungpilot``, id the vehicle id
 
 Threading: obstacle samples never run Python on Zenoh's threads. Each obstacle subscriber has a Zenoh ring
 channel (``INBOX_RING``, newest samples kept, oldest dropped inside Zenoh) that :meth:`ingest` drains on the app's
-thread, so a flood never takes the GIL from the control thread (a callback per sample did: a Zenoh thread that
-was descheduled while holding the GIL stalled the real-time tick for milliseconds). Drained samples replace
+thread, so a flood never competes with the control thread for the GIL (a callback per sample took it a thousand
+times a second under a 1 kHz flood, ~1 s of CPU per flooded flight). Drained samples replace
 their publisher's previous unread one (newest wins; superseded ones are counted, never parsed). Config queries
 are handled by a callback that hands them to the asyncio loop with ``loop.call_soon_threadsafe``.
 Obstacle samples are parsed by :meth:`ingest` on the app's thread right after
 each control tick (outside it: the tick only reads the adopted set, :meth:`obstacles_current`), within a time
 budget (``ingest_budget_s``, 0.3 ms): a list too long for one budget is parsed over several
 (:class:`~companion.zenoh_io.obstacle_store.SampleParser`). So a flood — any rate, any size — costs each control
-period at most the budget (plus one ``json.loads`` of a sample), never the tick itself, and the newest list of
+period at most the budget (plus one slice of a few obstacles), never the tick itself, and the newest list of
 every publisher still gets through.
 """
 
