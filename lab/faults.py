@@ -236,6 +236,34 @@ def tick_exception(workdir: Path, *, at_s: float = 6.0) -> dict[str, Any]:
             "max_descent_mps": vz_max, "max_altitude_m": z_max}
 
 
+# Position SMC gains ~80x too high with a 30x thinner boundary layer: the loop chatters, the payload is pumped
+# and the vehicle is thrown off its reference (a mis-tuned controller on a real vehicle)
+UNSTABLE_GAINS = """[smc]
+c = [20.0, 20.0, 2.0]
+k = [200.0, 200.0, 3.0]
+k_sat = [20.0, 20.0, 0.8]
+boundary = [0.01, 0.01, 0.3]
+"""
+
+
+def diverged(workdir: Path, *, realtime: bool = False) -> dict[str, Any]:
+    """The companion's own loop unstable (absurd position gains): more than 2 m from the reference for 1 s ->
+    outcome ``diverged``, our setpoints stop, the vehicle's hold, then its landing; never a fall or a flyaway."""
+    run_dir = workdir / ("diverged" + ("-rt" if realtime else ""))
+    gains = workdir / "unstable-gains.toml"
+    gains.write_text(UNSTABLE_GAINS)
+    fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh", "--gains", str(gains),
+                              *(["--realtime"] if realtime else [])))
+    code = fly.finish(180)
+    rep = read_report(run_dir)
+    vz_max, z_max = _descent_from_tlog(run_dir / "flight.tlog")
+    times = {t["to"]: t["t_s"] for t in rep["transitions"]}
+    return {"exit_code": code, "outcome": rep["outcome"], "detail": rep["outcome_detail"],
+            "final_phase": rep["final_phase"], "states": [t["to"] for t in rep["transitions"]],
+            "hold_at_s": times.get("hold"), "max_descent_mps": vz_max, "max_altitude_m": z_max,
+            "collisions": rep["collisions"], "rejected_telemetry": rep["rejected_telemetry"]}
+
+
 def _descent_from_tlog(tlog: Path) -> tuple[float, float]:
     """Fastest downward speed (m/s) and highest altitude (m above home) the vehicle reported."""
     from pymavlink import mavutil
@@ -564,6 +592,7 @@ SCENARIOS = {
     "vehicle_killed": vehicle_killed,
     "fuzz": fuzz,
     "tick_exception": tick_exception,
+    "diverged": diverged,
     "companion_killed_report": companion_killed_report,
     "zenoh_flood": zenoh_flood,
     # the same flood, the control loops SCHED_FIFO (fly --rt-priority): what the kernel's preemption costs

@@ -243,7 +243,9 @@ def hot_payload(msgid: int, v: Any, snap: Snapshot | None = None) -> tuple[int, 
                                                          x[15], reach)
     if msgid == MSG_ATTITUDE:
         w = s.rates
-        return mf.CRC_ATTITUDE, mf.P_ATTITUDE.pack(t_ms, x[3], x[4], x[5], w[0], w[1], w[2])
+        # the model's Euler angles are unwrapped (a spinning vehicle's yaw runs past ±π); MAVLink's are in ±π
+        return mf.CRC_ATTITUDE, mf.P_ATTITUDE.pack(t_ms, math.remainder(x[3], math.tau), x[4],
+                                                   math.remainder(x[5], math.tau), w[0], w[1], w[2])
     if msgid == MSG_LOCAL_POSITION_NED:
         return mf.CRC_LOCAL_POSITION_NED, mf.P_LOCAL_POSITION_NED.pack(t_ms, x[0], x[1], x[2], x[8], x[9], x[10])
     if msgid == MSG_ATTITUDE_QUATERNION:

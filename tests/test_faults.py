@@ -92,3 +92,11 @@ def test_companion_killed_the_bundled_vehicle_holds_then_lands(workdir):
     assert r["left_offboard_s"] is not None and r["left_offboard_s"] <= 2.5, r  # 1 s + the next 1 Hz HEARTBEAT
     assert r["landed_s"] is not None and r["disarmed_s"] is not None and r["disarmed_s"] < 30.0, r
     assert r["max_descent_mps"] < 1.5, r
+
+
+def test_an_unstable_control_loop_is_handed_to_the_vehicles_hold_then_lands(workdir):
+    r = faults.diverged(workdir)
+    assert r["outcome"] == "diverged" and r["exit_code"] == 6, r
+    assert r["states"][-3:] == ["hold", "land", "done"] and r["final_phase"] == "landed", r
+    assert r["max_descent_mps"] < 1.5 and r["max_altitude_m"] < 5.0, r  # no fall, no flyaway
+    assert r["rejected_telemetry"] == {}, r

@@ -86,12 +86,16 @@ class Harness:
     estimate_ok: bool = True
     abort: str | None = None
     tracking_error_m: float = 0.0
+    wall_per_s: float = 1.0  # wall seconds per vehicle second (< 1: lockstep running faster than real time)
     streams: list[tuple[float, Stream, bool]] = field(default_factory=list)
 
     def step(self) -> Stream:
         ap = self.ap
         ap.advance(DT)
-        obs = Observation(now_s=ap.t, wall_s=ap.t, heartbeat_wall_s=ap.last_hb, telemetry_wall_s=ap.last_tel,
+        wall = ap.t * self.wall_per_s
+        hb = None if ap.last_hb is None else ap.last_hb * self.wall_per_s
+        tel = None if ap.last_tel is None else ap.last_tel * self.wall_per_s
+        obs = Observation(now_s=ap.t, wall_s=wall, heartbeat_wall_s=hb, telemetry_wall_s=tel,
                           telemetry_ready=ap.last_tel is not None, vehicle_ready=ap.ready, armed=ap.armed,
                           mode=ap.shown_mode, on_ground=ap.on_ground, heartbeats=ap.heartbeats,
                           estimate_ok=self.estimate_ok, core_result=self.core_result,
@@ -317,6 +321,23 @@ def test_a_vehicle_far_from_the_reference_for_a_second_is_handed_to_its_own_hold
     assert "2.5 m from the reference" in h.seq.detail and h.step() == Stream.NONE
     h.run_until(lambda: h.seq.finished)
     assert h.seq.final_phase == "landed"
+
+
+@pytest.mark.parametrize("what", ["diverged", "invalid_estimate"])
+def test_in_lockstep_faster_than_real_time_the_timers_run_on_vehicle_time(what: str):
+    """Lockstep at 5x real time: a second of vehicle time far from the reference is 0.2 s of wall time. The old
+    wall-only timer let a runaway climb for 4.6 s of vehicle time (to 44 m) before anything fired."""
+    h = _harness()
+    h.wall_per_s = 0.2
+    h.run_until(lambda: h.seq.state == State.MISSION)
+    if what == "diverged":
+        h.tracking_error_m = 3.0
+    else:
+        h.estimate_ok = False
+    t0 = h.ap.t
+    h.run_until(lambda: h.seq.state == State.HOLD, max_s=2)
+    limit = 1.0 if what == "diverged" else 0.3
+    assert limit <= h.ap.t - t0 <= limit + 2 * DT and h.seq.outcome == what
 
 
 def test_arming_temporarily_refused_is_retried_then_works():

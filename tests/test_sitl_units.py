@@ -122,3 +122,23 @@ def test_realtime_mode_offboard_loss_switches_to_hold():
             assert t2 > t1  # simulated time runs by itself
     finally:
         assert stop_vehicle(proc) == 0
+
+
+def test_attitude_angles_are_sent_in_mavlinks_range_even_when_the_model_has_spun():
+    """The model's Euler angles are unwrapped: a vehicle spun by a runaway loop had yaw 61.9 rad, which the
+    companion rightly refused (``attitude_range``), so it lost the attitude and could not hand over. ATTITUDE
+    carries roll and yaw in ±π, the same orientation."""
+    import math
+
+    from pymavlink.dialects.v20 import common as M
+
+    from sim_bridge import telemetry as tm
+    from sim_bridge.vehicle import SitlConfig, SitlVehicle
+
+    v = SitlVehicle(SitlConfig())
+    v.sim.x[3], v.sim.x[4], v.sim.x[5] = 3.5, 0.2, 61.85
+    _crc, payload = tm.hot_payload(tm.MSG_ATTITUDE, v)
+    msg = M.MAVLink_attitude_message(*M.MAVLink_attitude_message.unpacker.unpack(payload))
+    assert math.isclose(msg.roll, 3.5 - 2 * math.pi, abs_tol=1e-6)
+    assert math.isclose(msg.yaw, 61.85 - 20 * math.pi, abs_tol=1e-5) and abs(msg.yaw) <= math.pi
+    assert math.isclose(msg.pitch, 0.2, abs_tol=1e-6)

@@ -472,7 +472,10 @@ class FlightApp:
         hb_wall = st.heartbeat_wall_s
         if self.opts.lockstep:
             if tel_wall is not None and self._last_answer_wall <= tel_wall:
-                tel_wall = wall  # the vehicle has not had our answer yet: it waits on us, its telemetry is current
+                # the vehicle has not had our answer yet: it waits on us, so its telemetry is as current as its
+                # clock says: how far its time marker is past the older of the last accepted position and attitude
+                # (samples it keeps sending but we reject, e.g. an attitude out of range, age on vehicle time)
+                tel_wall = wall - max(0.0, st.t_s - min(st.pos_t_s, st.att_t_s))
             if hb_wall is not None:
                 # its HEARTBEAT runs on simulated time, which may run slower than the wall clock on a loaded
                 # machine: in lockstep any datagram from the vehicle shows it is alive

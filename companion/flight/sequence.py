@@ -230,8 +230,8 @@ class FlightSequence:
         self._configure_done = False
         self._followup: Callable | None = None
         self._followed_up = False
-        self._bad_start: float | None = None
-        self._div_start: float | None = None  # when the vehicle went farther than diverged_m from the reference
+        self._bad_start: tuple[float, float] | None = None
+        self._div_start: tuple[float, float] | None = None  # (now_s, wall_s) when it went beyond diverged_m
 
     # ---------------------------------------------------------------------------------------------- public
     def plan(self, configure: tuple[tuple[str, float], ...], takeover_before_arm: bool,
@@ -423,22 +423,24 @@ class FlightSequence:
                        f"{self.cfg.diverged_s:g} s", Stream.NONE)
 
     def _diverged_for(self, obs: Observation) -> float:
-        """Seconds (wall) the vehicle has been farther than ``diverged_m`` from the reference."""
+        """Seconds the vehicle has been farther than ``diverged_m`` from the reference, on the wall clock or the
+        vehicle's, whichever has run longer (lockstep runs vehicle time faster than the wall clock)."""
         if not obs.tracking_error_m > self.cfg.diverged_m:
             self._div_start = None
             return 0.0
         if self._div_start is None:
-            self._div_start = obs.wall_s
-        return obs.wall_s - self._div_start
+            self._div_start = (obs.now_s, obs.wall_s)
+        return max(obs.now_s - self._div_start[0], obs.wall_s - self._div_start[1])
 
     def _bad_since(self, obs: Observation) -> float:
-        """Seconds (wall) the estimate has been invalid; tracked here so the app need not."""
+        """Seconds the estimate has been invalid (wall or vehicle clock, whichever has run longer); tracked here
+        so the app need not."""
         if obs.estimate_ok:
             self._bad_start = None
             return 0.0
         if self._bad_start is None:
-            self._bad_start = obs.wall_s
-        return obs.wall_s - self._bad_start
+            self._bad_start = (obs.now_s, obs.wall_s)
+        return max(obs.now_s - self._bad_start[0], obs.wall_s - self._bad_start[1])
 
     # ---------------------------------------------------------------------------------------------- states
     def _on_connect(self, obs: Observation, send: list[Request]) -> None:
