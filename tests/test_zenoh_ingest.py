@@ -82,6 +82,25 @@ def test_a_burst_keeps_each_publishers_newest_and_counts_the_rest():
         assert zt.superseded == 0 and zt.store.accepted_count == 0
         zt.ingest(0.1)
         assert zt.superseded == burst - 1, "the burst's older samples are counted as superseded, never parsed"
+        assert zt.ring_full == 0
         _ingest_until(zt, 0.2, lambda: zt.store.accepted_count == 2)
         xs = sorted(o.x_m for o in zt.obstacles_current(0.2))
         assert xs[0] == 10.0 and 100.0 + burst - 1 in xs and 100.0 not in xs
+
+
+def test_a_burst_beyond_the_ring_keeps_the_newest_and_says_the_ring_was_full():
+    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    with ZenohTelemetry(zenoh_config("companion", listen=[ep]), TelemetryOptions(vehicle_id="6")) as zt, \
+            zenoh.open(zenoh_config("listener", connect=[ep])) as s:
+        flood = s.declare_publisher("slungpilot/6/obstacles/in/flood")
+        deadline = time.monotonic() + 15
+        while not flood.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.02)
+        burst = INBOX_RING + 36
+        for i in range(burst):
+            flood.put(_payload(100.0 + i, n=4))
+        time.sleep(1.0)
+        zt.ingest(0.1)
+        assert zt.ring_full == 1 and zt.superseded == INBOX_RING - 1, "only the ring's newest samples were drained"
+        _ingest_until(zt, 0.2, lambda: zt.store.accepted_count == 1)
+        assert zt.obstacles_current(0.2)[0].x_m == 100.0 + burst - 1

@@ -271,7 +271,8 @@ def run_options(app: FlightApp, args: argparse.Namespace, mission: Mission, run_
         out["zenoh"] = {"keys_prefix": f"{args.zenoh_prefix}/{zt.options.vehicle_id}", "published": dict(zt.seq),
                         "obstacles_in_accepted": zt.store.accepted_count,
                         "obstacles_in_rejected": zt.store.rejected_count,
-                        "obstacles_in_unchanged": zt.unchanged, "obstacles_in_superseded": zt.superseded}
+                        "obstacles_in_unchanged": zt.unchanged, "obstacles_in_superseded": zt.superseded,
+                        "obstacles_in_ring_full": zt.ring_full}
     return out
 
 

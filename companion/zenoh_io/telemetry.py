@@ -179,6 +179,7 @@ class ZenohTelemetry:
         self.seq = dict.fromkeys(ts.STREAMS, 0)
         self.inbox_dropped = 0  # samples dropped: too many publishers waiting
         self.superseded = 0  # samples replaced by a newer one from the same publisher before they were parsed
+        self.ring_full = 0  # drains that found a ring full: older samples may have been dropped inside Zenoh
         self.ingest_budget_s = INGEST_BUDGET_S
         self.dropped_local = 0
         self.worker_errors = 0
@@ -345,6 +346,7 @@ class ZenohTelemetry:
         body.setdefault("obstacles_in", {
             "accepted": self.store.accepted_count, "rejected": self.store.rejected_count,
             "inbox_dropped": self.inbox_dropped, "superseded": self.superseded, "unchanged": self.unchanged,
+            "ring_full": self.ring_full,
             "pending": len(self._waiting) + (self._parser is not None),
             "sources": list(self.store.sources()),
         })
@@ -376,7 +378,11 @@ class ZenohTelemetry:
         waiting = self._waiting
         parsing = self._parser.key if self._parser is not None else None
         for sub in self._subs:
+            n = 0
             while (sample := sub.try_recv()) is not None:
+                n += 1
+                if n == INBOX_RING:
+                    self.ring_full += 1
                 key = str(sample.key_expr)
                 if key in waiting or key == parsing:
                     self.superseded += 1
