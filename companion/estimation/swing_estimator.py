@@ -53,6 +53,7 @@ _I3 = np.eye(3)
 _NIS_CAP = 100.0
 _MAX_EXTRAPOLATE_S = 0.05
 _JUMP_SIGMAS2 = 9.0
+_FIX_ERRORS_KEPT = 200
 
 
 @dataclass(frozen=True)
@@ -286,6 +287,7 @@ class SwingEstimator:
         self.resets = 0  # swing covariance resets after fixes rejected in a row (see fix_reset_after)
         self._fixes_rejected_in_row = 0
         self.q_swing_scale = 1.0  # q_swing's current factor (q_swing_adapt_max)
+        self.fix_sq_error: list[tuple[float, float]] = []  # (t s, |fix − its prediction|² m²) per fix
         self._trust_cache: tuple[int, float, dict, tuple, int] | None = None
 
     # ------------------------------------------------------------------------------------------- inputs
@@ -552,6 +554,10 @@ class SwingEstimator:
         nu = ev.z - h
         nis = float(nu @ Sinv @ nu)
         ev.nis = nis
+        if ev.kind == "fix":  # how well the model predicted this fix (model selection, two_model.py)
+            self.fix_sq_error.append((ev.t, float(nu @ nu)))
+            if len(self.fix_sq_error) > _FIX_ERRORS_KEPT:
+                del self.fix_sq_error[:_FIX_ERRORS_KEPT // 2]
         hz = H[2, I_THRUST]
         if ev.kind == "imu" and nu[2] * nu[2] > _JUMP_SIGMAS2 * S[2, 2] and abs(hz) > 1e-9:
             # the body-z specific force is off by more than 3σ: the thrust produced changed faster than

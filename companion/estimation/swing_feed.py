@@ -43,6 +43,7 @@ from companion.core.model import VehicleParams
 from companion.estimation.estimate import Estimate
 from companion.estimation.swing_estimator import SwingEstimate, SwingEstimator, SwingEstimatorConfig
 from companion.estimation.swing_model import payload_offset_from_global, swing_from_offset
+from companion.estimation.two_model import TwoModelEstimator
 
 log = logging.getLogger(__name__)
 
@@ -79,9 +80,9 @@ class SwingFeed:
     params: VehicleParams
     swing_input: str = "auto"
     config: SwingEstimatorConfig = field(default_factory=SwingEstimatorConfig)
-    estimator: SwingEstimator | None = None
+    estimator: SwingEstimator | TwoModelEstimator | None = None
     last: SwingEstimate | None = None
-    ran: SwingEstimator | None = None  # the estimator of this flight, kept after it stopped (for the report)
+    ran: SwingEstimator | TwoModelEstimator | None = None  # this flight's estimator, kept after it stopped (report)
     last_seen: SwingEstimate | None = None  # its newest estimate, kept after it stopped
     counts: dict[str, int] = field(default_factory=dict)
     _ground_z: float | None = None  # where the vehicle stood (local NED z, m), seen while on the ground
@@ -150,8 +151,11 @@ class SwingFeed:
                 state.t_s - self._taut_since_s < START_MAX_WAIT_S:
             return  # still in the take-off climb (see START_MAX_CLIMB_MPS)
         # the cable has just snapped taut: the payload may already swing, so the start is uncertain
-        self.estimator = SwingEstimator(self.params, self.config, t0_s=state.t_s, vel0_ned_mps=state.vel_ned_mps,
-                                        swing_sigma0_rad=START_SWING_SIGMA_RAD)
+        # with payload fixes, a second filter on the fixes alone stands by for a payload whose pull on the airframe
+        # is not our model's (two_model.py)
+        kind = TwoModelEstimator if self.use_fixes else SwingEstimator
+        self.estimator = kind(self.params, self.config, t0_s=state.t_s, vel0_ned_mps=state.vel_ned_mps,
+                              swing_sigma0_rad=START_SWING_SIGMA_RAD)
         self.ran = self.estimator
         if state.euler_rad is not None:
             self.estimator.set_attitude_euler(state.t_s, state.euler_rad, state.rates_frd_rad_s)
@@ -180,7 +184,7 @@ class SwingFeed:
         except _NUMERIC_FAILURES as exc:
             self._failed(exc)
 
-    def _ingest_into(self, est: SwingEstimator, src: int, mtype: str, msg: Any, state: Any) -> None:
+    def _ingest_into(self, est: SwingEstimator | TwoModelEstimator, src: int, mtype: str, msg: Any, state: Any) -> None:
         if src == state.vehicle_sysid:
             if mtype == "ATTITUDE":
                 est.set_attitude_euler(msg.time_boot_ms * 1e-3, state.euler_rad, state.rates_frd_rad_s)

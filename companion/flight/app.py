@@ -729,7 +729,8 @@ class FlightApp:
                 # each taut payload fix against the estimate of its own time (what the controller flew on then)
                 "error_at_fixes": feed.fix_error_summary(),
                 "sources_last_second": None if last is None else list(last.sources),
-                "fade_last": None if last is None else last.fade}
+                "fade_last": None if last is None else last.fade,
+                "filters": feed.ran.selection_facts() if hasattr(feed.ran, "selection_facts") else None}
 
     def _provisional(self) -> dict[str, Any]:
         facts = self.run_facts()
