@@ -16,8 +16,8 @@ way (the ratio is the hysteresis). Where the model fits, ``full`` predicts bette
 vehicle's flights never leave it (0.0037 vs 0.0059 rad RMS on the forest with fixes). Chosen by the error itself
 rather than by the likelihood: the likelihood also rewards a covariance that has adapted to a misfit (q_swing's
 scale), and chose ``full`` for 30–40 % of the same replay (0.027–0.030 rad instead of 0.015).
-The ``fixes`` filter costs one update per fix (10 Hz) and, while it flies, one more prediction per tick (the
-full filter still judges the fade).
+The ``fixes`` filter costs one update per fix (10 Hz); while it flies, the full filter is asked for its fade
+every 50 ms.
 """
 
 from __future__ import annotations
@@ -36,6 +36,7 @@ FIXES_Q_FORCE = 300.0  # N²/s: the airframe's force free to change by ~17 N in 
 WINDOW_FIXES = 20  # fixes in the comparison (2 s of ArduPilot's 10 Hz)
 MIN_FIXES = 10  # fewer than this in either: no switch
 RATIO = 0.7  # the other filter takes over when its mean squared fix error is below this × the current one's
+FULL_FADE_EVERY_S = 0.05  # while ``fixes`` flies, the full filter's fade is looked up this often (s)
 
 
 def _mean_recent(sq_errors: list[tuple[float, float]]) -> tuple[float, int]:
@@ -59,6 +60,8 @@ class TwoModelEstimator:
         self.switches = 0
         self.ticks_on = {"full": 0, "fixes": 0}
         self._scored = 0  # fixes of ``full`` already compared
+        self._last_t_s: float | None = None  # time of the last estimate asked for (the last tick's)
+        self._full_fade = (float("-inf"), 1.0)  # (t s, fade) of ``full``, refreshed every FULL_FADE_EVERY_S
 
     # -- inputs: both filters, except the airframe's motion ------------------------------------------------
     def set_thrust(self, t_s: float, thrust_n: float) -> None:
@@ -79,11 +82,19 @@ class TwoModelEstimator:
     def update_payload_offset(self, t_s: float, offset_ned_m, sigma_m: float | None = None) -> None:
         self.full.update_payload_offset(t_s, offset_ned_m, sigma_m)
         self.fixes.update_payload_offset(t_s, offset_ned_m, sigma_m)
+        self._prime()
 
     def update_payload_position(self, t_s: float, payload_pos_ned_m, sigma_m: float | None = None) -> bool:
         used = self.full.update_payload_position(t_s, payload_pos_ned_m, sigma_m)
         self.fixes.update_payload_position(t_s, payload_pos_ned_m, sigma_m)
+        self._prime()
         return used
+
+    def _prime(self) -> None:
+        """A fix arrives ~0.1 s after its time: predict the fixes filter from it to the last tick's time now, on the
+        message's path, so that the next tick's estimate is the usual 4 ms step and not a 0.1 s one."""
+        if self.selected == "fixes" and self._last_t_s is not None:
+            self.fixes.estimate(self._last_t_s)
 
     # -- output ---------------------------------------------------------------------------------------------
     def _choose(self) -> None:
@@ -112,13 +123,16 @@ class TwoModelEstimator:
         the feed-forward comes from the full model, so the full filter's verdict on that model's fit (its q_swing
         scale, its NIS) still rules it. Flown with the fixes filter's own fade (1: its free force fits anything),
         the feed-forward kept ArduCopter SITL's payload in a 0.3 rad limit cycle at the goal, 3 m/s² saturated,
-        in 2 of 3 flights (ArduCopter's attitude loop lags ours)."""
+        in 2 of 4 flights (why is not measured; ArduCopter's attitude loop lagging ours would do it)."""
         self._choose()
         self.ticks_on[self.selected] += 1
+        self._last_t_s = t_s
         if self.selected == "full":
             return self.full.estimate(t_s)
         se = self.fixes.estimate(t_s)
-        fade = min(se.fade, self.full.estimate(t_s).fade)
+        if not abs(t_s - self._full_fade[0]) < FULL_FADE_EVERY_S:  # it changes slowly: every 50 ms is enough
+            self._full_fade = (t_s, self.full.estimate(t_s).fade)
+        fade = min(se.fade, self._full_fade[1])
         return se if fade == se.fade else replace(se, fade=fade)
 
     # -- what the report reads (the ``full`` filter's counters; the selection beside them) ------------------
