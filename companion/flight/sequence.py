@@ -199,6 +199,17 @@ class _ModeGoal:
     heartbeats_at_confirm: int = 0
 
 
+def _lasting(condition: bool, start: tuple[float, float] | None,
+             obs: Observation) -> tuple[tuple[float, float] | None, float]:
+    """How long ``condition`` has held: (its start as (now_s, wall_s), or None once it stops; seconds on the wall
+    clock or the vehicle's, whichever has run longer: lockstep runs vehicle time faster than the wall clock)."""
+    if not condition:
+        return None, 0.0
+    if start is None:
+        start = (obs.now_s, obs.wall_s)
+    return start, max(obs.now_s - start[0], obs.wall_s - start[1])
+
+
 @dataclass
 class FlightSequence:
     """The state machine; :meth:`step` it, read ``state``, ``outcome``, ``transitions``."""
@@ -423,24 +434,14 @@ class FlightSequence:
                        f"{self.cfg.diverged_s:g} s", Stream.NONE)
 
     def _diverged_for(self, obs: Observation) -> float:
-        """Seconds the vehicle has been farther than ``diverged_m`` from the reference, on the wall clock or the
-        vehicle's, whichever has run longer (lockstep runs vehicle time faster than the wall clock)."""
-        if not obs.tracking_error_m > self.cfg.diverged_m:
-            self._div_start = None
-            return 0.0
-        if self._div_start is None:
-            self._div_start = (obs.now_s, obs.wall_s)
-        return max(obs.now_s - self._div_start[0], obs.wall_s - self._div_start[1])
+        """Seconds the vehicle has been farther than ``diverged_m`` from the reference (see :func:`_lasting`)."""
+        self._div_start, s = _lasting(obs.tracking_error_m > self.cfg.diverged_m, self._div_start, obs)
+        return s
 
     def _bad_since(self, obs: Observation) -> float:
-        """Seconds the estimate has been invalid (wall or vehicle clock, whichever has run longer); tracked here
-        so the app need not."""
-        if obs.estimate_ok:
-            self._bad_start = None
-            return 0.0
-        if self._bad_start is None:
-            self._bad_start = (obs.now_s, obs.wall_s)
-        return max(obs.now_s - self._bad_start[0], obs.wall_s - self._bad_start[1])
+        """Seconds the estimate has been invalid (see :func:`_lasting`); tracked here so the app need not."""
+        self._bad_start, s = _lasting(not obs.estimate_ok, self._bad_start, obs)
+        return s
 
     # ---------------------------------------------------------------------------------------------- states
     def _on_connect(self, obs: Observation, send: list[Request]) -> None:
