@@ -531,9 +531,7 @@ class FlightApp:
                     if self.core.arrival["t_s"] is not None:  # the report's "at the goal" follows the flight's
                         self.log.goal_tol_m = self.core.arrival["tolerance_m"]
                     self.swing_feed.commanded(est.t_s, cmd.thrust_n)
-                    r = cmd.ref_pos_ned_m
-                    p = est.pos_ned_m
-                    self._tracking_error_m = math.sqrt((p[0] - r[0]) ** 2 + (p[1] - r[1]) ** 2 + (p[2] - r[2]) ** 2)
+                    self._tracking_error_m = math.dist(est.pos_ned_m, cmd.ref_pos_ned_m)
                     self.last_cmd = cmd
                     setpoint = (est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm)
                 else:

@@ -93,6 +93,16 @@ def _skip_ws(s: str, i: int) -> int:
     return j
 
 
+def _after_member(s: str, i: int, closer: str) -> tuple[int, bool]:
+    """After an object member or array item ending before ``s[i]``: the index of what follows the ``,`` or the
+    ``closer``, and whether it was the closer."""
+    i = _skip_ws(s, i)
+    sep = s[i:i + 1]
+    if sep != "," and sep != closer:
+        raise _not_json(f"expected ',' or '{closer}' at char {i}")
+    return _skip_ws(s, i + 1), sep == closer
+
+
 def _obstacle_of(i: int, it: Any, source: str) -> Obstacle:
     """Item ``i`` of a sample's obstacle list as a validated :class:`Obstacle`."""
     if not isinstance(it, dict):
@@ -202,13 +212,9 @@ class SampleParser:
                     i = yield from self._scan_items(s, i + 1, out)
                 else:
                     top[name], i = _scalar(s, i, name, "a list" if name == "obstacles" else "a scalar")
-                i = _skip_ws(s, i)
-                sep = s[i:i + 1]
-                i = _skip_ws(s, i + 1)
-                if sep == "}":
+                i, closed = _after_member(s, i, "}")
+                if closed:
                     break
-                if sep != ",":
-                    raise _not_json(f"expected ',' or '}}' at char {i}")
         if _skip_ws(s, i) != len(s):
             raise _not_json(f"extra data at char {i}")
         self.expires_s = _check_top(top)
@@ -238,13 +244,9 @@ class SampleParser:
             except json.JSONDecodeError as exc:
                 raise ValueError(f"obstacles[{n}]: not JSON ({exc})") from None
             out.append(_obstacle_of(n, item, self.key))
-            i = _skip_ws(s, j + 1)
-            sep = s[i:i + 1]
-            i = _skip_ws(s, i + 1)
-            if sep == "]":
+            i, closed = _after_member(s, j + 1, "]")
+            if closed:
                 return i
-            if sep != ",":
-                raise _not_json(f"expected ',' or ']' at char {i}")
             if len(out) % self.ITEMS_PER_SLICE == 0:
                 yield
 
