@@ -1,6 +1,7 @@
 """Link health from MAVLink sequence numbers and telemetry ages (pure)."""
 
-from companion.flight.health import LinkHealth
+from companion.flight.health import LinkHealth, lockstep_telemetry_wall_s
+from companion.flight.sequence import SequenceConfig
 
 
 def test_loss_and_reordering_from_sequence_numbers():
@@ -22,3 +23,16 @@ def test_stale_ticks_are_judged_against_the_streams_own_rate():
     assert h.on_tick(0.98 + 0.02 + 0.02, 0.001)  # 3 periods beyond the interval: stale
     s = h.summary()
     assert s["stale_ticks"] == 1 and s["telemetry_age_ms_p50"] == 1.0
+
+
+def test_lockstep_telemetry_ages_on_vehicle_time_while_the_vehicle_waits_on_us():
+    wall = 100.0
+    # the vehicle waits for our answer (its last datagram came after our last answer): current samples are current
+    assert lockstep_telemetry_wall_s(wall, 99.99, 99.98, 5.0, 5.0, 5.0) == wall
+    # ... but an attitude we have rejected for 0.4 s of its time is 0.4 s old, however fresh the datagrams are
+    # (the old rule counted it current, and an unstable loop climbed for 4.6 s of vehicle time unnoticed)
+    age = wall - lockstep_telemetry_wall_s(wall, 99.99, 99.98, 5.0, 5.0, 4.6)
+    assert abs(age - 0.4) < 1e-9 and age > SequenceConfig().stale_s
+    # once it has had our answer and is silent, the wall clock rules as in real time
+    assert lockstep_telemetry_wall_s(wall, 99.0, 99.5, 5.0, 5.0, 5.0) == 99.0
+    assert lockstep_telemetry_wall_s(wall, None, 99.5, 5.0, 5.0, 5.0) is None

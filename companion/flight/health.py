@@ -100,3 +100,19 @@ class LinkHealth:
             "telemetry_age_ms_p50": float(np.percentile(ages, 50) * 1e3) if ages.size else None,
             "telemetry_age_ms_p99": float(np.percentile(ages, 99) * 1e3) if ages.size else None,
         }
+
+
+def lockstep_telemetry_wall_s(wall_s: float, telemetry_wall_s: float | None, last_answer_wall_s: float,
+                              vehicle_t_s: float, pos_t_s: float, att_t_s: float) -> float | None:
+    """The wall time (s) telemetry counts as received at, in lockstep.
+
+    While the vehicle has not had our answer to its last step it waits on us, so a quiet socket is not staleness:
+    its telemetry is as current as the vehicle's own clock says, i.e. as old as the vehicle time ``vehicle_t_s``
+    is past the older of the last *accepted* position and attitude (``pos_t_s``, ``att_t_s``). Samples the vehicle
+    keeps sending but we reject (an attitude out of range) therefore age on vehicle time. Once it has our answer
+    (``last_answer_wall_s`` after ``telemetry_wall_s``), the wall clock rules as in real time.
+    """
+    if telemetry_wall_s is None or last_answer_wall_s > telemetry_wall_s:
+        return telemetry_wall_s
+    return wall_s - max(0.0, vehicle_t_s - min(pos_t_s, att_t_s))
+
