@@ -446,7 +446,7 @@ def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, dr
             "goal_visited": rep.get("goal_visited"), "time_to_goal_s": rep["time_to_goal_s"],
             "max_alt_error_m": float(np.max(np.abs(z[cruise] - goal_z))) if cruise.any() else None,
             "max_swing_rad": rep["max_swing_rad"], "collisions": rep["collisions"], "proxy": counts,
-            "link": rep["link"]}
+            "link": rep["link"], "loop_lag": rep.get("loop_lag")}
 
 
 def _start_vehicle(kind: str, comp_port: int, instance: int, workdir: Path) -> tuple[subprocess.Popen, list[str]]:

@@ -9,12 +9,16 @@ for the fast evaluation mode; the vehicle starts landed on the ground below the 
 ``swing_source="estimate"`` replaces the cable sensor by the swing estimator (issue 11) fed with the messages
 a real autopilot would send, simulated from the physics by :mod:`lab.swing_sim` (IMU, attitude, velocity,
 delayed and dropped payload fixes); ``truth`` records every tick for offline estimation.
+
+``link_delay_s`` puts a delay line on both directions (whole control periods): the core sees the estimate of
+that long ago and the vehicle gets each command that much later, like a slow link (the loop-lag tests).
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 
 import numpy as np
 
@@ -42,6 +46,7 @@ def fly_inprocess(
     swing_source: str | None = None,
     estimator: EstimatorDriver | None = None,
     truth: TruthLog | None = None,
+    link_delay_s: float = 0.0,
 ) -> FlightLog:
     """Fly ``mission`` from take-off to the end of the hold (or timeout); returns the flight log.
 
@@ -63,7 +68,10 @@ def fly_inprocess(
     x0[0:2] = mission.start_ned_m[:2]
     sim = VehicleSim(mission.vehicle, wind=mission.wind, dt_s=physics_dt_s, x0=x0)
     sim.armed = True
-    core = FlightCore(mission, gains or ControllerConfig(), VehicleProfile())
+    core = FlightCore(mission, gains or ControllerConfig(), VehicleProfile(), period_s=control_period_s)
+    n_delay = max(0, round(link_delay_s / control_period_s))
+    seen: deque[Estimate] = deque()  # estimates on their way to the core
+    sent: deque = deque()  # commands on their way to the vehicle
     flog = FlightLog(
         planner=mission.planner, controller=mission.controller, mission=mission.name, obstacles=mission.obstacles
     )
@@ -85,6 +93,9 @@ def fly_inprocess(
                 t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,
                 rates_frd_rad_s=sim.body_rates_frd_rad_s, swing=swing, swing_source=source,
             )
+        if n_delay:
+            seen.append(est)
+            est = seen.popleft() if len(seen) > n_delay else seen[0]
         cmd = core.update(est, mission.obstacles)
         if driver is not None:
             driver.command(sim.t_s, cmd.thrust_n)
@@ -94,7 +105,12 @@ def fly_inprocess(
             flog.append(sim.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, sim.swing, sim.payload_pos_ned_m, cmd)
         if stop_when_done and core.phase == "done":
             break
-        sim.set_attitude_target(cmd.q_ned_frd_wxyz, cmd.thrust_n)
+        applied = cmd
+        if n_delay:
+            sent.append(cmd)
+            applied = sent.popleft() if len(sent) > n_delay else None
+        if applied is not None:
+            sim.set_attitude_target(applied.q_ned_frd_wxyz, applied.thrust_n)
         sim.step(n_sub)
     flog.wall_time_s = time.perf_counter() - wall0
     return flog

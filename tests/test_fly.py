@@ -41,6 +41,10 @@ def test_forest_mission_flies_over_mavlink_in_lockstep(forest_run):
     # the arrival rule is recorded: 0.1 m (the bundled vehicle reports no accuracy), held for the dwell time
     assert rep["arrival"]["tolerance_m"] == 0.1 and rep["arrival"]["dwell_s"] > 0 and rep["arrival"]["t_s"] is not None
     assert rep["loop"]["ticks"] > 1000
+    # the loop lag over MAVLink is the bundled vehicle's clean-link lag: measured, and the feed-forward never faded
+    lag = rep["loop_lag"]
+    assert 50.0 <= lag["lag_ms_min"] <= lag["lag_ms_max"] <= 110.0 and lag["nominal_ms"] == 80.0
+    assert lag["faded_s"] == 0.0 and lag["ff_trust_min"] == 1.0
     for key in ("path_length_m", "payload_path_length_m", "max_swing_rad", "swing_settle_s", "sim_time_s",
                 "wall_time_s", "planner", "controller"):
         assert key in rep

@@ -57,6 +57,13 @@ def test_flight_succeeds_with_zenoh_on(zenoh_flight):
     assert rep["zenoh"]["obstacles_in_rejected"] == 4, "bad obstacle samples are counted (and ignored)"
 
 
+def test_status_stream_carries_the_loop_lag(zenoh_flight):
+    _, seen, _ = zenoh_flight
+    lags = [s["loop_lag_ms"] for s in seen["status"] if s.get("loop_lag_ms") is not None]
+    assert lags and all(50.0 <= v <= 110.0 for v in lags), seen["status"][-3:]
+    assert all(s["ff_lag_trust"] == 1.0 for s in seen["status"])  # a clean link: the feed-forward never fades
+
+
 def test_swing_stream_of_a_lockstep_flight_arrives_without_gaps(zenoh_flight):
     _, seen, run = zenoh_flight
     seqs = seen["swing_seq"]

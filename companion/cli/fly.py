@@ -292,6 +292,8 @@ def status_of(app: FlightApp) -> dict[str, Any]:
         "progress": progress,
         "rejected_input": {"mavlink": dict(app.link.rejected)},
         "ticks": app.stats.ticks,
+        "loop_lag_ms": None if app.core.loop_lag.lag_s is None else round(app.core.loop_lag.lag_s * 1e3, 1),
+        "ff_lag_trust": round(app.core.lag_trust, 3),
     }
 
 

@@ -51,6 +51,9 @@ class FeedForwardGains:
     constant of the filtered derivative that estimates α̈, β̈; ``max_mps2`` bounds the horizontal feed-forward
     (m/s²): the bundled vehicle's flights need at most 2.6, while on a vehicle whose attitude loop lags the model's
     (ArduCopter SITL) an unbounded feed-forward pumped the swing with up to 12.
+    ``lag_full_excess_s`` / ``lag_zero_excess_s`` (s): the feed-forward is fully on while the measured loop lag
+    exceeds the autopilot's clean-link lag by at most the first, and off from the second on (linear between);
+    see :mod:`companion.estimation.loop_lag` for the measurement and the delay margin behind the defaults.
     """
 
     a1: float = 0.1
@@ -60,10 +63,16 @@ class FeedForwardGains:
     k_rate: float = 1.9
     rate_filter_s: float = 0.02
     max_mps2: float = 3.0
+    lag_full_excess_s: float = 0.05
+    lag_zero_excess_s: float = 0.17
 
     def validate(self) -> None:
-        """Raise ``ValueError("<key>: ...")`` for negative gains or a1, a2 >= 0.5 (algebraic loop gain)."""
-        _check_positive(self, allow_zero=("a1", "a2", "a3", "k_angle", "k_rate"))
+        """Raise ``ValueError("<key>: ...")`` for negative gains, a1, a2 >= 0.5 (algebraic loop gain), or a lag
+        fade that does not fall (zero excess <= full excess)."""
+        _check_positive(self, allow_zero=("a1", "a2", "a3", "k_angle", "k_rate", "lag_full_excess_s"))
+        if self.lag_zero_excess_s <= self.lag_full_excess_s:
+            raise ValueError(f"lag_zero_excess_s: must be > lag_full_excess_s ({self.lag_full_excess_s}), got "
+                             f"{self.lag_zero_excess_s}")
         for key in ("a1", "a2", "a3"):
             if getattr(self, key) >= 0.5:
                 raise ValueError(f"{key}: must be < 0.5 (α̈ depends on the acceleration it commands), got "

@@ -50,7 +50,7 @@ from companion.estimation.estimate import Estimate
 from companion.estimation.swing_feed import SwingFeed
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
-from companion.flight.health import LinkHealth
+from companion.flight.health import LinkHealth, lockstep_telemetry_wall_s
 from companion.flight.scheduling import involuntary_switches, request_fifo, restore_normal
 from companion.flight.sequence import FlightSequence, Observation, SequenceConfig, Stream
 from companion.mavlink_io.codec import send_set_attitude_target
@@ -197,10 +197,10 @@ class FlightApp:
                                 signing_key=opts.signing_key)
         self.link.on_datagram_done = self._on_datagram_done
         self.profile = opts.profile or profile_by_name("px4", opts.hover_thrust_norm)
-        self.core = FlightCore(mission, gains=opts.gains, profile=self.profile)
+        self.period_s = 1.0 / opts.rate_hz
+        self.core = FlightCore(mission, gains=opts.gains, profile=self.profile, period_s=self.period_s)
         if self.swing_feed.wants_estimator:
             self.core.swing_wait_s = SWING_WAIT_S
-        self.period_s = 1.0 / opts.rate_hz
         base = opts.sequence or SequenceConfig()
         if opts.lockstep:
             # Simulated time waits for both processes: a stall of either is not staleness (the vehicle's
@@ -471,11 +471,8 @@ class FlightApp:
         tel_wall = st.telemetry_wall_s
         hb_wall = st.heartbeat_wall_s
         if self.opts.lockstep:
-            if tel_wall is not None and self._last_answer_wall <= tel_wall:
-                # the vehicle has not had our answer yet: it waits on us, so its telemetry is as current as its
-                # clock says: how far its time marker is past the older of the last accepted position and attitude
-                # (samples it keeps sending but we reject, e.g. an attitude out of range, age on vehicle time)
-                tel_wall = wall - max(0.0, st.t_s - min(st.pos_t_s, st.att_t_s))
+            tel_wall = lockstep_telemetry_wall_s(wall, tel_wall, self._last_answer_wall, st.t_s, st.pos_t_s,
+                                                 st.att_t_s)
             if hb_wall is not None:
                 # its HEARTBEAT runs on simulated time, which may run slower than the wall clock on a loaded
                 # machine: in lockstep any datagram from the vehicle shows it is alive
@@ -707,6 +704,7 @@ class FlightApp:
             "vehicle_statustext": self.state.statustext[-20:],
             "swing_sources": self.swing_sources,
             "swing_estimator": self._estimator_facts(),
+            "loop_lag": self.core.lag_stats.facts(self.profile.nominal_loop_lag_s),
             "autopilot": {"family": self.profile.autopilot, "system_id": self.state.vehicle_sysid,
                           "component_id": self.state.vehicle_compid, "mav_autopilot": self.state.autopilot,
                           "mav_type": self.state.vehicle_type, "version": self.state.autopilot_version},

@@ -32,6 +32,12 @@ only, not by the controller: the feed-forward differentiates α̇, and a 10 Hz s
 payload compensation and the feed-forward. So does the swing estimator's output (``swing_source ==
 "estimate"``, a model-based estimate at the control rate): its feed-forward is scaled by ``swing_fade`` and its
 envelope assumes the swing angle ``swing_bound_rad`` (|swing| + 3σ).
+
+Loop lag: the core measures how long its attitude commands take to come back as attitude
+(:class:`~companion.estimation.loop_lag.LoopLagEstimator`, counted in ticks of ``period_s``) and scales the
+swing the controller acts on (payload compensation and feed-forward, like ``swing_fade``) by
+:func:`~companion.estimation.loop_lag.lag_trust` of the excess over the profile's clean-link lag: a slow or
+jittery link fades the feed-forward before its loop runs out of delay margin.
 """
 
 from __future__ import annotations
@@ -56,6 +62,7 @@ from companion.core.envelope import full_cable_r_max_m, r_max_m
 from companion.core.mission import Mission
 from companion.core.obstacles import Obstacle
 from companion.estimation.estimate import Estimate
+from companion.estimation.loop_lag import LoopLagEstimator, lag_trust
 from companion.planning import PlanInput, ReferenceGenerator, make_planner
 
 log = logging.getLogger(__name__)
@@ -120,7 +127,8 @@ def climb_altitude_ned_m(z0_ned_m: float, start_z_ned_m: float, cable_m: float) 
 class FlightCore:
     """Per-tick flight logic for one mission; call :meth:`update` with each new estimate."""
 
-    def __init__(self, mission: Mission, gains: ControllerConfig | None = None, profile: VehicleProfile | None = None):
+    def __init__(self, mission: Mission, gains: ControllerConfig | None = None, profile: VehicleProfile | None = None,
+                 period_s: float = 0.004):
         self.mission = mission
         self.cfg = gains or ControllerConfig()
         self.profile = profile or VehicleProfile()
@@ -133,6 +141,9 @@ class FlightCore:
         self._timed_stop = False  # hold_here / descend asked while a time-parameterised planner was flying
         self.controller = make_position_controller(mission.controller, self.cfg, self.params)
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
+        self.loop_lag = LoopLagEstimator(period_s)
+        self.lag_trust = 1.0  # the feed-forward's trust from the measured loop lag (this tick)
+        self.lag_stats = _LagStats(period_s)
         self.ref: ReferenceGenerator | None = None
         self.phase = "climb"
         #: with a swing estimator as the swing input, the climb holds at the start altitude up to this long (s)
@@ -292,6 +303,10 @@ class FlightCore:
         self.t_prev_s = est.t_s
         self._advance_phase(est)
         obs = self._advance_obstacles(obs, est.t_s)
+        ff_cfg = self.cfg.feedforward
+        self.lag_trust = lag_trust(self.loop_lag.observe(float(est.euler_rad[0]), float(est.euler_rad[1])),
+                                   self.profile.nominal_loop_lag_s, ff_cfg.lag_full_excess_s, ff_cfg.lag_zero_excess_s)
+        self.lag_stats.add(self.loop_lag.lag_s, self.lag_trust)
 
         swing = None if est.swing is None else np.asarray(est.swing, dtype=np.float64)
         if swing is not None:
@@ -344,10 +359,10 @@ class FlightCore:
             ref.step((vdx, vdy, vdz), dt)
 
         ctl_swing = swing if est.swing_source in ("cable_sensor", "estimate") else None
-        if ctl_swing is not None and est.swing_source == "estimate" and est.swing_fade < 1.0:
-            fade = max(0.0, float(est.swing_fade))  # an untrusted estimate carries less (or no) feed-forward
-            ctl_swing = ctl_swing * fade
-            swing_acc = (swing_acc[0] * fade, swing_acc[1] * fade)
+        trust = self._swing_trust(est)
+        if ctl_swing is not None and trust < 1.0:  # an untrusted estimate or a lagging loop: less (or no) feed-forward
+            ctl_swing = ctl_swing * trust
+            swing_acc = (swing_acc[0] * trust, swing_acc[1] * trust)
         ctl = self.controller.update(
             pos, vel, ref.p, ref.v, ref.a if acc_ctl is None else acc_ctl, ctl_swing,
             swing_acc if ctl_swing is not None else (0.0, 0.0), max(dt, 1e-4),
@@ -356,6 +371,7 @@ class FlightCore:
         fx, fy, fz = (float(v) for v in ctl.force_ned_n)
         force = limit_force_xyz(fx, fy, fz, lim.tilt_max_rad, self._thrust_min, self._thrust_max)
         q, thrust, euler = attitude_from_force(force, self.yaw_rad)
+        self.loop_lag.command(float(euler[0]), float(euler[1]))
         return Command(
             t_s=est.t_s, q_ned_frd_wxyz=q, thrust_n=thrust,
             thrust_norm=self.profile.thrust_to_norm(thrust, self.params.hover_thrust_n), euler_cmd_rad=euler,
@@ -399,16 +415,52 @@ class FlightCore:
     def _acc_for_controller(self, out, est: Estimate) -> list[float] | None:
         """Reference acceleration for the controller: a_ref − ff(nominal swing) with the smc_ff controller fed
         the cable sensor or the swing estimate (the feed-forward then acts on the deviation from the planned
-        swing; for the estimate scaled by the same ``swing_fade`` as the controller's), else None."""
+        swing; scaled by the same trust as the controller's swing), else None."""
         r = out.reference
         if r is None or self.mission.controller != "smc_ff" or est.swing_source not in ("cable_sensor", "estimate"):
             return None
-        fade = max(0.0, min(1.0, float(est.swing_fade))) if est.swing_source == "estimate" else 1.0
+        fade = self._swing_trust(est)
         a, b, da, db, dda, ddb = r.swing_nom
         ff = feedforward_acc(np.array((a, b, da, db)), np.array((dda, ddb)), self.cfg.feedforward, self.params.l)
         ref = self.ref
         assert ref is not None
         return [ref.a[0] - fade * float(ff[0]), ref.a[1] - fade * float(ff[1]), ref.a[2] - fade * float(ff[2])]
+
+
+    def _swing_trust(self, est: Estimate) -> float:
+        """How much of the swing the controller acts on (0..1): the estimate's ``swing_fade`` (1 for the cable
+        sensor) times this tick's loop-lag trust."""
+        fade = max(0.0, min(1.0, float(est.swing_fade))) if est.swing_source == "estimate" else 1.0
+        return fade * self.lag_trust
+
+
+class _LagStats:
+    """The loop lag over a flight, for the report: range of the measured lag, least trust, time faded."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self.lag_min_s: float | None = None
+        self.lag_max_s: float | None = None
+        self.last_lag_s: float | None = None
+        self.trust_min = 1.0
+        self.faded_ticks = 0
+
+    def add(self, lag_s: float | None, trust: float) -> None:
+        if lag_s is not None:
+            self.last_lag_s = lag_s
+            self.lag_min_s = lag_s if self.lag_min_s is None else min(self.lag_min_s, lag_s)
+            self.lag_max_s = lag_s if self.lag_max_s is None else max(self.lag_max_s, lag_s)
+        if trust < 1.0:
+            self.faded_ticks += 1
+            self.trust_min = min(self.trust_min, trust)
+
+    def facts(self, nominal_s: float) -> dict[str, float | None]:
+        """Loop lag (ms): min, max, last, the profile's nominal; least feed-forward trust; seconds faded."""
+        def ms(v: float | None) -> float | None:
+            return None if v is None else round(v * 1e3, 1)
+        return {"lag_ms_min": ms(self.lag_min_s), "lag_ms_max": ms(self.lag_max_s), "lag_ms_last": ms(self.last_lag_s),
+                "nominal_ms": ms(nominal_s), "ff_trust_min": round(self.trust_min, 3),
+                "faded_s": round(self.faded_ticks * self.period_s, 2)}
 
 
 _ZERO2 = np.zeros(2)

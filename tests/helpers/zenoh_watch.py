@@ -22,7 +22,7 @@ endpoint, out_path = sys.argv[1], sys.argv[2]
 obstacle_doc = sys.argv[3] if len(sys.argv) > 3 else None
 lock = threading.Lock()
 seen = {"swing_seq": [], "obstacle_sets": [], "state": [], "alive": [], "config": None, "published_at_x": None,
-        "encodings": {}}
+        "encodings": {}, "status": []}
 gone = threading.Event()
 
 
@@ -37,6 +37,8 @@ def on_sample(s: zenoh.Sample) -> None:
             seen["obstacle_sets"].append(d)
         elif key.endswith("/state"):
             seen["state"].append(d)
+        elif key.endswith("/status"):
+            seen["status"].append(d)
 
 
 def on_alive(s: zenoh.Sample) -> None:

@@ -1,0 +1,123 @@
+"""Loop lag: the measurement (synthetic signals with a known delay) and the feed-forward fade it drives, closed-loop
+in lockstep with a delay line on the link (in-process, deterministic)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from companion.control import ControllerConfig
+from companion.control.params import FeedForwardGains
+from companion.core.mission import load_mission
+from companion.estimation.loop_lag import LoopLagEstimator, lag_trust
+from companion.flight.core import FlightCore
+from lab.inprocess import fly_inprocess
+
+PERIOD_S = 0.004
+
+
+def _commands(n: int, seed: int = 0) -> np.ndarray:
+    """Roll/pitch commands (rad) that move like a flight's: a few slow sines plus a little noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * PERIOD_S
+    out = np.zeros((n, 2))
+    for axis in range(2):
+        for f_hz, amp in ((0.3, 0.08), (0.9, 0.05), (2.1, 0.02)):
+            out[:, axis] += amp * np.sin(2 * math.pi * f_hz * t + rng.uniform(0, 2 * math.pi))
+    return out + rng.normal(0.0, 0.002, out.shape)
+
+
+def _run(est: LoopLagEstimator, cmd: np.ndarray, delay_ticks: int, tau_s: float = 0.0) -> list[float | None]:
+    """Feed ``cmd`` through a pure delay of ``delay_ticks`` and a first-order lag ``tau_s``; the estimates."""
+    resp = np.zeros(2)
+    out = []
+    k = PERIOD_S / (tau_s + PERIOD_S)
+    for n in range(len(cmd)):
+        target = cmd[n - delay_ticks] if n >= delay_ticks else np.zeros(2)
+        resp = resp + k * (target - resp) if tau_s > 0 else target
+        out.append(est.observe(float(resp[0]), float(resp[1])))
+        est.command(float(cmd[n, 0]), float(cmd[n, 1]))
+    return out
+
+
+@pytest.mark.parametrize("delay_ticks", [5, 19, 40, 70])
+def test_a_pure_delay_is_found_to_the_grid_step(delay_ticks: int) -> None:
+    est = LoopLagEstimator(PERIOD_S)
+    lags = _run(est, _commands(2500), delay_ticks)
+    assert lags[-1] is not None
+    assert abs(lags[-1] - delay_ticks * PERIOD_S) <= 0.008 + 1e-9
+
+
+def test_a_first_order_response_reads_as_a_delay_near_its_time_constant() -> None:
+    est = LoopLagEstimator(PERIOD_S)
+    lags = _run(est, _commands(2500, seed=1), 10, tau_s=0.06)  # 40 ms + a 60 ms lag
+    assert lags[-1] is not None and 0.08 <= lags[-1] <= 0.11
+
+
+def test_no_figure_without_excitation_or_before_the_memory_fills() -> None:
+    est = LoopLagEstimator(PERIOD_S)
+    assert all(v is None for v in _run(est, np.full((2000, 2), 0.05), 10))  # a steady hover: nothing to see
+    est = LoopLagEstimator(PERIOD_S)
+    lags = _run(est, _commands(2500), 10)
+    first = next(i for i, v in enumerate(lags) if v is not None)
+    assert first * PERIOD_S >= 0.6  # ~a fifth of the 3 s memory first
+
+
+def test_the_figure_is_kept_through_a_quiet_spell_and_non_finite_input_is_ignored() -> None:
+    est = LoopLagEstimator(PERIOD_S)
+    _run(est, _commands(2000), 20)
+    assert est.lag_s is not None
+    est.observe(math.nan, 0.0)
+    est.command(math.inf, 0.0)
+    assert all(v is not None and abs(v - 0.08) <= 0.008 for v in _run(est, np.full((1500, 2), 0.02), 20))
+
+
+def test_lag_trust_schedule() -> None:
+    assert lag_trust(None, 0.08, 0.05, 0.17) == 1.0
+    assert lag_trust(0.13, 0.08, 0.05, 0.17) == 1.0
+    assert lag_trust(0.19, 0.08, 0.05, 0.17) == pytest.approx(0.5)
+    assert lag_trust(0.25, 0.08, 0.05, 0.17) == pytest.approx(0.0, abs=1e-12)
+    assert lag_trust(0.40, 0.08, 0.05, 0.17) == 0.0
+
+
+def test_the_fade_must_fall() -> None:
+    with pytest.raises(ValueError, match="lag_zero_excess_s"):
+        FeedForwardGains(lag_full_excess_s=0.2, lag_zero_excess_s=0.1).validate()
+    with pytest.raises(ValueError, match="period_s"):
+        LoopLagEstimator(0.0)
+
+
+def _no_fade() -> ControllerConfig:
+    cfg = ControllerConfig()
+    return dataclasses.replace(cfg, feedforward=dataclasses.replace(
+        cfg.feedforward, lag_full_excess_s=10.0, lag_zero_excess_s=11.0))
+
+
+def _hold_tilt(flog) -> float:
+    e = np.array(flog.euler)
+    hold = np.isin(np.array(flog.phase), ["hold", "done"])
+    return float(np.max(np.hypot(e[hold, 0], e[hold, 1])))
+
+
+def test_a_slow_link_fades_the_feed_forward_before_it_limit_cycles() -> None:
+    """Forest in lockstep, 60 ms each way (loop lag ~0.2 s): the full feed-forward falls into a limit cycle at
+    the goal (tilt ~0.53 rad, the 0.6 rad limit); faded by the measured lag it holds (~0.16 rad)."""
+    mission = load_mission("config/missions/forest.toml")
+    faded = fly_inprocess(mission, link_delay_s=0.06)
+    full = fly_inprocess(mission, gains=_no_fade(), link_delay_s=0.06)
+    assert _hold_tilt(full) > 0.45
+    assert _hold_tilt(faded) < 0.25
+
+
+def test_a_clean_link_never_fades() -> None:
+    """The loop lag of the bundled vehicle is the profile's nominal: the flight is bit-identical to one without the
+    fade, and the core measured it near 76 ms."""
+    mission = load_mission("config/missions/forest.toml")
+    a = fly_inprocess(mission)
+    b = fly_inprocess(mission, gains=_no_fade())
+    assert np.array_equal(np.array(a.pos), np.array(b.pos))
+    core = FlightCore(mission)
+    assert core.profile.nominal_loop_lag_s == pytest.approx(0.08)
