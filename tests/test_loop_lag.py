@@ -76,6 +76,8 @@ def test_the_figure_is_kept_through_a_quiet_spell_and_non_finite_input_is_ignore
 
 
 def test_lag_trust_schedule() -> None:
+    assert lag_trust(0.43, 0.08, 0.10, 0.20, floor=0.35) == 0.35  # the position gains' floor
+    assert lag_trust(0.23, 0.08, 0.10, 0.20, floor=0.35) == pytest.approx(0.675)
     assert lag_trust(None, 0.08, 0.05, 0.17) == 1.0
     assert lag_trust(0.13, 0.08, 0.05, 0.17) == 1.0
     assert lag_trust(0.19, 0.08, 0.05, 0.17) == pytest.approx(0.5)
@@ -90,10 +92,15 @@ def test_the_fade_must_fall() -> None:
         LoopLagEstimator(0.0)
 
 
-def _no_fade() -> ControllerConfig:
+def _gains(fade: bool, soften: bool) -> ControllerConfig:
+    """The default gains with or without the feed-forward's lag fade and the position loop's softening."""
     cfg = ControllerConfig()
-    return dataclasses.replace(cfg, feedforward=dataclasses.replace(
-        cfg.feedforward, lag_full_excess_s=10.0, lag_zero_excess_s=11.0))
+    if not fade:
+        cfg = dataclasses.replace(cfg, feedforward=dataclasses.replace(
+            cfg.feedforward, lag_full_excess_s=10.0, lag_zero_excess_s=11.0))
+    if not soften:
+        cfg = dataclasses.replace(cfg, smc=dataclasses.replace(cfg.smc, lag_scale_start_s=10.0, lag_scale_end_s=11.0))
+    return cfg
 
 
 def _hold_tilt(flog) -> float:
@@ -106,18 +113,46 @@ def test_a_slow_link_fades_the_feed_forward_before_it_limit_cycles() -> None:
     """Forest in lockstep, 60 ms each way (loop lag ~0.2 s): the full feed-forward falls into a limit cycle at
     the goal (tilt ~0.53 rad, the 0.6 rad limit); faded by the measured lag it holds (~0.16 rad)."""
     mission = load_mission("config/missions/forest.toml")
-    faded = fly_inprocess(mission, link_delay_s=0.06)
-    full = fly_inprocess(mission, gains=_no_fade(), link_delay_s=0.06)
+    faded = fly_inprocess(mission, gains=_gains(fade=True, soften=False), link_delay_s=0.06)
+    full = fly_inprocess(mission, gains=_gains(fade=False, soften=False), link_delay_s=0.06)
     assert _hold_tilt(full) > 0.45
     assert _hold_tilt(faded) < 0.25
 
 
+def test_a_slower_link_also_softens_the_position_loop() -> None:
+    """75 ms each way (loop lag ~0.23 s): fading the feed-forward alone leaves a 0.33 rad tilt oscillation at the
+    goal; softening the horizontal position gains as well (stiffness × 0.35 at 0.2 s over the clean-link lag)
+    holds at ~0.2 rad."""
+    mission = load_mission("config/missions/forest.toml")
+    assert _hold_tilt(fly_inprocess(mission, gains=_gains(fade=True, soften=False), link_delay_s=0.075)) > 0.3
+    assert _hold_tilt(fly_inprocess(mission, link_delay_s=0.075)) < 0.25
+
+
+def test_the_position_gain_scale_lowers_stiffness_keeping_the_damping_ratio() -> None:
+    from companion.control.position import SmcPositionController
+    from companion.core.model import VehicleParams
+
+    cfg = ControllerConfig()
+    ctl = SmcPositionController(cfg.smc, VehicleParams(), None, 6.0)
+    z3 = np.zeros(3)
+
+    def acc(pos_err: float, vel_err: float, scale: float) -> float:
+        ctl.gain_scale = scale
+        out = ctl.update(z3, z3, np.array([pos_err, 0, 0]), np.array([vel_err, 0, 0]), z3, None, (0, 0), 0.004)
+        return float(out.acc_cmd_mps2[0])
+
+    c, k = cfg.smc.c[0], cfg.smc.k[0]
+    assert acc(0.1, 0.0, 1.0) == pytest.approx(c * k * 0.1)  # stiffness c·k
+    assert acc(0.1, 0.0, 0.36) == pytest.approx(0.36 * c * k * 0.1)  # × s
+    assert acc(0.0, 0.1, 0.36) == pytest.approx(0.6 * (c + k) * 0.1)  # damping c + k × √s
+
+
 def test_a_clean_link_never_fades() -> None:
-    """The loop lag of the bundled vehicle is the profile's nominal: the flight is bit-identical to one without the
-    fade, and the core measured it near 76 ms."""
+    """The loop lag of the bundled vehicle is the profile's nominal: the flight is bit-identical to one with neither
+    the fade nor the softening."""
     mission = load_mission("config/missions/forest.toml")
     a = fly_inprocess(mission)
-    b = fly_inprocess(mission, gains=_no_fade())
+    b = fly_inprocess(mission, gains=_gains(fade=False, soften=False))
     assert np.array_equal(np.array(a.pos), np.array(b.pos))
     core = FlightCore(mission)
     assert core.profile.nominal_loop_lag_s == pytest.approx(0.08)

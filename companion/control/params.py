@@ -29,16 +29,27 @@ class SmcGains:
     """Position SMC, eqs. 30–37: S = c·e + ė; F = m_tot·(c·ė + r̈ + k·S) − f + k_sat·sat(S/Δ).
 
     c (1/s), k (1/s), k_sat (N, >= wind bound λ), boundary Δ (m/s) — per axis x, y, z.
+    On a slow link the horizontal c and k are scaled by √s (so the stiffness c·k by s, the damping ratio kept), where
+    s is 1 up to ``lag_scale_start_s`` of measured loop lag beyond the autopilot's clean-link lag, falling linearly
+    to ``lag_scale_min`` at ``lag_scale_end_s`` (see :mod:`companion.estimation.loop_lag`).
     """
 
     c: Vec3 = (1.2, 1.2, 2.0)
     k: Vec3 = (2.5, 2.5, 3.0)
     k_sat: Vec3 = (0.6, 0.6, 0.8)
     boundary: Vec3 = (0.3, 0.3, 0.3)
+    lag_scale_start_s: float = 0.10
+    lag_scale_end_s: float = 0.20
+    lag_scale_min: float = 0.35
 
     def validate(self) -> None:
-        """Raise ``ValueError("<key>: ...")`` for non-positive gains."""
-        _check_positive(self, allow_zero=("k_sat",))
+        """Raise ``ValueError("<key>: ...")`` for non-positive gains or a lag scale that does not fall into (0, 1]."""
+        _check_positive(self, allow_zero=("k_sat", "lag_scale_start_s"))
+        if self.lag_scale_end_s <= self.lag_scale_start_s:
+            raise ValueError(f"lag_scale_end_s: must be > lag_scale_start_s ({self.lag_scale_start_s}), got "
+                             f"{self.lag_scale_end_s}")
+        if self.lag_scale_min > 1.0:
+            raise ValueError(f"lag_scale_min: must be in (0, 1], got {self.lag_scale_min}")
 
 
 @dataclass(frozen=True)

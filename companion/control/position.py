@@ -159,6 +159,7 @@ class SmcPositionController:
         self.params = params
         self.ff = feedforward
         self.ff_sign = 1.0  # −1 only to demonstrate the wrong sign in tests
+        self.gain_scale = 1.0  # horizontal stiffness factor s (c and k × √s), set per tick from the loop lag
         self.acc_max = acc_max_mps2
         self._c = tuple(float(v) for v in gains.c)
         self._k = tuple(float(v) for v in gains.k)
@@ -188,11 +189,16 @@ class SmcPositionController:
             ff = (0.0, 0.0, 0.0)
         s = [0.0, 0.0, 0.0]
         acc = [0.0, 0.0, 0.0]
+        cs, ks = self._c, self._k
+        if self.gain_scale != 1.0:
+            r = math.sqrt(self.gain_scale)
+            cs = (cs[0] * r, cs[1] * r, cs[2])
+            ks = (ks[0] * r, ks[1] * r, ks[2])
         for i in range(3):
             e = float(ref_pos[i]) - float(pos[i])
             de = float(ref_vel[i]) - float(vel[i])
-            s[i] = self._c[i] * e + de
-            acc[i] = float(ref_acc[i]) + self._c[i] * de + self._k[i] * s[i] + ff[i]
+            s[i] = cs[i] * e + de
+            acc[i] = float(ref_acc[i]) + cs[i] * de + ks[i] * s[i] + ff[i]
         h = math.hypot(acc[0], acc[1])
         if h > self.acc_max:
             acc[0] *= self.acc_max / h

@@ -9,7 +9,8 @@ With the full feed-forward the hold at the goal is steady at 50 ms each way (til
 itself cycles only from ~100 ms. In real time, through a proxy adding 50 ± 25 ms each way, the full
 feed-forward fell into that cycle rarely (1 run in ~17). So the feed-forward is faded by the *excess* of the
 measured lag over the lag the autopilot shows on a clean link
-(:attr:`companion.autopilots.profile.VehicleProfile.nominal_loop_lag_s`), see :func:`lag_trust`.
+(:attr:`companion.autopilots.profile.VehicleProfile.nominal_loop_lag_s`), see :func:`lag_trust`; from a larger
+excess the horizontal position gains are softened as well (:class:`companion.control.params.SmcGains`).
 
 How it is measured: the lag is the delay K (ticks) that makes the commanded roll and pitch of K ticks ago match
 the roll and pitch that arrive now, best in the least-squares sense over the last few seconds. Counted in
@@ -101,14 +102,16 @@ class LoopLagEstimator:
         self._count += 1
 
 
-def lag_trust(lag_s: float | None, nominal_s: float, full_excess_s: float, zero_excess_s: float) -> float:
-    """Feed-forward trust in [0, 1] for a measured loop lag (s): 1 up to ``nominal_s + full_excess_s``, falling
-    linearly to 0 at ``nominal_s + zero_excess_s``; 1 while nothing is measured (None)."""
+def lag_trust(lag_s: float | None, nominal_s: float, full_excess_s: float, zero_excess_s: float,
+              floor: float = 0.0) -> float:
+    """A factor for a measured loop lag (s): 1 up to ``nominal_s + full_excess_s``, falling linearly to ``floor`` at
+    ``nominal_s + zero_excess_s`` and staying there; 1 while nothing is measured (None). The feed-forward's trust
+    (floor 0) and the position loop's gain scale (:class:`companion.control.params.SmcGains`) both use it."""
     if lag_s is None:
         return 1.0
     excess = lag_s - nominal_s
     if excess <= full_excess_s:
         return 1.0
     if excess >= zero_excess_s:
-        return 0.0
-    return (zero_excess_s - excess) / (zero_excess_s - full_excess_s)
+        return floor
+    return floor + (1.0 - floor) * (zero_excess_s - excess) / (zero_excess_s - full_excess_s)

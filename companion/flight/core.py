@@ -37,7 +37,8 @@ Loop lag: the core measures how long its attitude commands take to come back as 
 (:class:`~companion.estimation.loop_lag.LoopLagEstimator`, counted in ticks of ``period_s``) and scales the
 swing the controller acts on (payload compensation and feed-forward, like ``swing_fade``) by
 :func:`~companion.estimation.loop_lag.lag_trust` of the excess over the profile's clean-link lag: a slow or
-jittery link fades the feed-forward before its loop runs out of delay margin.
+jittery link fades the feed-forward before its loop runs out of delay margin; a slower one also softens the SMC's
+horizontal gains (``controller.gain_scale``).
 """
 
 from __future__ import annotations
@@ -303,10 +304,14 @@ class FlightCore:
         self.t_prev_s = est.t_s
         self._advance_phase(est)
         obs = self._advance_obstacles(obs, est.t_s)
-        ff_cfg = self.cfg.feedforward
-        self.lag_trust = lag_trust(self.loop_lag.observe(float(est.euler_rad[0]), float(est.euler_rad[1])),
-                                   self.profile.nominal_loop_lag_s, ff_cfg.lag_full_excess_s, ff_cfg.lag_zero_excess_s)
-        self.lag_stats.add(self.loop_lag.lag_s, self.lag_trust)
+        ff_cfg, smc_cfg = self.cfg.feedforward, self.cfg.smc
+        lag = self.loop_lag.observe(float(est.euler_rad[0]), float(est.euler_rad[1]))
+        nominal = self.profile.nominal_loop_lag_s
+        self.lag_trust = lag_trust(lag, nominal, ff_cfg.lag_full_excess_s, ff_cfg.lag_zero_excess_s)
+        if hasattr(self.controller, "gain_scale"):
+            self.controller.gain_scale = lag_trust(lag, nominal, smc_cfg.lag_scale_start_s, smc_cfg.lag_scale_end_s,
+                                                   smc_cfg.lag_scale_min)
+        self.lag_stats.add(self.loop_lag.lag_s, self.lag_trust, getattr(self.controller, "gain_scale", 1.0))
 
         swing = None if est.swing is None else np.asarray(est.swing, dtype=np.float64)
         if swing is not None:
@@ -444,8 +449,10 @@ class _LagStats:
         self.last_lag_s: float | None = None
         self.trust_min = 1.0
         self.faded_ticks = 0
+        self.gain_scale_min = 1.0
+        self.softened_ticks = 0
 
-    def add(self, lag_s: float | None, trust: float) -> None:
+    def add(self, lag_s: float | None, trust: float, gain_scale: float = 1.0) -> None:
         if lag_s is not None:
             self.last_lag_s = lag_s
             self.lag_min_s = lag_s if self.lag_min_s is None else min(self.lag_min_s, lag_s)
@@ -453,14 +460,19 @@ class _LagStats:
         if trust < 1.0:
             self.faded_ticks += 1
             self.trust_min = min(self.trust_min, trust)
+        if gain_scale < 1.0:
+            self.softened_ticks += 1
+            self.gain_scale_min = min(self.gain_scale_min, gain_scale)
 
     def facts(self, nominal_s: float) -> dict[str, float | None]:
-        """Loop lag (ms): min, max, last, the profile's nominal; least feed-forward trust; seconds faded."""
+        """Loop lag (ms): min, max, last, the profile's nominal; least feed-forward trust and seconds faded; least
+        position-gain scale and seconds softened."""
         def ms(v: float | None) -> float | None:
             return None if v is None else round(v * 1e3, 1)
         return {"lag_ms_min": ms(self.lag_min_s), "lag_ms_max": ms(self.lag_max_s), "lag_ms_last": ms(self.last_lag_s),
                 "nominal_ms": ms(nominal_s), "ff_trust_min": round(self.trust_min, 3),
-                "faded_s": round(self.faded_ticks * self.period_s, 2)}
+                "faded_s": round(self.faded_ticks * self.period_s, 2), "gain_scale_min": round(self.gain_scale_min, 3),
+                "softened_s": round(self.softened_ticks * self.period_s, 2)}
 
 
 _ZERO2 = np.zeros(2)
