@@ -10,15 +10,16 @@ for the fast evaluation mode; the vehicle starts landed on the ground below the 
 a real autopilot would send, simulated from the physics by :mod:`lab.swing_sim` (IMU, attitude, velocity,
 delayed and dropped payload fixes); ``truth`` records every tick for offline estimation.
 
-``link_delay_s`` puts a delay line on both directions (whole control periods): the core sees the estimate of
-that long ago and the vehicle gets each command that much later, like a slow link (the loop-lag tests).
+``link_delay_s`` / ``link_jitter_s`` put a slow link on both directions (:class:`SlowLink`: each estimate and
+each command takes delay ± jitter, whole control periods; the core flies on the newest estimate that has arrived,
+the vehicle applies commands in the order they arrive), for the loop-lag tests.
 """
 
 from __future__ import annotations
 
+import heapq
 import logging
 import time
-from collections import deque
 
 import numpy as np
 
@@ -34,6 +35,47 @@ from sim_bridge.physics import VehicleSim
 log = logging.getLogger(__name__)
 
 
+class SlowLink:
+    """Both directions of a slow, jittery link, counted in control ticks (seeded, deterministic).
+
+    Each estimate and each command takes ``delay_s`` ± ``jitter_s`` (uniform), rounded to whole ticks. The core
+    flies on the newest estimate that has arrived (the companion refuses time markers that go backwards); the
+    vehicle applies commands in the order they arrive, older ones too (PX4 and ArduPilot check no order), so jitter
+    makes it fly a reshuffled command stream: in real time that costs more margin than the same mean delay.
+    """
+
+    def __init__(self, delay_s: float, jitter_s: float, period_s: float, seed: int = 0) -> None:
+        self.delay_s, self.jitter_s, self.period_s = delay_s, jitter_s, period_s
+        self._rng = np.random.default_rng(seed)
+        self._up: list[tuple[int, int, Estimate]] = []  # (arrival tick, sent tick, estimate)
+        self._down: list[tuple[int, int, object]] = []  # (arrival tick, sent tick, command)
+        self._first: Estimate | None = None
+        self._newest: tuple[int, Estimate] | None = None
+
+    def _ticks(self) -> int:
+        d = self.delay_s + (self._rng.uniform(-self.jitter_s, self.jitter_s) if self.jitter_s > 0.0 else 0.0)
+        return max(0, round(d / self.period_s))
+
+    def to_core(self, tick: int, est: Estimate) -> Estimate:
+        """Send this tick's estimate; returns the one the core flies on now."""
+        if self._first is None:
+            self._first = est
+        heapq.heappush(self._up, (tick + self._ticks(), tick, est))
+        while self._up and self._up[0][0] <= tick:
+            _, sent, e = heapq.heappop(self._up)
+            if self._newest is None or sent > self._newest[0]:
+                self._newest = (sent, e)
+        return self._first if self._newest is None else self._newest[1]
+
+    def to_vehicle(self, tick: int, cmd) -> list:
+        """Send this tick's command; returns the commands arriving now, in arrival order."""
+        heapq.heappush(self._down, (tick + self._ticks(), tick, cmd))
+        out = []
+        while self._down and self._down[0][0] <= tick:
+            out.append(heapq.heappop(self._down)[2])
+        return out
+
+
 def fly_inprocess(
     mission: Mission,
     *,
@@ -47,6 +89,8 @@ def fly_inprocess(
     estimator: EstimatorDriver | None = None,
     truth: TruthLog | None = None,
     link_delay_s: float = 0.0,
+    link_jitter_s: float = 0.0,
+    link_seed: int = 0,
 ) -> FlightLog:
     """Fly ``mission`` from take-off to the end of the hold (or timeout); returns the flight log.
 
@@ -69,9 +113,8 @@ def fly_inprocess(
     sim = VehicleSim(mission.vehicle, wind=mission.wind, dt_s=physics_dt_s, x0=x0)
     sim.armed = True
     core = FlightCore(mission, gains or ControllerConfig(), VehicleProfile(), period_s=control_period_s)
-    n_delay = max(0, round(link_delay_s / control_period_s))
-    seen: deque[Estimate] = deque()  # estimates on their way to the core
-    sent: deque = deque()  # commands on their way to the vehicle
+    link = SlowLink(link_delay_s, link_jitter_s, control_period_s, link_seed) if link_delay_s > 0.0 else None
+    tick = 0
     flog = FlightLog(
         planner=mission.planner, controller=mission.controller, mission=mission.name, obstacles=mission.obstacles
     )
@@ -93,9 +136,8 @@ def fly_inprocess(
                 t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,
                 rates_frd_rad_s=sim.body_rates_frd_rad_s, swing=swing, swing_source=source,
             )
-        if n_delay:
-            seen.append(est)
-            est = seen.popleft() if len(seen) > n_delay else seen[0]
+        if link is not None:
+            est = link.to_core(tick, est)
         cmd = core.update(est, mission.obstacles)
         if driver is not None:
             driver.command(sim.t_s, cmd.thrust_n)
@@ -105,12 +147,9 @@ def fly_inprocess(
             flog.append(sim.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, sim.swing, sim.payload_pos_ned_m, cmd)
         if stop_when_done and core.phase == "done":
             break
-        applied = cmd
-        if n_delay:
-            sent.append(cmd)
-            applied = sent.popleft() if len(sent) > n_delay else None
-        if applied is not None:
+        for applied in (link.to_vehicle(tick, cmd) if link is not None else (cmd,)):
             sim.set_attitude_target(applied.q_ned_frd_wxyz, applied.thrust_n)
         sim.step(n_sub)
+        tick += 1
     flog.wall_time_s = time.perf_counter() - wall0
     return flog

@@ -67,6 +67,8 @@ def test_50_ms_jitter_and_reordering_do_not_make_it_diverge(workdir):
     r = faults.jitter(workdir, delay_ms=50.0, jitter_ms=25.0)
     assert r["proxy"]["reordered"] > 100  # the proxy really reordered datagrams
     assert r["max_alt_error_m"] is not None and r["max_alt_error_m"] < 0.5, r
+    # no limit cycle at the goal: a steady hold tilts < 0.25 rad here, a loop out of margin cycles at the 0.6 limit
+    assert r["max_tilt_in_hold_rad"] is not None and r["max_tilt_in_hold_rad"] < 0.4, r
     assert r["collisions"] == 0
     # the loop lag (~0.16 s against the bundled vehicle's 0.08 s) was measured and faded the feed-forward
     assert r["loop_lag"]["lag_ms_max"] > 130.0 and r["loop_lag"]["ff_trust_min"] < 1.0, r

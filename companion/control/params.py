@@ -38,9 +38,9 @@ class SmcGains:
     k: Vec3 = (2.5, 2.5, 3.0)
     k_sat: Vec3 = (0.6, 0.6, 0.8)
     boundary: Vec3 = (0.3, 0.3, 0.3)
-    lag_scale_start_s: float = 0.10
-    lag_scale_end_s: float = 0.20
-    lag_scale_min: float = 0.35
+    lag_scale_start_s: float = 0.05
+    lag_scale_end_s: float = 0.15
+    lag_scale_min: float = 0.25
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for non-positive gains or a lag scale that does not fall into (0, 1]."""
