@@ -434,29 +434,42 @@ def max_alt_error_flown_m(run_dir: Path, rep: dict[str, Any]) -> float | None:
     return float(np.max(np.abs(z[flown] - goal_z))) if flown.any() else None
 
 
-def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, drop: float = 0.0) -> dict[str, Any]:
+def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, drop: float = 0.0,
+           vehicle: str = "bundled") -> dict[str, Any]:
     """The forest in real time through a proxy that delays each datagram by ``delay ± jitter`` (reordering
-    them): the altitude must stay within 0.5 m of the mission's and the outcome must be honest."""
+    them): the altitude must stay within 0.5 m of the mission's and the outcome must be honest. ``vehicle``
+    ``ardupilot``: ArduCopter SITL with its payload (``forest_arducopter_sitl``) instead of the bundled vehicle."""
     from lab.udp_proxy import _addr  # noqa: F401  (the proxy runs as its own process; imported to fail early)
 
-    run_dir = workdir / f"jitter-{delay_ms:g}-{jitter_ms:g}"
+    run_dir = workdir / (f"jitter-{delay_ms:g}-{jitter_ms:g}" + ("" if vehicle == "bundled" else f"-{vehicle}"))
     veh_port, vside, comp_port, gcs = free_udp_port(), free_udp_port(), free_udp_port(), free_udp_port()
-    sim = subprocess.Popen([sys.executable, "-m", "sim_bridge", "--onboard-port", str(veh_port), "--onboard-remote",
-                            f"127.0.0.1:{vside}", "--gcs-port", str(gcs), "--gcs-remote",
-                            f"127.0.0.1:{free_udp_port()}"], cwd=ROOT, stdout=subprocess.PIPE,
-                           stderr=subprocess.DEVNULL, text=True)
-    proxy = subprocess.Popen([sys.executable, "-m", "lab.udp_proxy", "--vehicle", f"127.0.0.1:{veh_port}",
+    if vehicle == "bundled":
+        sim = subprocess.Popen([sys.executable, "-m", "sim_bridge", "--onboard-port", str(veh_port),
+                                "--onboard-remote", f"127.0.0.1:{vside}", "--gcs-port", str(gcs), "--gcs-remote",
+                                f"127.0.0.1:{free_udp_port()}"], cwd=ROOT, stdout=subprocess.PIPE,
+                               stderr=subprocess.DEVNULL, text=True)
+        extra = ["--profile", "bundled"]
+    else:
+        from lab import sitl_external
+
+        sim = sitl_external.start_arducopter(workdir, vside)  # dials the proxy from an ephemeral port
+        extra = ["--mission", "forest_arducopter_sitl", "--ready-timeout", "120"]
+    proxy = subprocess.Popen([sys.executable, "-m", "lab.udp_proxy", "--vehicle",
+                              f"127.0.0.1:{veh_port}" if vehicle == "bundled" else "first",
                               "--companion", f"127.0.0.1:{comp_port}", "--listen-vehicle-side", str(vside),
                               "--delay-ms", str(delay_ms), "--jitter-ms", str(jitter_ms), "--drop", str(drop)],
                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     fly = None
     try:
-        assert sim.stdout is not None and proxy.stdout is not None
-        if not sim.stdout.readline().startswith("SITL READY") or not proxy.stdout.readline().startswith("PROXY"):
-            raise RuntimeError("vehicle or proxy did not start")
-        fly = Proc.start(fly_argv(run_dir, "--connect", f"udpin://127.0.0.1:{comp_port}", "--profile", "bundled",
-                                  "--no-zenoh"))
-        code = fly.finish(240)
+        assert proxy.stdout is not None
+        if vehicle == "bundled":
+            assert sim.stdout is not None
+            if not sim.stdout.readline().startswith("SITL READY"):
+                raise RuntimeError("vehicle did not start")
+        if not proxy.stdout.readline().startswith("PROXY"):
+            raise RuntimeError("proxy did not start")
+        fly = Proc.start(fly_argv(run_dir, "--connect", f"udpin://127.0.0.1:{comp_port}", "--no-zenoh", *extra))
+        code = fly.finish(240 if vehicle == "bundled" else 400)
     finally:
         for p in (sim, proxy):
             p.send_signal(signal.SIGTERM)

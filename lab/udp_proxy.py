@@ -29,9 +29,10 @@ def _addr(text: str) -> tuple[str, int]:
     return host or "127.0.0.1", int(port)
 
 
-def run(vehicle: tuple[str, int], companion: tuple[str, int], vehicle_side_port: int, delay_s: float,
+def run(vehicle: tuple[str, int] | None, companion: tuple[str, int], vehicle_side_port: int, delay_s: float,
         jitter_s: float, drop: float, seed: int) -> dict[str, int]:
-    """Forward until SIGTERM/SIGINT; returns the counters."""
+    """Forward until SIGTERM/SIGINT; returns the counters. ``vehicle`` None: the address the first vehicle-side
+    datagram came from (a vehicle that dials out from an ephemeral port, as ArduCopter SITL's ``udpclient``)."""
     rng = random.Random(seed)
     v_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     v_sock.bind(("127.0.0.1", vehicle_side_port))
@@ -59,7 +60,8 @@ def run(vehicle: tuple[str, int], companion: tuple[str, int], vehicle_side_port:
                 if way == "to_companion":
                     c_sock.sendto(data, companion)
                 else:
-                    v_sock.sendto(data, vehicle)
+                    if vehicle is not None:
+                        v_sock.sendto(data, vehicle)
             except OSError:
                 pass
             counts[way] += 1
@@ -68,11 +70,13 @@ def run(vehicle: tuple[str, int], companion: tuple[str, int], vehicle_side_port:
             sock, way = key.fileobj, key.data
             while True:
                 try:
-                    data, _src = sock.recvfrom(65535)
+                    data, src = sock.recvfrom(65535)
                 except (BlockingIOError, InterruptedError):
                     break
                 except OSError:
                     break
+                if vehicle is None and way == "to_companion":
+                    vehicle = src
                 if drop > 0.0 and rng.random() < drop:
                     counts["dropped"] += 1
                     continue
@@ -87,7 +91,9 @@ def run(vehicle: tuple[str, int], companion: tuple[str, int], vehicle_side_port:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m lab.udp_proxy", description=__doc__.split("\n\n")[0])
-    p.add_argument("--vehicle", required=True, help="HOST:PORT the vehicle listens on (its onboard port)")
+    p.add_argument("--vehicle", required=True,
+                   help="HOST:PORT the vehicle listens on (its onboard port), or 'first': where its first datagram "
+                        "came from")
     p.add_argument("--companion", required=True, help="HOST:PORT the companion listens on")
     p.add_argument("--listen-vehicle-side", type=int, required=True,
                    help="port the vehicle sends its telemetry to (its onboard remote)")
@@ -96,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--drop", type=float, default=0.0, help="drop probability per datagram (0..1)")
     p.add_argument("--seed", type=int, default=1)
     a = p.parse_args(argv)
-    counts = run(_addr(a.vehicle), _addr(a.companion), a.listen_vehicle_side, a.delay_ms / 1e3, a.jitter_ms / 1e3,
+    vehicle = None if a.vehicle == "first" else _addr(a.vehicle)
+    counts = run(vehicle, _addr(a.companion), a.listen_vehicle_side, a.delay_ms / 1e3, a.jitter_ms / 1e3,
                  a.drop, a.seed)
     print(json.dumps(counts), flush=True)
     return 0
