@@ -399,29 +399,21 @@ def flood_main(argv: list[str]) -> int:
     return 0
 
 
-def max_tilt_in_hold_rad(run_dir: Path, rep: dict[str, Any]) -> float | None:
-    """Largest tilt (rad) during the hold at the goal (arrival to arrival + hold_s, vehicle time): a steady hold
-    tilts against the wind by a few hundredths; a loop out of margin cycles at the 0.6 rad tilt limit."""
-    arrival = (rep.get("arrival") or {}).get("t_s")
-    if arrival is None:
-        return None
-    log = np.load(run_dir / "flight_log.npz")
-    t = log["t_s"]
-    hold = (t >= float(arrival)) & (t <= float(arrival) + load_mission(run_dir / "mission.toml").hold_s)
-    e = log["euler_rad"][hold]
-    return float(np.max(np.hypot(e[:, 0], e[:, 1]))) if e.size else None
+def flown_figures(run_dir: Path, rep: dict[str, Any]) -> dict[str, float | None]:
+    """What a flight did while the companion flew its mission, from the run folder's log:
 
-
-def max_alt_error_flown_m(run_dir: Path, rep: dict[str, Any]) -> float | None:
-    """Largest altitude error (m) from the mission altitude while the companion flew the mission: from the moment
-    the climb reached it to the end of the hold (arrival + the mission's hold_s, vehicle time) or, without an
-    arrival, as long as the companion recorded a reference. Not the autopilot's landing after the hold: on a slow
-    link the land mode is confirmed up to a second after the vehicle has started down, and those rows are not ours
-    (they once made up the whole 0.25–0.45 m this figure read)."""
+    - ``max_alt_error_m``: largest altitude error (m) from the mission altitude, from the moment the climb reached
+      it to the end of the hold (arrival + the mission's hold_s, vehicle time) or, without an arrival, as long as
+      the companion recorded a reference. Not the autopilot's landing after the hold: on a slow link the land mode
+      is confirmed up to a second after the vehicle has started down, and those rows are not ours (they once made
+      up the whole 0.25–0.45 m this figure read).
+    - ``max_tilt_in_hold_rad``: largest tilt (rad) during the hold (None without an arrival): a steady hold tilts
+      against the wind by a few hundredths, a loop out of margin cycles at the 0.6 rad tilt limit.
+    """
     log = np.load(run_dir / "flight_log.npz")
+    mission = load_mission(run_dir / "mission.toml")
     t = log["t_s"]
     z = log["pos_ned_m"][:, 2]
-    mission = load_mission(run_dir / "mission.toml")
     goal_z = float(mission.goal_ned_m[2])
     reached = np.flatnonzero(z <= goal_z + 0.1)
     flown = np.zeros(len(z), dtype=bool)
@@ -429,9 +421,14 @@ def max_alt_error_flown_m(run_dir: Path, rep: dict[str, Any]) -> float | None:
         flown[reached[0]:] = True
     flown &= np.isfinite(log["ref_pos_ned_m"][:, 2])
     arrival = (rep.get("arrival") or {}).get("t_s")
+    tilt = None
     if arrival is not None:
-        flown &= t <= float(arrival) + mission.hold_s
-    return float(np.max(np.abs(z[flown] - goal_z))) if flown.any() else None
+        hold_end = float(arrival) + mission.hold_s
+        flown &= t <= hold_end
+        e = log["euler_rad"][(t >= float(arrival)) & (t <= hold_end)]
+        tilt = float(np.max(np.hypot(e[:, 0], e[:, 1]))) if e.size else None
+    return {"max_alt_error_m": float(np.max(np.abs(z[flown] - goal_z))) if flown.any() else None,
+            "max_tilt_in_hold_rad": tilt}
 
 
 def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, drop: float = 0.0,
@@ -485,8 +482,7 @@ def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, dr
     rep = read_report(run_dir)
     return {"exit_code": code, "outcome": rep["outcome"], "reached_goal": rep["reached_goal"],
             "goal_visited": rep.get("goal_visited"), "time_to_goal_s": rep["time_to_goal_s"],
-            "max_alt_error_m": max_alt_error_flown_m(run_dir, rep),
-            "max_tilt_in_hold_rad": max_tilt_in_hold_rad(run_dir, rep),
+            **flown_figures(run_dir, rep),
             "max_swing_rad": rep["max_swing_rad"], "collisions": rep["collisions"], "proxy": counts,
             "link": rep["link"], "loop_lag": rep.get("loop_lag")}
 

@@ -87,7 +87,7 @@ def test_arducopter_with_its_slung_payload_flies_the_table2_forest(arducopter, t
     est = rep["swing_estimator"]
     assert est is not None and est["inputs"].get("payload_fix", 0) > 50  # ArduPilot's payload fixes feed it
     assert rep["max_swing_rad"] is not None
-    # ArduCopter's loop lag (0.21-0.29 s measured) is its profile's clean-link figure: the feed-forward never faded
+    # ArduCopter's loop lag (0.18-0.29 s measured) is its profile's clean-link figure: the feed-forward never faded
     assert rep["loop_lag"]["lag_ms_max"] is not None and rep["loop_lag"]["faded_s"] == 0.0, rep["loop_lag"]
 
 

@@ -19,7 +19,7 @@ Both families' tables are flown against the real autopilots (tests/test_real_aut
 
 Each profile also states the loop lag the companion measures against it on a clean loopback link
 (:mod:`companion.estimation.loop_lag`: commanded attitude to the attitude that comes back, forest flights):
-bundled 68–84 ms, PX4 v1.15.2 SIH 164–172 ms, ArduCopter SITL 252–292 ms. The anti-swing feed-forward fades
+bundled 68–84 ms, PX4 v1.15.2 SIH 164–188 ms, ArduCopter SITL 180–292 ms. The anti-swing feed-forward fades
 when the measured lag grows beyond it (a slow or jittery link), :attr:`VehicleProfile.nominal_loop_lag_s`.
 """
 

@@ -141,6 +141,7 @@ class FlightCore:
         self.t_no_route_s: float | None = None
         self._timed_stop = False  # hold_here / descend asked while a time-parameterised planner was flying
         self.controller = make_position_controller(mission.controller, self.cfg, self.params)
+        self._softens = hasattr(self.controller, "gain_scale")  # the SMC; the PID baseline has no lag softening
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
         self.loop_lag = LoopLagEstimator(period_s)
         self.lag_trust = 1.0  # the feed-forward's trust from the measured loop lag (this tick)
@@ -308,10 +309,11 @@ class FlightCore:
         lag = self.loop_lag.observe(float(est.euler_rad[0]), float(est.euler_rad[1]))
         nominal = self.profile.nominal_loop_lag_s
         self.lag_trust = lag_trust(lag, nominal, ff_cfg.lag_full_excess_s, ff_cfg.lag_zero_excess_s)
-        if hasattr(self.controller, "gain_scale"):
-            self.controller.gain_scale = lag_trust(lag, nominal, smc_cfg.lag_scale_start_s, smc_cfg.lag_scale_end_s,
-                                                   smc_cfg.lag_scale_min)
-        self.lag_stats.add(self.loop_lag.lag_s, self.lag_trust, getattr(self.controller, "gain_scale", 1.0))
+        gain_scale = 1.0
+        if self._softens:
+            gain_scale = self.controller.gain_scale = lag_trust(lag, nominal, smc_cfg.lag_scale_start_s,
+                                                                smc_cfg.lag_scale_end_s, smc_cfg.lag_scale_min)
+        self.lag_stats.add(lag, self.lag_trust, gain_scale)
 
         swing = None if est.swing is None else np.asarray(est.swing, dtype=np.float64)
         if swing is not None:

@@ -115,4 +115,3 @@ def lockstep_telemetry_wall_s(wall_s: float, telemetry_wall_s: float | None, las
     if telemetry_wall_s is None or last_answer_wall_s > telemetry_wall_s:
         return telemetry_wall_s
     return wall_s - max(0.0, vehicle_t_s - min(pos_t_s, att_t_s))
-
