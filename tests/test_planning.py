@@ -83,7 +83,8 @@ def test_reference_generator_respects_limits():
 
 def test_gentle_start_limits_the_jerk_only_when_speeding_up_from_rest():
     """start_jerk_frac 0.4: from rest the horizontal jerk is at most 0.4·j_max (rising with speed to the full limit
-    at start_ramp_mps); braking from speed has the full limit; the default (1) leaves the generator as it was."""
+    at start_ramp_mps); braking from speed has the full limit; the default is 0.5 of the limit at rest; 1 turns the
+    gentle start off (the full jerk at once)."""
     from dataclasses import replace
 
     dt = 0.004
@@ -104,7 +105,11 @@ def test_gentle_start_limits_the_jerk_only_when_speeding_up_from_rest():
     start = jerks(gentle, [2.0, 0.0, 0.0], 400)
     assert start[0][0] <= 0.4 * p.j_max_mps3 + 1e-6
     assert all(j <= p.j_max_mps3 * (0.4 + 0.6 * min(v, 1.0)) + 0.05 for j, v in start)
-    assert max(j for j, _ in jerks(p, [2.0, 0.0, 0.0], 400)) > 0.9 * p.j_max_mps3  # default: full jerk at once
+    assert p.start_jerk_frac == 0.5
+    default = jerks(p, [2.0, 0.0, 0.0], 400)
+    assert 0.45 * p.j_max_mps3 < default[0][0] <= 0.5 * p.j_max_mps3 + 1e-6
+    off = replace(p, start_jerk_frac=1.0)
+    assert max(j for j, _ in jerks(off, [2.0, 0.0, 0.0], 400)) > 0.9 * p.j_max_mps3  # off: full jerk at once
     brake = jerks(gentle, [0.0, 0.0, 0.0], 100, start_v=[0.5, 0.0, 0.0])  # slow, slowing down: full limit
     assert max(j for j, _ in brake) > 0.9 * p.j_max_mps3
     with pytest.raises(ValueError, match="start_jerk_frac"):
