@@ -2,7 +2,7 @@
 payload identification and the estimator's cost per update. Numbers are printed, never asserted.
 
     python -m lab.swing_bench                  # everything on the Table 2 forest (a few minutes)
-    python -m lab.swing_bench --forests 30     # plus the error over 30 random forests
+    python -m lab.swing_bench --forests 30     # plus the error and the closed loop over 30 random forests
     python -m lab.swing_bench --only cost      # one section: error | sih | forests | closed | id | sensitivity | cost
 
 Truth: the bundled physics (sim_bridge.physics.VehicleSim) under eq. 49's wind, in-process; measurements:
@@ -87,8 +87,10 @@ def section_forests(n: int, workers: int) -> None:
         print(f"| {p} | {statistics.median(v):.4f} | {v[min(len(v) - 1, int(0.9 * len(v)))]:.4f} | {v[-1]:.4f} |")
 
 
-def _closed_job(path: str | None) -> tuple[str, dict, float | None]:
-    m = _forest()
+def _closed_job(path: str | None, seed: int | None = None) -> tuple[str, dict, float | None]:
+    """One in-process flight of the Table 2 forest (``seed`` None) or of random forest ``seed``: on the cable
+    sensor (``path`` None), on no swing input (``"none"``) or on the estimate from ``path``'s sensors."""
+    m = _forest() if seed is None else generate_forest(seed)
     if path is None:
         r = compute_metrics(fly_inprocess(m), m)
         return "cable sensor", r, None
@@ -113,6 +115,45 @@ def section_closed(workers: int) -> None:
     for (name, r, rms), path in zip(res, jobs, strict=True):
         print(f"| {name} | {r['max_swing_rad']:.3f} rad | {r['time_to_goal_s']:.3f} s | {r['min_clearance_m']:.3f} m "
               f"| {r['collisions']} | {'' if rms is None else f'{rms:.4f}'} | {targets.get(path, '')} |")
+
+
+CLOSED_FOREST_PATHS = ("imu", "fixes+vel", "fused")
+
+
+def _closed_forest_job(args: tuple[int, str | None]) -> tuple[int, str | None, dict]:
+    seed, path = args
+    return seed, path, _closed_job(path, seed)[1]
+
+
+def section_closed_forests(n: int, workers: int) -> None:
+    """Issue 11's closed-loop targets over random forests: per swing input the max swing (median / p90 / worst),
+    its excess over the same forest flown on the cable sensor, and the time to goal and clearance lost."""
+    print(f"\n## Closed loop over {n} random forests (lab.forests seeds 0..{n - 1}, eq. 49, in-process)\n")
+    jobs = [(seed, path) for seed in range(n) for path in (None, *CLOSED_FOREST_PATHS)]
+    with ProcessPoolExecutor(workers) as ex:
+        res = {(seed, path): r for seed, path, r in ex.map(_closed_forest_job, jobs)}
+    targets = {"imu": 0.27, "fixes+vel": 0.26, "fused": 0.26}
+    print("| swing input | goal reached | max swing median / p90 / worst | over the sensor's, median / worst | "
+          "time to goal, median excess / worst | min clearance, worst | collisions | within issue 11's bound |")
+    print("|---|---|---|---|---|---|---|---|")
+    for path in (None, *CLOSED_FOREST_PATHS):
+        rows = [res[(seed, path)] for seed in range(n)]
+        base = [res[(seed, None)] for seed in range(n)]
+        sw = sorted(r["max_swing_rad"] for r in rows)
+        over = sorted(r["max_swing_rad"] - b["max_swing_rad"] for r, b in zip(rows, base, strict=True))
+        dt = sorted(r["time_to_goal_s"] - b["time_to_goal_s"] for r, b in zip(rows, base, strict=True)
+                    if r["reached_goal"] and b["reached_goal"])
+        reached = sum(r["reached_goal"] for r in rows)
+        clear = min(r["min_clearance_m"] for r in rows)
+        hits = sum(r["collisions"] for r in rows)
+        p90 = sw[min(len(sw) - 1, int(0.9 * len(sw)))]
+        within = ", ".join(f"{sum(v <= b for v in sw)}/{n} (<= {b})" for b in
+                           ((0.26, 0.27) if path is None else (targets[path],)))
+        name = "cable sensor" if path is None else f"estimate ({path})"
+        dts = f"{statistics.median(dt):+.3f} / {dt[-1]:+.3f} s" if dt and path is not None else ""
+        overs = f"{statistics.median(over):+.3f} / {over[-1]:+.3f}" if path is not None else ""
+        print(f"| {name} | {reached}/{n} | {statistics.median(sw):.3f} / {p90:.3f} / {sw[-1]:.3f} rad | {overs} | "
+              f"{dts} | {clear:.3f} m | {hits} | {within} |")
 
 
 def _id_job(args: tuple[float, float, float, str, str]) -> tuple:
@@ -235,7 +276,8 @@ def section_cost() -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m lab.swing_bench", description=__doc__.splitlines()[0])
     ap.add_argument("--only", choices=SECTIONS, action="append", help="run only this section (repeatable)")
-    ap.add_argument("--forests", type=int, default=0, help="random forests for the error section (default 0)")
+    ap.add_argument("--forests", type=int, default=0,
+                    help="random forests for the error and closed-loop sections (default 0)")
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args(argv)
     only = set(a.only or SECTIONS)
@@ -249,6 +291,7 @@ def main(argv: list[str] | None = None) -> int:
         section_sih(truth)
     if "forests" in only:
         section_forests(a.forests, a.workers)
+        section_closed_forests(a.forests, a.workers)
     if "closed" in only:
         section_closed(a.workers)
     if "id" in only:
