@@ -44,7 +44,7 @@ def run(vehicle: tuple[str, int] | None, companion: tuple[str, int], vehicle_sid
     sel = selectors.DefaultSelector()
     sel.register(v_sock, selectors.EVENT_READ, "to_companion")
     sel.register(c_sock, selectors.EVENT_READ, "to_vehicle")
-    counts = {"to_companion": 0, "to_vehicle": 0, "dropped": 0, "reordered": 0}
+    counts = {"to_companion": 0, "to_vehicle": 0, "dropped": 0, "reordered": 0, "no_vehicle": 0}
     queue: list[tuple[float, int, bytes, str]] = []
     n = 0
     last_release = {"to_companion": 0.0, "to_vehicle": 0.0}
@@ -56,12 +56,14 @@ def run(vehicle: tuple[str, int] | None, companion: tuple[str, int], vehicle_sid
         now = time.monotonic()
         while queue and queue[0][0] <= now:
             _, _, data, way = heapq.heappop(queue)
+            if way == "to_vehicle" and vehicle is None:  # 'first' and the vehicle has not spoken yet
+                counts["no_vehicle"] += 1
+                continue
             try:
                 if way == "to_companion":
                     c_sock.sendto(data, companion)
                 else:
-                    if vehicle is not None:
-                        v_sock.sendto(data, vehicle)
+                    v_sock.sendto(data, vehicle)
             except OSError:
                 pass
             counts[way] += 1
