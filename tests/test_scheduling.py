@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import gc
 import os
 import subprocess
 import sys
 import threading
+import weakref
 
 import pytest
 
-from companion.flight.scheduling import involuntary_switches, request_fifo, restore_normal
+from companion.flight.scheduling import GcPacer, involuntary_switches, request_fifo, restore_normal
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "SCHED_FIFO"), reason="POSIX real-time scheduling not available")
 
@@ -70,3 +72,54 @@ def test_fly_refuses_an_out_of_range_priority(tmp_path):
     out = subprocess.run([sys.executable, "-m", "companion.cli", "fly", "--sitl", "--rt-priority", "100",
                           "--run-dir", str(tmp_path)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "--rt-priority" in out.stderr
+
+
+class _Cycle:
+    """An object in a reference cycle: only the cyclic garbage collector frees it."""
+
+    def __init__(self) -> None:
+        self.me = self
+
+
+def test_gc_pacer_collects_between_ticks_only_and_hands_back():
+    """While the pacer runs, Python collects nothing by itself (a cycle survives any number of allocations
+    until step()); step() runs the due generation and counts it; stop() gives automatic collection back."""
+    assert gc.isenabled()
+    pacer = GcPacer()
+    try:
+        pacer.start()
+        assert pacer.active and not gc.isenabled() and gc.get_freeze_count() > 0
+        victim = _Cycle()
+        ref = weakref.ref(victim)
+        del victim
+        # far past the generation-0 threshold (kept alive: the count is allocations minus deallocations)
+        junk = [[] for _ in range(5 * gc.get_threshold()[0])]
+        assert ref() is not None  # no automatic collection happened in the "tick"
+        pacer.step()
+        del junk
+        assert sum(pacer.collections) == 1 and len(pacer.pause_s) == 1
+        pacer.step()  # nothing due right after a collection
+        assert sum(pacer.collections) == 1
+        if ref() is not None:  # collected generation 0 only; the cycle may sit in an older one by now
+            gc.collect()
+        assert ref() is None
+        summary = pacer.summary()
+        assert summary["gc_collections"] == pacer.collections and summary["gc_ms_max"] >= summary["gc_ms_p99"] > 0
+    finally:
+        pacer.stop()
+    assert gc.isenabled() and gc.get_freeze_count() == 0 and not pacer.active
+    pacer.stop()  # idempotent
+
+
+def test_gc_pacer_leaves_a_disabled_collector_alone():
+    """A program that turned the collector off keeps it off: start() does nothing, step() never collects."""
+    gc.disable()
+    try:
+        pacer = GcPacer()
+        pacer.start()
+        pacer.step()
+        assert not pacer.active and pacer.collections == [0, 0, 0] and gc.get_freeze_count() == 0
+        pacer.stop()
+        assert not gc.isenabled()
+    finally:
+        gc.enable()

@@ -17,6 +17,9 @@ measures, carries out and records. Three coroutines share the work inside a ``Ta
   so the vehicle handles them at the same simulated time in every run.
 * the **watchdog** steps the sequence from the wall clock when ticks stop (a lockstep vehicle that died
   sends no more markers), so a lost vehicle is noticed within the sequence's timeouts.
+
+Python's garbage collector never runs inside a tick: :class:`~companion.flight.scheduling.GcPacer` runs it
+after each tick (and from the watchdog every 0.1 s), and the report's ``loop`` says how long it took.
 * the **housekeeping** loop sends our HEARTBEAT at 1 Hz and flushes the journal (per-tick log and
   provisional report) once a second.
 
@@ -51,7 +54,7 @@ from companion.estimation.swing_feed import SwingFeed
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
 from companion.flight.health import LinkHealth, lockstep_telemetry_wall_s
-from companion.flight.scheduling import involuntary_switches, request_fifo, restore_normal
+from companion.flight.scheduling import GcPacer, involuntary_switches, request_fifo, restore_normal
 from companion.flight.sequence import FlightSequence, Observation, SequenceConfig, Stream
 from companion.mavlink_io.codec import send_set_attitude_target
 from companion.mavlink_io.commands import RequestLink
@@ -220,6 +223,7 @@ class FlightApp:
         )
         self.journal = Journal(opts.run_dir, self.log, mission) if opts.run_dir is not None else None
         self.stats = LoopStats()
+        self.gc_pacer = GcPacer()  # the garbage collector runs between ticks, not inside them
         self.abort_reason: str | None = None
         self.last_cmd: Command | None = None
         self.sinks: list[TelemetrySink] = list(opts.sinks)
@@ -328,7 +332,7 @@ class FlightApp:
         self._marker_pending = False
         if self.opts.lockstep and not self._done.is_set():
             self._tick()
-            self._ingest()
+            self._between_ticks()
 
     # ------------------------------------------------------------------ public
     def request_abort(self, reason: str = "operator abort (Ctrl-C)") -> None:
@@ -346,6 +350,7 @@ class FlightApp:
         elif self.opts.rt_priority > 0:
             log.info("lockstep: --rt-priority ignored (no deadlines to meet)")
             self.stats.scheduling = "SCHED_OTHER (lockstep: --rt-priority ignored)"
+        self.gc_pacer.start()
         try:
             async with self.link, asyncio.TaskGroup() as tg:
                 if not self.opts.lockstep:
@@ -354,6 +359,7 @@ class FlightApp:
                 tg.create_task(self._housekeeping_loop())
                 tg.create_task(self._connected_hook())
         finally:
+            self.gc_pacer.stop()
             if fifo:
                 restore_normal()
             if self.journal is not None:
@@ -399,6 +405,7 @@ class FlightApp:
             if not self._done.is_set() and time.monotonic() - self._last_tick_wall > 0.1:
                 self.stats.watchdog_steps += 1
                 self._tick(watchdog=True)
+            self.gc_pacer.step()  # garbage is collected while ticks stop too
 
     async def _tick_loop(self) -> None:
         loop = asyncio.get_running_loop()
@@ -416,7 +423,12 @@ class FlightApp:
                 self.stats.late_ticks += 1
                 k += int(lateness // self.period_s)  # skip the missed deadlines, no catch-up burst
             self._tick()
-            self._ingest()
+            self._between_ticks()
+
+    def _between_ticks(self) -> None:
+        """After a tick's setpoint is out: obstacle input, then any garbage collection that is due."""
+        self._ingest()
+        self.gc_pacer.step()
 
     def _ingest(self) -> None:
         """After a tick: let the obstacle input parse what waits (its own time budget), timed apart from the tick;
@@ -697,7 +709,7 @@ class FlightApp:
                 {"t_s": t.now_s, "wall_s": t.wall_s, "from": t.from_state, "to": t.to_state, "reason": t.reason}
                 for t in self.seq.transitions
             ],
-            "loop": self.stats.summary(),
+            "loop": self.stats.summary() | self.gc_pacer.summary(),
             "link": {"received": self.link.received, "sent": self.link.sent, "rejected": dict(self.link.rejected),
                      **self.health.summary()},
             "rejected_telemetry": dict(self.state.rejected),
