@@ -124,6 +124,7 @@ class FlyOptions:
     start_here: bool = False  # fly the mission from where the vehicle stands (its start moved there)
     signing_key: bytes | None = None  # MAVLink 2 signing: sign everything sent, accept only signed frames
     rt_priority: int = 0  # > 0: the control thread runs SCHED_FIFO at this priority while flying (scheduling.py)
+    rt_priority_asked: bool = True  # False: the priority is fly's default, so a refusal is no warning
     # Fault injection for the fault suite: from this vehicle time (s) on, every tick that would compute a setpoint
     # raises (``SLUNGPILOT_INJECT_TICK_ERROR_AT_S`` sets it for ``slungpilot fly``). None in normal use.
     inject_tick_error_at_s: float | None = None
@@ -346,7 +347,7 @@ class FlightApp:
         # lockstep has no deadlines, and its loop runs flat out: SCHED_FIFO would starve every other thread
         fifo = self.opts.rt_priority > 0 and not self.opts.lockstep
         if fifo:
-            self.stats.scheduling = request_fifo(self.opts.rt_priority)
+            self.stats.scheduling = request_fifo(self.opts.rt_priority, asked=self.opts.rt_priority_asked)
         elif self.opts.rt_priority > 0:
             log.info("lockstep: --rt-priority ignored (no deadlines to meet)")
             self.stats.scheduling = "SCHED_OTHER (lockstep: --rt-priority ignored)"
