@@ -305,17 +305,15 @@ def companion_killed_report(workdir: Path, *, after_s: float = 3.0) -> dict[str,
             "lost_s": max(0.0, flown_s - rows / 250.0), "stderr": rb.stderr[-500:]}
 
 
-def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt_priority: int | None = None,
+def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt_priority: int = 0,
                 vary: bool = False) -> dict[str, Any]:
     """A local Zenoh peer floods valid obstacle lists (far-away trunks) at ``rate_hz`` during a real-time
-    forest flight: the mission must complete with the tick's p99 under 1 ms. ``rt_priority``: fly's
-    ``--rt-priority`` (None: its default, SCHED_FIFO 10 where permitted; 0: normal scheduling); ``vary``: every
-    list differs (no list can be adopted again unparsed)."""
-    run_dir = workdir / ("zenoh-flood" + ("-vary" if vary else "") +
-                         (f"-rt{rt_priority}" if rt_priority is not None else ""))
+    forest flight: the mission must complete with the tick's p99 under 1 ms. ``rt_priority`` > 0: fly with
+    ``--rt-priority``; ``vary``: every list differs (no list can be adopted again unparsed)."""
+    run_dir = workdir / ("zenoh-flood" + ("-vary" if vary else "") + (f"-rt{rt_priority}" if rt_priority else ""))
     port = free_tcp_port()
     ep = f"tcp/127.0.0.1:{port}"
-    extra = ["--rt-priority", str(rt_priority)] if rt_priority is not None else []
+    extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
     fly = Proc.start(fly_argv(run_dir, "--sitl", "--realtime", "--zenoh-listen", ep, *extra))
     flood = None
     try:
@@ -339,7 +337,7 @@ def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt
             "tick_ms_p99": rep["loop"]["tick_ms_p99"], "tick_ms_max": rep["loop"]["tick_ms_max"],
             "tick_cpu_ms_p99": rep["loop"]["tick_cpu_ms_p99"], "ingest_ms_p99": rep["loop"]["ingest_ms_p99"],
             "preempted_ticks": rep["loop"]["preempted_ticks"], "scheduling": rep["loop"]["scheduling"],
-            "jitter_ms_p99": rep["loop"]["jitter_ms_p99"],
+            "jitter_ms_p99": rep["loop"]["jitter_ms_p99"], "jitter_ms_max": rep["loop"]["jitter_ms_max"],
             "late_ticks": rep["loop"]["late_ticks"], "max_swing_rad": rep["max_swing_rad"],
             "collisions": rep["collisions"], "zenoh": rep.get("zenoh", {}),
             "telemetry_age_ms_p99": rep["link"]["telemetry_age_ms_p99"]}
@@ -634,11 +632,11 @@ SCENARIOS = {
     "tick_exception": tick_exception,
     "diverged": diverged,
     "companion_killed_report": companion_killed_report,
-    "zenoh_flood": zenoh_flood,  # fly's default: the control loops SCHED_FIFO 10 where permitted
-    # the same flood at normal scheduling (fly --rt-priority 0): what the kernel's preemption costs
-    "zenoh_flood_normal_scheduling": lambda workdir: zenoh_flood(workdir, rt_priority=0),
+    "zenoh_flood": zenoh_flood,
+    # the same flood, the control loops SCHED_FIFO (fly --rt-priority): what the kernel's preemption costs
+    "zenoh_flood_rt": lambda workdir: zenoh_flood(workdir, rt_priority=10),
     # every list different: none can be adopted again unparsed
-    "zenoh_flood_varying": lambda workdir: zenoh_flood(workdir, vary=True),
+    "zenoh_flood_varying_rt": lambda workdir: zenoh_flood(workdir, rt_priority=10, vary=True),
     "jitter": jitter,
     "signed_forced_disarm": signed_forced_disarm,
 }

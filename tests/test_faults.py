@@ -61,8 +61,7 @@ def test_zenoh_flood_of_valid_obstacles_does_not_starve_the_loop(workdir):
     assert r["outcome"] == "completed" and r["reached_goal"] and r["collisions"] == 0, r
     assert r["zenoh"]["obstacles_in_accepted"] > 0  # the newest lists got through
     assert r["tick_ms_p99"] < 20.0, r  # the old failure: ticks never yielding (bench faults prints the p99)
-    # a real-time flight's control loop runs SCHED_FIFO 10 by default, or says why not
-    assert r["scheduling"] == "SCHED_FIFO 10" or r["scheduling"].startswith("SCHED_OTHER (SCHED_FIFO 10 refused"), r
+    assert r["jitter_ms_max"] >= r["jitter_ms_p99"] > 0.0, r  # the longest stall is reported, not only the p99
 
 
 def test_50_ms_jitter_and_reordering_do_not_make_it_diverge(workdir):

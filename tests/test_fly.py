@@ -42,7 +42,7 @@ def test_forest_mission_flies_over_mavlink_in_lockstep(forest_run):
     assert rep["arrival"]["tolerance_m"] == 0.1 and rep["arrival"]["dwell_s"] > 0 and rep["arrival"]["t_s"] is not None
     assert rep["loop"]["ticks"] > 1000
     assert sum(rep["loop"]["gc_collections"]) > 0  # the garbage collector ran, between ticks (GcPacer)
-    assert rep["loop"]["scheduling"] == "SCHED_OTHER"  # lockstep: no deadlines, no real-time priority by default
+    assert rep["loop"]["scheduling"] == "SCHED_OTHER"  # lockstep: no deadlines, no real-time priority
     # the loop lag over MAVLink is the bundled vehicle's clean-link lag: measured, and the feed-forward never faded
     lag = rep["loop_lag"]
     assert 50.0 <= lag["lag_ms_min"] <= lag["lag_ms_max"] <= 110.0 and lag["nominal_ms"] == 80.0

@@ -32,7 +32,7 @@ from companion.control.params import ControllerConfig, load_controller_config
 from companion.core.mission import Mission, load_mission
 from companion.errors import ConfigError, LinkError
 from companion.flight.app import FlightApp, FlyOptions
-from companion.flight.scheduling import DEFAULT_RT_PRIORITY, RT_PRIORITY_MAX
+from companion.flight.scheduling import RT_PRIORITY_MAX
 from companion.mavlink_io.signing import load_key_file
 from companion.report.run_folder import write_run
 from companion.zenoh_io.session import zenoh_config_from_args
@@ -155,17 +155,13 @@ async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:
     except ValueError as exc:
         raise ConfigError(f"--hover-thrust/--profile: {exc}") from None
     gains = load_gains(args.gains)
-    lockstep = args.lockstep or (args.sitl and not args.realtime)
-    # real time: the control loops SCHED_FIFO by default, as PX4 runs its own; lockstep has no deadlines
-    rt_priority = args.rt_priority if args.rt_priority is not None else (0 if lockstep else DEFAULT_RT_PRIORITY)
     opts = FlyOptions(
-        connect=args.connect, rate_hz=args.rate_hz, lockstep=lockstep,
+        connect=args.connect, rate_hz=args.rate_hz, lockstep=args.lockstep or (args.sitl and not args.realtime),
         profile=profile, hover_thrust_norm=args.hover_thrust, gains=gains, payload_sysid=args.payload_sysid,
         swing_input=args.swing_input, heartbeat_timeout_s=args.heartbeat_timeout,
         ready_timeout_s=args.ready_timeout, land_on_abort=not args.no_land_on_abort,
         tlog_path=run_dir / "flight.tlog", run_dir=run_dir, allow_param_writes=not args.no_param_writes,
-        start_here=args.start_here, rt_priority=rt_priority,
-        rt_priority_asked=args.rt_priority is not None,
+        start_here=args.start_here, rt_priority=args.rt_priority,
         signing_key=None if args.signing_key is None else load_key_file(args.signing_key),
         inject_tick_error_at_s=_env_float("SLUNGPILOT_INJECT_TICK_ERROR_AT_S"),
     )

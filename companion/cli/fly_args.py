@@ -72,12 +72,12 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                    help="never change an autopilot parameter: refuse the vehicle instead (ArduCopter needs "
                         "GUID_OPTIONS bit 3, which the companion otherwise sets; see docs/autopilots.md)")
     p.add_argument("--rate-hz", type=float, default=250.0, help="outer-loop rate (Hz)")
-    p.add_argument("--rt-priority", type=int, default=None, metavar="N",
+    p.add_argument("--rt-priority", type=int, default=0, metavar="N",
                    help="run the control thread SCHED_FIFO at priority N (1..99) while flying, as PX4 runs its "
-                        "loops on Linux, so other processes cannot preempt a tick (with --sitl the bundled "
-                        "vehicle's loop too); 0: normal scheduling. Default in real time: 10. Needs CAP_SYS_NICE "
-                        "or `ulimit -r` >= N, else the flight goes on at normal priority and the report's "
-                        "loop.scheduling says why. Lockstep always runs at normal priority (no deadlines)")
+                        "loops on Linux, so other processes cannot preempt a tick; needs CAP_SYS_NICE or "
+                        "`ulimit -r` >= N, else the flight goes on at normal priority and the report says so. "
+                        "Real time only (ignored in lockstep, which has no deadlines). Recommended on a shared or "
+                        "busy computer (default 0: normal scheduling)")
     p.add_argument("--payload-sysid", type=int, default=None,
                    help="MAVLink system id of the payload's own stream (default 2; 200+N with --sitl --instance N)")
     p.add_argument("--swing-input", choices=SWING_INPUTS, default="auto",

@@ -124,7 +124,6 @@ class FlyOptions:
     start_here: bool = False  # fly the mission from where the vehicle stands (its start moved there)
     signing_key: bytes | None = None  # MAVLink 2 signing: sign everything sent, accept only signed frames
     rt_priority: int = 0  # > 0: the control thread runs SCHED_FIFO at this priority while flying (scheduling.py)
-    rt_priority_asked: bool = True  # False: the priority is fly's default, so a refusal is no warning
     # Fault injection for the fault suite: from this vehicle time (s) on, every tick that would compute a setpoint
     # raises (``SLUNGPILOT_INJECT_TICK_ERROR_AT_S`` sets it for ``slungpilot fly``). None in normal use.
     inject_tick_error_at_s: float | None = None
@@ -152,7 +151,7 @@ class LoopStats:
     def summary(self) -> dict[str, float | int | None]:
         """ticks; tick (compute) and send time p50/p99/max (ms); the tick's CPU time p50/p99 (ms: what it costs
         when not preempted; on a busy machine the wall time includes other processes' time slices); late ticks;
-        preempted ticks and the thread's scheduling policy; jitter p99 (ms, real time only)."""
+        preempted ticks and the thread's scheduling policy; jitter p99 and max (ms, real time only)."""
         t = np.array(self.tick_s) if self.tick_s else np.zeros(1)
         tc = np.array(self.tick_cpu_s) if self.tick_cpu_s else np.zeros(1)
         snd = np.array(self.send_s) if self.send_s else np.zeros(1)
@@ -174,6 +173,7 @@ class LoopStats:
             "ingest_errors": self.ingest_errors,
             "watchdog_steps": self.watchdog_steps,
             "jitter_ms_p99": float(np.percentile(np.abs(j), 99) * 1e3),
+            "jitter_ms_max": float(np.abs(j).max() * 1e3),  # the longest the loop kept a tick waiting (a stall)
             "realtime_factor": self.realtime_factor(),
         }
 
@@ -347,7 +347,7 @@ class FlightApp:
         # lockstep has no deadlines, and its loop runs flat out: SCHED_FIFO would starve every other thread
         fifo = self.opts.rt_priority > 0 and not self.opts.lockstep
         if fifo:
-            self.stats.scheduling = request_fifo(self.opts.rt_priority, asked=self.opts.rt_priority_asked)
+            self.stats.scheduling = request_fifo(self.opts.rt_priority)
         elif self.opts.rt_priority > 0:
             log.info("lockstep: --rt-priority ignored (no deadlines to meet)")
             self.stats.scheduling = "SCHED_OTHER (lockstep: --rt-priority ignored)"

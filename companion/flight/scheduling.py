@@ -29,14 +29,11 @@ import time
 log = logging.getLogger(__name__)
 
 RT_PRIORITY_MAX = 99
-DEFAULT_RT_PRIORITY = 10  # what ``fly`` asks for in real time unless told otherwise (``--rt-priority 0``: normal)
 
 
-def request_fifo(priority: int, *, asked: bool = True) -> str:
+def request_fifo(priority: int) -> str:
     """Put the calling thread in ``SCHED_FIFO`` at ``priority`` (1..99); returns what the thread now runs as,
-    e.g. ``"SCHED_FIFO 10"`` or ``"SCHED_OTHER (SCHED_FIFO 10 refused: ...)"``. Never raises for a refusal,
-    which is logged as a warning when the user ``asked`` for the priority and as information when it was the
-    default."""
+    e.g. ``"SCHED_FIFO 10"`` or ``"SCHED_OTHER (SCHED_FIFO 10 refused: ...)"``. Never raises for a refusal."""
     if not 1 <= priority <= RT_PRIORITY_MAX:
         raise ValueError(f"real-time priority must be in 1..{RT_PRIORITY_MAX}, got {priority}")
     if not hasattr(os, "SCHED_FIFO"):
@@ -47,8 +44,7 @@ def request_fifo(priority: int, *, asked: bool = True) -> str:
         soft, _ = resource.getrlimit(resource.RLIMIT_RTPRIO)
         why = (f"{exc.strerror}; needs CAP_SYS_NICE or `ulimit -r` >= {priority} (now {soft})"
                if exc.errno == 1 else str(exc))
-        log.log(logging.WARNING if asked else logging.INFO,
-                "real-time priority refused (%s): the control loop runs at normal priority", why)
+        log.warning("real-time priority refused (%s): the control loop runs at normal priority", why)
         return f"SCHED_OTHER (SCHED_FIFO {priority} refused: {why})"
     log.info("control thread runs SCHED_FIFO at priority %d", priority)
     return f"SCHED_FIFO {priority}"
