@@ -305,6 +305,29 @@ def companion_killed_report(workdir: Path, *, after_s: float = 3.0) -> dict[str,
             "lost_s": max(0.0, flown_s - rows / 250.0), "stderr": rb.stderr[-500:]}
 
 
+def companion_paused(workdir: Path, *, pause_s: float = 0.7, after_s: float = 3.0) -> dict[str, Any]:
+    """SIGSTOP the companion mid-flight (real time) for ``pause_s``, then SIGCONT, as a VM pause or a swapped-out
+    process would: the vehicle went on streaming into the companion's socket, so the silence was the companion's
+    own. The flight must go on (not ``link_lost``), and the report counts the deaf spell."""
+    run_dir = workdir / "companion-paused"
+    fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh", "--realtime"))
+    try:
+        fly.wait_for("takeover → mission")
+        time.sleep(after_s)
+        os.kill(fly.proc.pid, signal.SIGSTOP)
+        time.sleep(pause_s)
+        os.kill(fly.proc.pid, signal.SIGCONT)
+        code = fly.finish(120)
+    finally:
+        fly.kill_all()
+    rep = read_report(run_dir)
+    loop = rep["loop"]
+    return {"exit_code": code, "outcome": rep["outcome"], "outcome_detail": rep.get("outcome_detail"),
+            "reached_goal": rep["reached_goal"], "collisions": rep["collisions"], "max_swing_rad": rep["max_swing_rad"],
+            "jitter_ms_max": loop["jitter_ms_max"], "deaf_spells": loop.get("deaf_spells"),
+            "deaf_s_max": loop.get("deaf_s_max")}
+
+
 def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt_priority: int = 0,
                 vary: bool = False) -> dict[str, Any]:
     """A local Zenoh peer floods valid obstacle lists (far-away trunks) at ``rate_hz`` during a real-time
@@ -632,6 +655,7 @@ SCENARIOS = {
     "tick_exception": tick_exception,
     "diverged": diverged,
     "companion_killed_report": companion_killed_report,
+    "companion_paused": companion_paused,
     "zenoh_flood": zenoh_flood,
     # the same flood, the control loops SCHED_FIFO (fly --rt-priority): what the kernel's preemption costs
     "zenoh_flood_rt": lambda workdir: zenoh_flood(workdir, rt_priority=10),

@@ -55,6 +55,15 @@ def test_companion_killed_leaves_a_journal_the_report_is_rebuilt_from(workdir):
     assert r["lost_s"] <= 1.0, r  # at most a second of flight missing
 
 
+def test_a_paused_companion_does_not_blame_the_vehicle_for_its_own_deafness(workdir):
+    """SIGSTOP/SIGCONT of the companion for 0.7 s mid-flight (a VM pause): the vehicle kept streaming into our
+    socket, so this is no lost link (it was, before deaf spells: link_lost after 0.71 s). The flight goes on."""
+    r = faults.companion_paused(workdir, pause_s=0.7)
+    assert r["outcome"] == "completed" and r["reached_goal"] and r["exit_code"] == 0, r
+    assert r["deaf_spells"] >= 1 and 0.6 <= r["deaf_s_max"] <= 5.0, r
+    assert r["jitter_ms_max"] >= 600.0, r
+
+
 def test_zenoh_flood_of_valid_obstacles_does_not_starve_the_loop(workdir):
     r = faults.zenoh_flood(workdir, rate_hz=1000.0, trunks=256)
     assert r["flood_sent"] > 5000, r

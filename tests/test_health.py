@@ -1,6 +1,8 @@
 """Link health from MAVLink sequence numbers and telemetry ages (pure)."""
 
-from companion.flight.health import LinkHealth, lockstep_telemetry_wall_s
+import pytest
+
+from companion.flight.health import DeafSpells, LinkHealth, lockstep_telemetry_wall_s
 from companion.flight.sequence import SequenceConfig
 
 
@@ -36,3 +38,20 @@ def test_lockstep_telemetry_ages_on_vehicle_time_while_the_vehicle_waits_on_us()
     # once it has had our answer and is silent, the wall clock rules as in real time
     assert lockstep_telemetry_wall_s(wall, 99.0, 99.5, 5.0, 5.0, 5.0) == 99.0
     assert lockstep_telemetry_wall_s(wall, None, 99.5, 5.0, 5.0, 5.0) is None
+
+
+def test_deaf_spells_take_our_own_stalls_out_of_the_vehicles_silence():
+    d = DeafSpells(min_s=0.1)
+    d.add(10.0, 10.05)  # ordinary jitter: the silence through it counts
+    assert d.count == 0 and d.heard_at(9.0, 11.0) == 9.0
+    d.add(20.0, 20.7)  # our loop stopped for 0.7 s
+    d.add(19.95, 20.72)  # the watchdog reports the same stall: one spell, extended
+    assert d.count == 1 and d.longest_s == pytest.approx(0.77)
+    # last heard just before the stall: 20.8 - heard = the 0.03 s we listened, not 0.85 s
+    assert 20.8 - d.heard_at(19.95, 20.8) == pytest.approx(0.08)
+    assert d.heard_at(20.75, 20.8) == 20.75  # heard after the stall: nothing to take out
+    assert d.heard_at(None, 20.8) is None
+    # a vehicle silent for 1 s of listening after the stall is lost whatever came before
+    assert 21.72 - d.heard_at(19.0, 21.72) == pytest.approx(2.72 - 0.77)
+    d.add(30.0, 30.2)
+    assert d.count == 2 and d.summary() == {"deaf_spells": 2, "deaf_s_max": pytest.approx(0.77)}

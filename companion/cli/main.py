@@ -232,7 +232,8 @@ def _add_bench(sub: Any) -> None:
         help="model: RK4 steps/s of the dynamics kernel; sitl: lockstep real-time factor of the bundled vehicle; "
              "fly: the forest mission end to end (real-time factor, tick p50/p99); zenoh: 250 Hz swing stream "
              "latency/loss between two processes and the cost per publish; faults: the fault suite's scenarios "
-             "(vehicle killed, fuzz, tick exceptions, companion killed, Zenoh flood, jitter) with their figures; "
+             "(vehicle killed, fuzz, tick exceptions, companion killed or paused, Zenoh flood, jitter) with their "
+             "figures; "
              "view: the 3-D view's recording cost per tick and per minute of flight (--seconds of flight, "
              "default 60)",
     )

@@ -17,11 +17,11 @@ measures, carries out and records. Three coroutines share the work inside a ``Ta
   so the vehicle handles them at the same simulated time in every run.
 * the **watchdog** steps the sequence from the wall clock when ticks stop (a lockstep vehicle that died
   sends no more markers), so a lost vehicle is noticed within the sequence's timeouts.
+* the **housekeeping** loop sends our HEARTBEAT at 1 Hz and flushes the journal (per-tick log and
+  provisional report) once a second.
 
 Python's garbage collector never runs inside a tick: :class:`~companion.flight.scheduling.GcPacer` runs it
 after each tick (and from the watchdog every 0.1 s), and the report's ``loop`` says how long it took.
-* the **housekeeping** loop sends our HEARTBEAT at 1 Hz and flushes the journal (per-tick log and
-  provisional report) once a second.
 
 An exception inside a tick is caught at the tick's boundary, counted and logged at most once a second; the
 sequence holds and lands after three in a row. Nothing received from the link can raise into the loop.
@@ -53,7 +53,7 @@ from companion.estimation.estimate import Estimate
 from companion.estimation.swing_feed import SwingFeed
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
-from companion.flight.health import LinkHealth, lockstep_telemetry_wall_s
+from companion.flight.health import DeafSpells, LinkHealth, lockstep_telemetry_wall_s
 from companion.flight.scheduling import GcPacer, involuntary_switches, request_fifo, restore_normal
 from companion.flight.sequence import FlightSequence, Observation, SequenceConfig, Stream
 from companion.mavlink_io.codec import send_set_attitude_target
@@ -225,6 +225,7 @@ class FlightApp:
         self.journal = Journal(opts.run_dir, self.log, mission) if opts.run_dir is not None else None
         self.stats = LoopStats()
         self.gc_pacer = GcPacer()  # the garbage collector runs between ticks, not inside them
+        self.deaf = DeafSpells()  # real time: when our own loop stalled, the vehicle's silence is not its own
         self.abort_reason: str | None = None
         self.last_cmd: Command | None = None
         self.sinks: list[TelemetrySink] = list(opts.sinks)
@@ -400,9 +401,12 @@ class FlightApp:
     async def _watchdog_loop(self) -> None:
         """Step the sequence from the wall clock whenever ticks stop for 0.1 s (nothing is streamed)."""
         while not self._done.is_set():
+            due = time.monotonic() + 0.1
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(0.1):
                     await self._done.wait()
+            if not self.opts.lockstep:  # a stalled loop wakes the watchdog late, maybe before the tick loop
+                self.deaf.add(due, time.monotonic())
             if not self._done.is_set() and time.monotonic() - self._last_tick_wall > 0.1:
                 self.stats.watchdog_steps += 1
                 self._tick(watchdog=True)
@@ -420,6 +424,7 @@ class FlightApp:
                 await asyncio.sleep(delay)
             lateness = loop.time() - deadline
             self.stats.jitter_s.append(lateness)
+            self.deaf.add(deadline, deadline + lateness)
             if lateness > self.period_s:
                 self.stats.late_ticks += 1
                 k += int(lateness // self.period_s)  # skip the missed deadlines, no catch-up burst
@@ -490,6 +495,9 @@ class FlightApp:
                 # its HEARTBEAT runs on simulated time, which may run slower than the wall clock on a loaded
                 # machine: in lockstep any datagram from the vehicle shows it is alive
                 hb_wall = max(hb_wall, self.link.last_rx_wall)
+        else:  # silence while our own loop stalled is not the vehicle's: ages count only time we listened
+            tel_wall = self.deaf.heard_at(tel_wall, wall)
+            hb_wall = self.deaf.heard_at(hb_wall, wall)
         return Observation(
             now_s=st.t_s if self.opts.lockstep else wall, wall_s=wall, heartbeat_wall_s=hb_wall,
             telemetry_wall_s=tel_wall, telemetry_ready=st.ready(),
@@ -710,7 +718,7 @@ class FlightApp:
                 {"t_s": t.now_s, "wall_s": t.wall_s, "from": t.from_state, "to": t.to_state, "reason": t.reason}
                 for t in self.seq.transitions
             ],
-            "loop": self.stats.summary() | self.gc_pacer.summary(),
+            "loop": self.stats.summary() | self.gc_pacer.summary() | self.deaf.summary(),
             "link": {"received": self.link.received, "sent": self.link.sent, "rejected": dict(self.link.rejected),
                      **self.health.summary()},
             "rejected_telemetry": dict(self.state.rejected),

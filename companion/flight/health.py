@@ -7,11 +7,16 @@ highest seen arrived out of order (counted as reordered, and no longer as lost).
 Staleness: a tick is *stale* when the older of position and attitude is more than three control periods
 older than its usual interval (learned from the stream itself, so an autopilot that sends 50 Hz instead
 of the 250 Hz asked for is not stale for it).
+Deaf spells: while the companion's own loop is stalled (its process stopped, swapped out, or the VM paused), the
+vehicle's datagrams wait unread in the socket, so the silence is ours. :class:`DeafSpells` keeps those spells
+and moves a "last heard" time forward by the deaf time since, so a lost link is declared only for silence the
+companion was there to hear.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -115,3 +120,39 @@ def lockstep_telemetry_wall_s(wall_s: float, telemetry_wall_s: float | None, las
     if telemetry_wall_s is None or last_answer_wall_s > telemetry_wall_s:
         return telemetry_wall_s
     return wall_s - max(0.0, vehicle_t_s - min(pos_t_s, att_t_s))
+
+
+@dataclass
+class DeafSpells:
+    """Spells (wall clock, s) when the companion's loop could not listen: stalls of at least ``min_s``."""
+
+    min_s: float = 0.1  # shorter waits are ordinary jitter; silence through them counts
+    count: int = 0
+    longest_s: float = 0.0
+    _spells: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=64))
+
+    def add(self, start_s: float, end_s: float) -> None:
+        """A loop should have run at ``start_s`` and ran at ``end_s``; kept when it is a stall (>= ``min_s``).
+        The tick loop and the watchdog both report the same stall: one overlapping the last spell extends it."""
+        if end_s - start_s < self.min_s:
+            return
+        if self._spells and start_s <= self._spells[-1][1] and end_s >= self._spells[-1][0]:
+            s0, e0 = self._spells[-1]
+            start_s, end_s = min(s0, start_s), max(e0, end_s)
+            self._spells[-1] = (start_s, end_s)
+        else:
+            self._spells.append((start_s, end_s))
+            self.count += 1
+        self.longest_s = max(self.longest_s, end_s - start_s)
+
+    def heard_at(self, wall_s: float | None, now_s: float) -> float | None:
+        """``wall_s`` (when something was last heard) moved forward by the deaf time between it and ``now_s``, so
+        ``now_s - heard_at(...)`` counts only time the loop was listening; None stays None."""
+        if wall_s is None:
+            return None
+        deaf = sum(max(0.0, min(end, now_s) - max(start, wall_s)) for start, end in self._spells)
+        return wall_s + deaf
+
+    def summary(self) -> dict[str, float | int]:
+        """How many deaf spells and the longest (s)."""
+        return {"deaf_spells": self.count, "deaf_s_max": self.longest_s}

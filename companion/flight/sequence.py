@@ -19,7 +19,8 @@ what                                        what the sequence does
 ==========================================  ============================================================
 no HEARTBEAT for 1.5 s (5 s before          ``link_lost``: stop streaming (the autopilot's own offboard-loss
 setpoints flow), or no position/attitude    failsafe takes over), finish
-for 0.5 s (wall clock)
+for 0.5 s (wall clock; the app leaves out
+its own stalls, ``health.DeafSpells``)
 the vehicle leaves our mode, or is          ``preempted``: stop streaming, finish (the vehicle's last
 disarmed in flight, by someone else         STATUSTEXT says who/why when it said so)
 Ctrl-C / abort                              HOLD, then LAND (unless told to hold only)
