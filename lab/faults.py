@@ -462,18 +462,11 @@ def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, dr
     from lab.udp_proxy import _addr  # noqa: F401  (the proxy runs as its own process; imported to fail early)
 
     run_dir = workdir / (f"jitter-{delay_ms:g}-{jitter_ms:g}" + ("" if vehicle == "bundled" else f"-{vehicle}"))
-    veh_port, vside, comp_port, gcs = free_udp_port(), free_udp_port(), free_udp_port(), free_udp_port()
-    if vehicle == "bundled":
-        sim = subprocess.Popen([sys.executable, "-m", "sim_bridge", "--onboard-port", str(veh_port),
-                                "--onboard-remote", f"127.0.0.1:{vside}", "--gcs-port", str(gcs), "--gcs-remote",
-                                f"127.0.0.1:{free_udp_port()}"], cwd=ROOT, stdout=subprocess.PIPE,
-                               stderr=subprocess.DEVNULL, text=True)
-        extra = ["--profile", "bundled"]
-    else:
-        from lab import sitl_external
-
-        sim = sitl_external.start_arducopter(workdir, vside)  # dials the proxy from an ephemeral port
-        extra = ["--mission", "forest_arducopter_sitl", "--ready-timeout", "120"]
+    veh_port, vside, comp_port = free_udp_port(), free_udp_port(), free_udp_port()
+    # the vehicle sends to the proxy's vehicle side (ArduCopter dials it from an ephemeral port)
+    sim, extra = _start_vehicle(vehicle, vside, 0, workdir, onboard_port=veh_port)
+    if vehicle == "ardupilot":
+        extra = [*extra, "--mission", "forest_arducopter_sitl", "--ready-timeout", "120"]
     proxy = subprocess.Popen([sys.executable, "-m", "lab.udp_proxy", "--vehicle",
                               f"127.0.0.1:{veh_port}" if vehicle == "bundled" else "first",
                               "--companion", f"127.0.0.1:{comp_port}", "--listen-vehicle-side", str(vside),
@@ -482,10 +475,6 @@ def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, dr
     fly = None
     try:
         assert proxy.stdout is not None
-        if vehicle == "bundled":
-            assert sim.stdout is not None
-            if not sim.stdout.readline().startswith("SITL READY"):
-                raise RuntimeError("vehicle did not start")
         if not proxy.stdout.readline().startswith("PROXY"):
             raise RuntimeError("proxy did not start")
         fly = Proc.start(fly_argv(run_dir, "--connect", f"udpin://127.0.0.1:{comp_port}", "--no-zenoh", *extra))
@@ -510,15 +499,22 @@ def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, dr
             "link": rep["link"], "loop_lag": rep.get("loop_lag")}
 
 
-def _start_vehicle(kind: str, comp_port: int, instance: int, workdir: Path) -> tuple[subprocess.Popen, list[str]]:
-    """A real-time vehicle sending its onboard link to ``comp_port``: the bundled one, PX4 SIH (port 14540+I) or
+def _start_vehicle(kind: str, comp_port: int, instance: int, workdir: Path,
+                   onboard_port: int | None = None) -> tuple[subprocess.Popen, list[str]]:
+    """A real-time vehicle sending its onboard link to ``comp_port``: the bundled one (its onboard link bound to
+    ``onboard_port``, any free one by default; returned once it says it is ready), PX4 SIH (port 14540+I) or
     ArduCopter SITL (:mod:`lab.sitl_external`); and the ``fly`` options it needs."""
     if kind == "bundled":
-        argv = [sys.executable, "-m", "sim_bridge", "--onboard-port", str(free_udp_port()), "--onboard-remote",
-                f"127.0.0.1:{comp_port}", "--gcs-port", str(free_udp_port()), "--gcs-remote",
+        argv = [sys.executable, "-m", "sim_bridge", "--onboard-port", str(onboard_port or free_udp_port()),
+                "--onboard-remote", f"127.0.0.1:{comp_port}", "--gcs-port", str(free_udp_port()), "--gcs-remote",
                 f"127.0.0.1:{free_udp_port()}"]
-        return subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                start_new_session=True), ["--profile", "bundled"]
+        sim = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                               start_new_session=True)
+        assert sim.stdout is not None
+        if not sim.stdout.readline().startswith("SITL READY"):
+            sim.kill()
+            raise RuntimeError("the bundled vehicle did not start")
+        return sim, ["--profile", "bundled"]
     from lab import sitl_external
 
     if kind == "px4":
