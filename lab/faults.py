@@ -361,6 +361,7 @@ def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt
             "tick_cpu_ms_p99": rep["loop"]["tick_cpu_ms_p99"], "ingest_ms_p99": rep["loop"]["ingest_ms_p99"],
             "preempted_ticks": rep["loop"]["preempted_ticks"], "scheduling": rep["loop"]["scheduling"],
             "jitter_ms_p99": rep["loop"]["jitter_ms_p99"], "jitter_ms_max": rep["loop"]["jitter_ms_max"],
+            "deaf_spells": rep["loop"]["deaf_spells"], "deaf_s_max": rep["loop"]["deaf_s_max"],
             "late_ticks": rep["loop"]["late_ticks"], "max_swing_rad": rep["max_swing_rad"],
             "collisions": rep["collisions"], "zenoh": rep.get("zenoh", {}),
             "telemetry_age_ms_p99": rep["link"]["telemetry_age_ms_p99"]}
