@@ -324,8 +324,8 @@ def companion_paused(workdir: Path, *, pause_s: float = 0.7, after_s: float = 3.
     loop = rep["loop"]
     return {"exit_code": code, "outcome": rep["outcome"], "outcome_detail": rep.get("outcome_detail"),
             "reached_goal": rep["reached_goal"], "collisions": rep["collisions"], "max_swing_rad": rep["max_swing_rad"],
-            "jitter_ms_max": loop["jitter_ms_max"], "deaf_spells": loop.get("deaf_spells"),
-            "deaf_s_max": loop.get("deaf_s_max")}
+            "jitter_ms_max": loop["jitter_ms_max"], "deaf_spells": loop["deaf_spells"],
+            "deaf_s_max": loop["deaf_s_max"]}
 
 
 def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt_priority: int = 0,
