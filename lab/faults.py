@@ -329,14 +329,20 @@ def companion_paused(workdir: Path, *, pause_s: float = 0.7, after_s: float = 3.
 
 
 def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt_priority: int = 0,
-                vary: bool = False) -> dict[str, Any]:
+                vary: bool = False, disk_hog: bool = False) -> dict[str, Any]:
     """A local Zenoh peer floods valid obstacle lists (far-away trunks) at ``rate_hz`` during a real-time
     forest flight: the mission must complete with the tick's p99 under 1 ms. ``rt_priority`` > 0: fly with
-    ``--rt-priority``; ``vary``: every list differs (no list can be adopted again unparsed)."""
-    run_dir = workdir / ("zenoh-flood" + ("-vary" if vary else "") + (f"-rt{rt_priority}" if rt_priority else ""))
+    ``--rt-priority``; ``vary``: every list differs (no list can be adopted again unparsed); ``disk_hog``: with
+    ``lab.disk_hog`` writing to the same disk meanwhile (:func:`disk_storm`)."""
+    run_dir = workdir / ("zenoh-flood" + ("-vary" if vary else "") + (f"-rt{rt_priority}" if rt_priority else "")
+                         + ("-disk-hog" if disk_hog else ""))
     port = free_tcp_port()
     ep = f"tcp/127.0.0.1:{port}"
     extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
+    hog = None
+    if disk_hog:
+        hog = subprocess.Popen([sys.executable, "-m", "lab.disk_hog", "--dir", str(workdir / "disk-hog")], cwd=ROOT,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     fly = Proc.start(fly_argv(run_dir, "--sitl", "--realtime", "--zenoh-listen", ep, *extra))
     flood = None
     try:
@@ -346,17 +352,14 @@ def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt
         flood = subprocess.Popen(flood_argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         code = fly.finish(180)
     finally:
-        if flood is not None:
-            flood.send_signal(signal.SIGINT)
-            try:
-                out, _ = flood.communicate(timeout=20)
-            except subprocess.TimeoutExpired:
-                flood.kill()
-                out, _ = flood.communicate()
+        out = _stop(flood)
+        hog_out = _stop(hog)
         fly.kill_all()
     sent = json.loads(out.strip().splitlines()[-1]).get("sent", 0) if out.strip() else 0
     rep = read_report(run_dir)
-    return {"exit_code": code, "outcome": rep["outcome"], "reached_goal": rep["reached_goal"], "flood_sent": sent,
+    return {"hog": json.loads(hog_out.strip().splitlines()[-1]) if hog_out.strip() else None,
+            "journal": rep.get("journal"),
+            "exit_code": code, "outcome": rep["outcome"], "reached_goal": rep["reached_goal"], "flood_sent": sent,
             "tick_ms_p99": rep["loop"]["tick_ms_p99"], "tick_ms_max": rep["loop"]["tick_ms_max"],
             "tick_cpu_ms_p99": rep["loop"]["tick_cpu_ms_p99"], "ingest_ms_p99": rep["loop"]["ingest_ms_p99"],
             "preempted_ticks": rep["loop"]["preempted_ticks"], "scheduling": rep["loop"]["scheduling"],
@@ -365,6 +368,28 @@ def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt
             "late_ticks": rep["loop"]["late_ticks"], "max_swing_rad": rep["max_swing_rad"],
             "collisions": rep["collisions"], "zenoh": rep.get("zenoh", {}),
             "telemetry_age_ms_p99": rep["link"]["telemetry_age_ms_p99"]}
+
+
+def disk_storm(workdir: Path) -> dict[str, Any]:
+    """The 1 kHz Zenoh flood flight (:func:`zenoh_flood`) while another process keeps the same disk busy
+    (``lab.disk_hog``: a 400 MB file and 4,000 small ones written and removed, round after round, as a
+    ``git clone`` does). The machine's CPUs are saturated, so the file system's own journal commits late, and a
+    file rename waits for it: before the journal's and the tlog's writes moved to threads of their own, such a
+    rename held the control loop for up to 0.8 s. Reports the longest stall and the journal's lag."""
+    return zenoh_flood(workdir, disk_hog=True)
+
+
+def _stop(proc: subprocess.Popen | None) -> str:
+    """SIGINT a helper process of a scenario and return its stdout ("" if there was none)."""
+    if proc is None:
+        return ""
+    proc.send_signal(signal.SIGINT)
+    try:
+        out, _ = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+    return out
 
 
 def flood_main(argv: list[str]) -> int:
@@ -660,6 +685,7 @@ SCENARIOS = {
     "zenoh_flood_varying_rt": lambda workdir: zenoh_flood(workdir, rt_priority=10, vary=True),
     "jitter": jitter,
     "signed_forced_disarm": signed_forced_disarm,
+    "disk_storm": disk_storm,
 }
 
 

@@ -18,7 +18,9 @@ measures, carries out and records. Three coroutines share the work inside a ``Ta
 * the **watchdog** steps the sequence from the wall clock when ticks stop (a lockstep vehicle that died
   sends no more markers), so a lost vehicle is noticed within the sequence's timeouts.
 * the **housekeeping** loop sends our HEARTBEAT at 1 Hz and flushes the journal (per-tick log and
-  provisional report) once a second.
+  provisional report) once a second. The loop only hands the bytes over; the journal's own thread writes them
+  (:mod:`companion.disk_writer`), because a disk busy with another process's writes held a file rename for up
+  to 0.8 s.
 
 Python's garbage collector never runs inside a tick: :class:`~companion.flight.scheduling.GcPacer` runs it
 after each tick (and from the watchdog every 0.1 s), and the report's ``loop`` says how long it took.
@@ -390,10 +392,10 @@ class FlightApp:
                 self.link.mav.heartbeat_send(mav_type, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0,
                                              mavlink2.MAV_STATE_ACTIVE)
             if self.journal is not None:
-                try:
+                try:  # hands bytes to the journal's thread: no disk wait here
                     self.journal.flush(self._provisional())
-                except OSError as exc:
-                    log.error("cannot write the journal: %s", exc)
+                except Exception:  # the housekeeping loop must outlive a bug in the report's facts
+                    log.exception("cannot hand the journal its flush")
             with contextlib.suppress(TimeoutError):
                 async with asyncio.timeout(1.0):
                     await self._done.wait()
@@ -732,6 +734,7 @@ class FlightApp:
             "autopilot_params": self.params,
             "mission_frame": {"origin_local_ned_m": self.origin_ned_m.tolist(), "origin": self.origin_source},
             "arrival": dict(self.core.arrival),
+            "journal": self.journal.summary() if self.journal is not None else None,
         }
 
     def _estimator_facts(self) -> dict[str, Any] | None:

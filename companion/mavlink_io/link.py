@@ -38,6 +38,7 @@ from urllib.parse import urlparse
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.disk_writer import DiskWriter
 from companion.errors import ConfigError, LinkError
 from companion.mavlink_io import signing
 from companion.mavlink_io.codec import STX_V2 as _STX_V2
@@ -77,22 +78,44 @@ _TLOG_STAMP = struct.Struct(">Q")
 
 
 class TlogWriter:
-    """Append-only .tlog: each record is a big-endian uint64 UNIX time in µs followed by the frame bytes."""
+    """Append-only .tlog: each record is a big-endian uint64 UNIX time in µs followed by the frame bytes.
+
+    Records collect in memory and go to a :class:`~companion.disk_writer.DiskWriter` thread every
+    ``HANDOVER_S`` or ``HANDOVER_BYTES``, whichever comes first: the event loop never waits for the disk.
+    """
+
+    HANDOVER_S = 0.25
+    HANDOVER_BYTES = 64 * 1024
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = path.open("wb")
+        self._writer = DiskWriter("tlog")
+        self._writer.create(path)
+        self._buf = bytearray()
+        self._handed_at = time.monotonic()
+        self._closed = False
 
     def write(self, frame: bytes) -> None:
-        if self._fh.closed:
+        if self._closed:
             return
-        self._fh.write(_TLOG_STAMP.pack(int(time.time() * 1e6)) + frame)
+        now = time.time()
+        self._buf += _TLOG_STAMP.pack(int(now * 1e6))
+        self._buf += frame
+        mono = time.monotonic()
+        if len(self._buf) >= self.HANDOVER_BYTES or mono - self._handed_at >= self.HANDOVER_S:
+            self._hand_over(mono)
+
+    def _hand_over(self, mono: float) -> None:
+        if self._buf:
+            self._writer.append(self.path, bytes(self._buf))
+            self._buf.clear()
+        self._handed_at = mono
 
     def close(self) -> None:
-        if not self._fh.closed:
-            self._fh.flush()
-            self._fh.close()
+        if not self._closed:
+            self._hand_over(time.monotonic())
+            self._closed = True
+            self._writer.close()
 
 
 RCVBUF_BYTES = 4 << 20  # asked of the kernel (it grants up to net.core.rmem_max)

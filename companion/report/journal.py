@@ -1,5 +1,7 @@
 """Logs that survive ``kill -9``: the per-tick flight log and a provisional report, flushed to the run folder
-at least once a second while flying, so a companion killed at any moment loses at most a second.
+at least once a second while flying, so a companion killed at any moment loses at most a second (plus however
+long the disk is stalled: the writes happen on a :class:`~companion.disk_writer.DiskWriter` thread, so a slow
+disk delays the journal, never the control loop; ``lag_s_max`` in the report's ``journal`` says by how much).
 
 Files (next to what :func:`companion.report.run_folder.write_run` writes at the end):
 
@@ -16,15 +18,16 @@ Files (next to what :func:`companion.report.run_folder.write_run` writes at the 
 
 from __future__ import annotations
 
+import io
 import json
 import logging
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from companion.core.mission import Mission, load_mission, mission_to_toml
+from companion.disk_writer import DiskWriter
 from companion.report.metrics import FlightLog
 
 log = logging.getLogger(__name__)
@@ -66,42 +69,50 @@ def _rows(flog: FlightLog, start: int, stop: int) -> np.ndarray:
     return np.hstack(cols)
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 class Journal:
-    """Appends the rows of ``flog`` not yet on disk, and the provisional report, whenever :meth:`flush` runs."""
+    """Hands the rows of ``flog`` not yet handed over, and the provisional report, to its disk writer thread
+    whenever :meth:`flush` runs. The rows and the JSON are made here (the caller's thread, where ``flog`` grows);
+    only the file I/O is the writer's."""
 
     def __init__(self, run_dir: Path, flog: FlightLog, mission: Mission) -> None:
         self.run_dir = run_dir
         self.flog = flog
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / MISSION).write_text(mission_to_toml(mission))
-        self._fh = (run_dir / JOURNAL).open("wb")
-        self._written = 0
+        self.writer = DiskWriter("journal")
+        self.writer.create(run_dir / JOURNAL)
+        self._handed = 0
+        self._closed = False
         self.flushes = 0
 
     def flush(self, provisional: dict[str, Any]) -> None:
-        """Write the new rows and the provisional report; cheap when nothing changed."""
-        if self._fh.closed:
+        """Hand over the new rows and the provisional report; never waits for the disk."""
+        if self._closed:
             return
         n = len(self.flog)
-        if n > self._written:
-            np.save(self._fh, _rows(self.flog, self._written, n), allow_pickle=False)
-            self._fh.flush()
-            self._written = n
-        _write_atomic(self.run_dir / PARTIAL, json.dumps(provisional, default=_jsonable) + "\n")
+        if n > self._handed:
+            buf = io.BytesIO()
+            np.save(buf, _rows(self.flog, self._handed, n), allow_pickle=False)
+            self.writer.append(self.run_dir / JOURNAL, buf.getvalue())
+            self._handed = n
+        self.writer.replace(self.run_dir / PARTIAL, (json.dumps(provisional, default=_jsonable) + "\n").encode())
         self.flushes += 1
 
-    def close(self, provisional: dict[str, Any] | None = None) -> None:
-        """Flush (with ``provisional`` if given) and close."""
+    def close(self, provisional: dict[str, Any] | None = None, timeout_s: float = 30.0) -> bool:
+        """Flush (with ``provisional`` if given), wait up to ``timeout_s`` for the disk, close; False if the
+        disk did not take everything in time. Idempotent."""
+        if self._closed:
+            return True
         if provisional is not None:
             self.flush(provisional)
-        if not self._fh.closed:
-            self._fh.close()
+        self._closed = True
+        return self.writer.close(timeout_s)
+
+    def summary(self) -> dict[str, Any]:
+        """For the report: flushes handed over, written batches, the longest wait for the disk (s), errors."""
+        w = self.writer
+        return {"flushes": self.flushes, "batches": w.batches, "lag_s_max": round(w.lag_s_max, 4),
+                "errors": w.errors, "last_error": w.last_error}
 
 
 def _jsonable(v: Any) -> Any:
