@@ -98,8 +98,7 @@ class TlogWriter:
     def write(self, frame: bytes) -> None:
         if self._closed:
             return
-        now = time.time()
-        self._buf += _TLOG_STAMP.pack(int(now * 1e6))
+        self._buf += _TLOG_STAMP.pack(int(time.time() * 1e6))
         self._buf += frame
         mono = time.monotonic()
         if len(self._buf) >= self.HANDOVER_BYTES or mono - self._handed_at >= self.HANDOVER_S:
