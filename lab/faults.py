@@ -325,7 +325,7 @@ def companion_paused(workdir: Path, *, pause_s: float = 0.7, after_s: float = 3.
     return {"exit_code": code, "outcome": rep["outcome"], "outcome_detail": rep.get("outcome_detail"),
             "reached_goal": rep["reached_goal"], "collisions": rep["collisions"], "max_swing_rad": rep["max_swing_rad"],
             "jitter_ms_max": loop["jitter_ms_max"], "deaf_spells": loop["deaf_spells"],
-            "deaf_s_max": loop["deaf_s_max"]}
+            "deaf_s_max": loop["deaf_s_max"], "stall_traces": loop["stall_traces"]}
 
 
 def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt_priority: int = 0,
@@ -365,6 +365,7 @@ def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt
             "preempted_ticks": rep["loop"]["preempted_ticks"], "scheduling": rep["loop"]["scheduling"],
             "jitter_ms_p99": rep["loop"]["jitter_ms_p99"], "jitter_ms_max": rep["loop"]["jitter_ms_max"],
             "deaf_spells": rep["loop"]["deaf_spells"], "deaf_s_max": rep["loop"]["deaf_s_max"],
+            "stalls_where": [t["ours"] or t["where"] for t in rep["loop"]["stall_traces"]],
             "late_ticks": rep["loop"]["late_ticks"], "max_swing_rad": rep["max_swing_rad"],
             "collisions": rep["collisions"], "zenoh": rep.get("zenoh", {}),
             "telemetry_age_ms_p99": rep["link"]["telemetry_age_ms_p99"]}

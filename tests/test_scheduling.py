@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import gc
+import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -11,7 +13,7 @@ import weakref
 
 import pytest
 
-from companion.flight.scheduling import GcPacer, involuntary_switches, request_fifo, restore_normal
+from companion.flight.scheduling import GcPacer, StallTracer, involuntary_switches, request_fifo, restore_normal
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "SCHED_FIFO"), reason="POSIX real-time scheduling not available")
 
@@ -123,3 +125,66 @@ def test_gc_pacer_leaves_a_disabled_collector_alone():
         assert not gc.isenabled()
     finally:
         gc.enable()
+
+
+def _stuck_in_here(release: threading.Event) -> None:
+    release.wait(10.0)
+
+
+def test_a_stalled_loop_is_traced_where_it_stands():
+    """The loop thread blocks inside a known function: the tracer records that function, once per stall."""
+    tracer = StallTracer(threshold_s=0.05, poll_s=0.01)
+    release = threading.Event()
+    done = threading.Event()
+
+    def loop() -> None:
+        tracer.start()
+        tracer.beat()
+        _stuck_in_here(release)  # the stall: no beat until released
+        tracer.beat()
+        done.set()
+
+    t = threading.Thread(target=loop)
+    t.start()
+    assert tracer.traced.wait(10.0), "no stall traced"
+    release.set()
+    t.join(10.0)
+    assert done.is_set()
+    tracer.stop()
+    s = tracer.summary()
+    assert s["stalls_traced"] == 1
+    (rec,) = s["stall_traces"]
+    assert rec["where"].endswith("in wait")  # threading.Event.wait, called from ...
+    assert rec["ours"] is None  # no companion code on that stack
+    assert any("in _stuck_in_here" in line for line in rec["stack"]), rec
+    assert rec["stalled_s"] >= 0.05
+
+
+def test_a_stopped_process_is_not_blamed_on_a_line_of_code():
+    """The whole process stopped (SIGSTOP, as a VM pause): the tracer says so instead of showing a stack."""
+    code = (
+        "import os, signal, time, threading, json\n"
+        "from companion.flight.scheduling import StallTracer\n"
+        "t = StallTracer(threshold_s=0.05, poll_s=0.01)\n"
+        "t.start()\n"
+        "t.beat()\n"
+        "os.kill(os.getpid(), signal.SIGSTOP)\n"  # resumed by the test's SIGCONT
+        "assert t.traced.wait(10.0)\n"
+        "t.stop()\n"
+        "print(json.dumps(t.summary()))\n"
+    )
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        for _ in range(1000):  # wait until it has stopped itself
+            with open(f"/proc/{p.pid}/stat") as fh:
+                if fh.read().split(") ")[1].startswith("T"):
+                    break
+            threading.Event().wait(0.01)
+        threading.Event().wait(0.3)  # stopped for 0.3 s
+        os.kill(p.pid, signal.SIGCONT)
+        out, _ = p.communicate(timeout=30)
+    finally:
+        p.kill()
+    s = json.loads(out)
+    assert s["stalls_traced"] >= 1
+    assert s["stall_traces"][0]["where"].startswith("the process was not running"), s

@@ -23,7 +23,9 @@ measures, carries out and records. Three coroutines share the work inside a ``Ta
   to 0.8 s.
 
 Python's garbage collector never runs inside a tick: :class:`~companion.flight.scheduling.GcPacer` runs it
-after each tick (and from the watchdog every 0.1 s), and the report's ``loop`` says how long it took.
+after each tick (and from the watchdog every 0.1 s), and the report's ``loop`` says how long it took. When the
+loop stalls for 0.1 s anyway, :class:`~companion.flight.scheduling.StallTracer` records where
+(``loop.stall_traces``).
 
 An exception inside a tick is caught at the tick's boundary, counted and logged at most once a second; the
 sequence holds and lands after three in a row. Nothing received from the link can raise into the loop.
@@ -56,7 +58,7 @@ from companion.estimation.swing_feed import SwingFeed
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
 from companion.flight.health import DeafSpells, LinkHealth, lockstep_telemetry_wall_s
-from companion.flight.scheduling import GcPacer, involuntary_switches, request_fifo, restore_normal
+from companion.flight.scheduling import GcPacer, StallTracer, involuntary_switches, request_fifo, restore_normal
 from companion.flight.sequence import FlightSequence, Observation, SequenceConfig, Stream
 from companion.mavlink_io.codec import send_set_attitude_target
 from companion.mavlink_io.commands import RequestLink
@@ -228,6 +230,7 @@ class FlightApp:
         self.stats = LoopStats()
         self.gc_pacer = GcPacer()  # the garbage collector runs between ticks, not inside them
         self.deaf = DeafSpells()  # real time: when our own loop stalled, the vehicle's silence is not its own
+        self.stall_tracer = StallTracer()  # real time: where the loop was when it stalled for 0.1 s
         self.abort_reason: str | None = None
         self.last_cmd: Command | None = None
         self.sinks: list[TelemetrySink] = list(opts.sinks)
@@ -355,6 +358,8 @@ class FlightApp:
             log.info("lockstep: --rt-priority ignored (no deadlines to meet)")
             self.stats.scheduling = "SCHED_OTHER (lockstep: --rt-priority ignored)"
         self.gc_pacer.start()
+        if not self.opts.lockstep:
+            self.stall_tracer.start()
         try:
             async with self.link, asyncio.TaskGroup() as tg:
                 if not self.opts.lockstep:
@@ -363,6 +368,7 @@ class FlightApp:
                 tg.create_task(self._housekeeping_loop())
                 tg.create_task(self._connected_hook())
         finally:
+            self.stall_tracer.stop()
             self.gc_pacer.stop()
             if fifo:
                 restore_normal()
@@ -424,6 +430,7 @@ class FlightApp:
             delay = deadline - loop.time()
             if delay > 0:
                 await asyncio.sleep(delay)
+            self.stall_tracer.beat()
             lateness = loop.time() - deadline
             self.stats.jitter_s.append(lateness)
             self.deaf.add(deadline, deadline + lateness)
@@ -432,6 +439,7 @@ class FlightApp:
                 k += int(lateness // self.period_s)  # skip the missed deadlines, no catch-up burst
             self._tick()
             self._between_ticks()
+        self.stall_tracer.stop()  # what follows the last tick (closing files, the report) is not a stall
 
     def _between_ticks(self) -> None:
         """After a tick's setpoint is out: obstacle input, then any garbage collection that is due."""
@@ -720,7 +728,8 @@ class FlightApp:
                 {"t_s": t.now_s, "wall_s": t.wall_s, "from": t.from_state, "to": t.to_state, "reason": t.reason}
                 for t in self.seq.transitions
             ],
-            "loop": self.stats.summary() | self.gc_pacer.summary() | self.deaf.summary(),
+            "loop": (self.stats.summary() | self.gc_pacer.summary() | self.deaf.summary()
+                     | self.stall_tracer.summary()),
             "link": {"received": self.link.received, "sent": self.link.sent, "rejected": dict(self.link.rejected),
                      **self.health.summary()},
             "rejected_telemetry": dict(self.state.rejected),

@@ -17,6 +17,10 @@ development VM a full collection with numpy, scipy, Zenoh and Rerun imported too
 periods; generation-1 collections at start-up 1.2-2.8 ms). :class:`GcPacer` runs
 the collector between ticks instead, with CPython's own thresholds, after freezing what was allocated before
 the flight (the configuration, the imported modules) so the collections scan only the flight's own objects.
+
+When the loop stalls anyway, :class:`StallTracer` notes where: a deaf spell in the report then comes with the
+loop thread's stack at the moment it had stalled for 0.1 s (that is how the journal's file rename on the event loop
+was found to hold it for up to 0.8 s while another process kept the disk busy).
 """
 
 from __future__ import annotations
@@ -25,7 +29,10 @@ import gc
 import logging
 import os
 import resource
+import sys
+import threading
 import time
+import traceback
 
 import numpy as np
 
@@ -121,3 +128,100 @@ class GcPacer:
         return {"gc_collections": list(self.collections),
                 "gc_ms_p99": float(np.percentile(p, 99) * 1e3) if p else 0.0,
                 "gc_ms_max": max(p) * 1e3 if p else 0.0}
+
+
+class StallTracer:
+    """A thread that notes where the control loop was when it stalled.
+
+    The loop calls :meth:`beat` every time it comes round (each tick); the tracer thread wakes every ``poll_s``
+    and, the first time in a stall that the last beat is more than ``threshold_s`` old, records the loop thread's
+    stack (``sys._current_frames``). It needs the GIL for that: a loop blocked in a system call (a disk, a socket)
+    has released it, and a loop busy in Python hands it over within the interpreter's switch interval (5 ms). When
+    the tracer itself woke more than ``threshold_s`` late, the whole process had not been running (a VM pause,
+    SIGSTOP, swapped out): that is recorded as such, without a stack (which would only show the loop catching up),
+    even if the loop came round before the tracer did. ``stalled_s`` is how long the stall had lasted when seen.
+    At most ``keep`` stalls are recorded (``stalls`` counts them all).
+    """
+
+    def __init__(self, threshold_s: float = 0.1, poll_s: float = 0.02, keep: int = 20) -> None:
+        self.threshold_s = threshold_s
+        self.poll_s = poll_s
+        self.keep = keep
+        self.traces: list[dict[str, object]] = []
+        self.stalls = 0
+        self.traced = threading.Event()  # set at the first trace (tests wait on it)
+        self._beat_s = time.monotonic()
+        self._traced_beat: float | None = None
+        self._loop_ident: int | None = None
+        self._t0 = time.monotonic()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        """Watch the calling thread (the loop's) from a thread of its own."""
+        if self._thread is not None:
+            return
+        self._loop_ident = threading.get_ident()
+        self._t0 = self._beat_s = time.monotonic()
+        self._thread = threading.Thread(target=self._run, name="stall-tracer", daemon=True)
+        self._thread.start()
+
+    def beat(self) -> None:
+        """The loop came round (call once per tick)."""
+        self._beat_s = time.monotonic()
+
+    def stop(self) -> None:
+        """Stop watching. Idempotent."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(1.0)
+
+    def _run(self) -> None:
+        last_wake = time.monotonic()
+        while not self._stop.wait(self.poll_s):
+            now = time.monotonic()
+            woke_late_s = now - last_wake - self.poll_s
+            last_wake = now
+            beat = self._beat_s
+            if woke_late_s > self.threshold_s:  # nothing ran, the loop may well have come round first since
+                self._traced_beat = beat
+                self._add({"t_s": round(now - woke_late_s - self._t0, 3), "stalled_s": round(woke_late_s, 3),
+                           "where": f"the process was not running (the tracer itself woke {woke_late_s:.3f} s "
+                                    "late)", "ours": None, "stack": []})
+                continue
+            if now - beat <= self.threshold_s or self._traced_beat == beat:
+                continue
+            self._traced_beat = beat  # one record per stall
+            self._add(self._record(now, beat))
+
+    def _add(self, rec: dict[str, object]) -> None:
+        self.stalls += 1
+        if len(self.traces) < self.keep:
+            self.traces.append(rec)
+        log.warning("control loop stalled %.3f s, in %s (ours: %s)", rec["stalled_s"], rec["where"], rec["ours"])
+        self.traced.set()
+
+    def _record(self, now: float, beat: float) -> dict[str, object]:
+        rec: dict[str, object] = {"t_s": round(beat - self._t0, 3), "stalled_s": round(now - beat, 3)}
+        frame = sys._current_frames().get(self._loop_ident or 0)
+        stack = traceback.extract_stack(frame) if frame is not None else []
+        lines = [f"{_short_path(f.filename)}:{f.lineno} in {f.name}" for f in stack[-12:]]
+        rec["where"] = lines[-1] if lines else "unknown"
+        ours = [ln for ln in lines if ln.startswith(("companion/", "sim_bridge/", "lab/"))]
+        rec["ours"] = ours[-1] if ours else None
+        rec["stack"] = lines
+        return rec
+
+    def summary(self) -> dict[str, object]:
+        """For the report's ``loop``: how many stalls of ``threshold_s`` or more, and where the first ones were."""
+        return {"stalls_traced": self.stalls, "stall_traces": self.traces}
+
+
+def _short_path(filename: str) -> str:
+    """``.../site-packages/zenoh/x.py`` → ``zenoh/x.py``; ``/work/main/companion/a.py`` → ``companion/a.py``."""
+    parts = filename.replace("\\", "/").split("/")
+    for anchor in ("site-packages", "companion", "sim_bridge", "lab"):
+        if anchor in parts:
+            i = len(parts) - 1 - parts[::-1].index(anchor)
+            return "/".join(parts[i + 1:] if anchor == "site-packages" else parts[i:])
+    return "/".join(parts[-2:])
