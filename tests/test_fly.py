@@ -247,3 +247,19 @@ def test_ctrl_c_in_the_terminal_reaches_the_companion_only_which_lands_the_vehic
     assert "Mode: AUTO.LOITER" in err and "Mode: AUTO.LAND" in err and "no COMMAND_ACK" not in err
     rep = json.loads((tmp_path / "report.json").read_text())
     assert rep["outcome"] == "aborted" and rep["final_phase"] == "landed"
+
+
+def test_the_provisional_loop_timings_cover_a_window_and_the_final_ones_everything():
+    """The journal's provisional report is made on the loop every second: its percentiles must not grow with the
+    flight (a 30 min flight made them cost 150 ms); the final report's cover every tick."""
+    from companion.flight.app import LoopStats
+
+    s = LoopStats()
+    s.ticks = 6
+    s.tick_s = [9.0, 9.0, 9.0, 0.001, 0.001, 0.001]
+    s.tick_cpu_s, s.send_s, s.jitter_s, s.ingest_s = list(s.tick_s), list(s.tick_s), list(s.tick_s), list(s.tick_s)
+    w = s.summary(window=3)
+    assert w["window_ticks"] == 3 and w["tick_ms_max"] == 1.0 and w["jitter_ms_max"] == 1.0
+    assert w["ingest_ms_p99"] == pytest.approx(1.0)
+    full = s.summary()
+    assert full["window_ticks"] is None and full["tick_ms_max"] == 9000.0 and full["ticks"] == 6
