@@ -3,8 +3,10 @@
 A write to a local file usually takes microseconds, but not always: while another process wrote a few hundred MB
 (a ``git clone`` on the same disk), the journal's ``os.replace`` of its provisional report blocked the event loop
 for 0.5-0.8 s in flooded real-time flights (faulthandler tracebacks taken 80 ms into each stall all stood in
-``journal._write_atomic``; ext4 writes a replaced file's data out before the rename returns). One such stall
-ended a flight ``preempted``: the vehicle's own offboard failsafe fired while no setpoint went out. PX4's logger
+``journal._write_atomic``: the rename waited in the kernel, probably for ext4's journal, which the other
+process's writes kept busy; a rename over an existing file also starts writing the new file out). A flight
+during such I/O ended ``preempted`` after a 1.1 s stall: the vehicle's own offboard failsafe fired while no
+setpoint went out. PX4's logger
 and ArduPilot's do their file I/O on a low-priority thread for the same reason.
 
 :class:`DiskWriter` takes bytes from the caller and returns at once; its thread does the ``write``, ``flush``
