@@ -188,3 +188,17 @@ def test_a_stopped_process_is_not_blamed_on_a_line_of_code():
     s = json.loads(out)
     assert s["stalls_traced"] >= 1
     assert s["stall_traces"][0]["where"].startswith("the process was not running"), s
+
+
+def test_a_loop_that_keeps_the_gil_is_not_taken_for_a_stopped_process():
+    """One long call that never releases the GIL keeps the tracer from running: its CPU time shows the loop was
+    busy, so the trace says so (and not that the process was stopped)."""
+    import re
+
+    tracer = StallTracer(threshold_s=0.05, poll_s=0.01)
+    tracer.start()
+    tracer.beat()
+    re.match(r"(a+)+$", "a" * 24 + "b")  # catastrophic backtracking: a long C call, the GIL held throughout
+    assert tracer.traced.wait(10.0)
+    tracer.stop()
+    assert tracer.traces[0]["where"].startswith("the loop thread kept the GIL"), tracer.traces

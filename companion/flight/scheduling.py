@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import math
 import os
 import resource
 import sys
@@ -137,10 +138,11 @@ class StallTracer:
     and, the first time in a stall that the last beat is more than ``threshold_s`` old, records the loop thread's
     stack (``sys._current_frames``). It needs the GIL for that: a loop blocked in a system call (a disk, a socket)
     has released it, and a loop busy in Python hands it over within the interpreter's switch interval (5 ms). When
-    the tracer itself woke more than ``threshold_s`` late, the whole process had not been running (a VM pause,
-    SIGSTOP, swapped out): that is recorded as such, without a stack (which would only show the loop catching up),
-    even if the loop came round before the tracer did. ``stalled_s`` is how long the stall had lasted when seen.
-    At most ``keep`` stalls are recorded (``stalls`` counts them all).
+    the tracer itself woke more than ``threshold_s`` late, either the whole process had not been running (a VM
+    pause, SIGSTOP, swapped out) or the loop thread kept the GIL in one long call (a C function that does not
+    release it); the loop thread's CPU time over the gap tells which, and that is recorded, without a stack (which
+    would only show the loop catching up), even if the loop came round before the tracer did. ``stalled_s`` is how
+    long the stall had lasted when seen. At most ``keep`` stalls are recorded (``stalls`` counts them all).
     """
 
     def __init__(self, threshold_s: float = 0.1, poll_s: float = 0.02, keep: int = 20) -> None:
@@ -176,18 +178,32 @@ class StallTracer:
         if self._thread is not None:
             self._thread.join(1.0)
 
+    def _loop_cpu_s(self) -> float:
+        """The loop thread's CPU time so far (s), or NaN where the platform cannot tell."""
+        try:
+            return time.clock_gettime(time.pthread_getcpuclockid(self._loop_ident or 0))
+        except (AttributeError, OSError):
+            return math.nan
+
     def _run(self) -> None:
         last_wake = time.monotonic()
+        last_cpu = self._loop_cpu_s()
         while not self._stop.wait(self.poll_s):
             now = time.monotonic()
+            cpu = self._loop_cpu_s()
             woke_late_s = now - last_wake - self.poll_s
-            last_wake = now
+            loop_cpu_s = cpu - last_cpu
+            last_wake, last_cpu = now, cpu
             beat = self._beat_s
-            if woke_late_s > self.threshold_s:  # nothing ran, the loop may well have come round first since
+            if woke_late_s > self.threshold_s:  # the tracer could not run: the loop may have come round since
                 self._traced_beat = beat
+                if loop_cpu_s > 0.5 * woke_late_s:  # the loop ran all along: one call that kept the GIL
+                    where = (f"the loop thread kept the GIL for {woke_late_s:.3f} s in one call "
+                             f"({loop_cpu_s:.3f} s of its CPU); where is not known")
+                else:
+                    where = f"the process was not running (the tracer itself woke {woke_late_s:.3f} s late)"
                 self._add({"t_s": round(now - woke_late_s - self._t0, 3), "stalled_s": round(woke_late_s, 3),
-                           "where": f"the process was not running (the tracer itself woke {woke_late_s:.3f} s "
-                                    "late)", "ours": None, "stack": []})
+                           "where": where, "ours": None, "stack": []})
                 continue
             if now - beat <= self.threshold_s or self._traced_beat == beat:
                 continue
