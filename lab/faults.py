@@ -373,10 +373,11 @@ def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt
 
 def disk_storm(workdir: Path) -> dict[str, Any]:
     """The 1 kHz Zenoh flood flight (:func:`zenoh_flood`) while another process keeps the same disk busy
-    (``lab.disk_hog``: a 400 MB file and 4,000 small ones written and removed, round after round, as a
-    ``git clone`` does). The machine's CPUs are saturated, so the file system's own journal commits late, and a
-    file rename waits for it: before the journal's and the tlog's writes moved to threads of their own, such a
-    rename held the control loop for up to 0.8 s. Reports the longest stall and the journal's lag."""
+    (``lab.disk_hog``: the venv's site-packages copied, synced and removed, round after round, as a ``git clone``
+    or an install would). Before the journal's and the tlog's writes moved to threads of their own, the journal's
+    file rename on the event loop waited in the kernel under such load and held the control loop for up to 0.8 s
+    (2 of 5 flights with this hog on 2026-12-02; a ``git clone`` in a loop did it in 4 of 5). Reports the longest
+    stall, where any stall was (``stalls_where``) and the journal's lag."""
     return zenoh_flood(workdir, disk_hog=True)
 
 
