@@ -40,7 +40,6 @@ class DiskWriter:
         self._replaces: dict[Path, bytes] = {}
         self._oldest_s: float | None = None  # monotonic time of the oldest write not yet taken
         self._closing = False
-        self._busy = False
         self.taken = 0  # times the thread took what waited (it may still be writing the last of them)
         self.batches = 0  # times it finished writing what it took
         self.errors = 0
@@ -77,7 +76,7 @@ class DiskWriter:
     def pending(self) -> bool:
         """True while something handed over is not written yet."""
         with self._cond:
-            return bool(self._appends or self._replaces or self._busy)
+            return bool(self._appends or self._replaces or self.taken != self.batches)
 
     def close(self, timeout_s: float = 30.0) -> bool:
         """Write everything handed over, close the files, stop the thread; False if the disk took longer than
@@ -101,7 +100,6 @@ class DiskWriter:
                 replaces, self._replaces = self._replaces, {}
                 oldest_s, self._oldest_s = self._oldest_s, None
                 closing = self._closing and not appends and not replaces
-                self._busy = not closing
                 self.taken += not closing
             if closing:
                 for fh in self._files.values():
@@ -109,7 +107,6 @@ class DiskWriter:
                 return
             self._write(appends, replaces)
             with self._cond:
-                self._busy = False
                 self.batches += 1
                 if oldest_s is not None:
                     self.lag_s_max = max(self.lag_s_max, time.monotonic() - oldest_s)

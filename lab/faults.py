@@ -352,12 +352,12 @@ def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt
         flood = subprocess.Popen(flood_argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         code = fly.finish(180)
     finally:
-        out = _stop(flood)
-        hog_out = _stop(hog)
+        flood_said = _stop(flood)
+        hog_said = _stop(hog)
         fly.kill_all()
-    sent = json.loads(out.strip().splitlines()[-1]).get("sent", 0) if out.strip() else 0
+    sent = (flood_said or {}).get("sent", 0)
     rep = read_report(run_dir)
-    return {"hog": json.loads(hog_out.strip().splitlines()[-1]) if hog_out.strip() else None,
+    return {"hog": hog_said,
             "journal": rep.get("journal"),
             "exit_code": code, "outcome": rep["outcome"], "reached_goal": rep["reached_goal"], "flood_sent": sent,
             "tick_ms_p99": rep["loop"]["tick_ms_p99"], "tick_ms_max": rep["loop"]["tick_ms_max"],
@@ -381,17 +381,18 @@ def disk_storm(workdir: Path) -> dict[str, Any]:
     return zenoh_flood(workdir, disk_hog=True)
 
 
-def _stop(proc: subprocess.Popen | None) -> str:
-    """SIGINT a helper process of a scenario and return its stdout ("" if there was none)."""
+def _stop(proc: subprocess.Popen | None) -> dict[str, Any] | None:
+    """SIGINT a helper process of a scenario; returns the JSON object its last stdout line holds (its counts), or
+    None if there was no process or it printed nothing."""
     if proc is None:
-        return ""
+        return None
     proc.send_signal(signal.SIGINT)
     try:
         out, _ = proc.communicate(timeout=60)
     except subprocess.TimeoutExpired:
         proc.kill()
         out, _ = proc.communicate()
-    return out
+    return json.loads(out.strip().splitlines()[-1]) if out.strip() else None
 
 
 def flood_main(argv: list[str]) -> int:
