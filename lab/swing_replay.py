@@ -1,0 +1,186 @@
+"""Replay a flown run's ``flight.tlog`` through the swing estimator, offline (issue 11).
+
+A flight against a real autopilot takes minutes of real time; its tlog keeps every datagram both ways. This feeds
+the recorded telemetry, in the order the companion received it, through the same :class:`VehicleState` and
+:class:`SwingFeed` the flight app uses, and at each setpoint the companion sent (one per tick) asks for the tick's
+estimate and hands the estimator the thrust that tick commanded (from the run's ``flight_log.npz``). So an
+estimator change can be scored on a recorded ArduCopter SIM_SLUP flight in seconds, with another
+``--swing-input`` or noise configuration. The replay is open loop: the flight itself does not change, only what the
+estimator would have said.
+
+Scores: against the payload's position fixes (ArduPilot's convention; each fix against the estimate of its own
+time, as the report's ``swing_estimator.error_at_fixes``) and against the cable-angle sensor where the vehicle has
+one (the bundled vehicle; the report's ``swing_estimation_error``).
+
+    python -m lab.swing_replay RUN_DIR [--swing-input estimate_imu] [--set q_force=1.0 ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import bisect
+import json
+import math
+import struct
+import sys
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from companion.core.mission import load_mission
+from companion.estimation.swing_estimator import SwingEstimatorConfig
+from companion.estimation.swing_feed import ESTIMATOR_INPUTS, SwingFeed
+from companion.estimation.vehicle_state import VehicleState
+from companion.mavlink_io.codec import FrameError, decode_lite
+
+_STX_V1, _STX_V2 = 0xFE, 0xFD
+_SIGNED = 0x01
+
+
+def tlog_frames(path: Path) -> list[tuple[float, bytes]]:
+    """(UNIX time s, one MAVLink frame) for every frame of a tlog (records: 8-byte big-endian µs + bytes; a
+    record may hold several frames). A torn or unknown tail ends the record."""
+    data = path.read_bytes()
+    out: list[tuple[float, bytes]] = []
+    i = 0
+    while i + 8 <= len(data):
+        (t_us,) = struct.unpack_from(">Q", data, i)
+        i += 8
+        # the record runs until the next frame start we can size; frames are self-delimiting
+        while i < len(data):
+            stx = data[i]
+            if stx == _STX_V2 and i + 3 <= len(data):
+                n = 12 + data[i + 1] + (13 if data[i + 2] & _SIGNED else 0)
+            elif stx == _STX_V1 and i + 2 <= len(data):
+                n = 8 + data[i + 1]
+            else:
+                break
+            if i + n > len(data):
+                return out  # a torn last record
+            out.append((t_us * 1e-6, data[i:i + n]))
+            i += n
+            if i + 8 <= len(data) and data[i] not in (_STX_V1, _STX_V2):
+                break  # the next record's time stamp
+        else:
+            break
+    return out
+
+
+@dataclass
+class ReplayResult:
+    """What the estimator would have said over the flight."""
+
+    swing_input: str
+    ticks: int
+    estimated_ticks: int
+    fix_error: dict[str, float | int] | None  # vs the payload's fixes (rad)
+    sensor_error: dict[str, float | int] | None  # vs the cable-angle sensor (rad)
+    counts: dict[str, int]
+    series: dict[str, np.ndarray]  # t_s, estimate α β, sensor α β (NaN where absent), fade, sigma
+
+    def summary(self) -> dict[str, Any]:
+        return {"swing_input": self.swing_input, "ticks": self.ticks, "estimated_ticks": self.estimated_ticks,
+                "error_at_fixes": self.fix_error, "error_vs_sensor": self.sensor_error, "counts": self.counts}
+
+
+def _thrust_lookup(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    with np.load(run_dir / "flight_log.npz") as z:
+        return np.asarray(z["t_s"], dtype=float), np.asarray(z["thrust_n"], dtype=float)
+
+
+def replay(run_dir: Path, swing_input: str = "estimate_imu", config: SwingEstimatorConfig | None = None,
+           payload_sysid: int = 2) -> ReplayResult:
+    """Replay ``run_dir`` (a ``slungpilot fly`` run folder with ``flight.tlog``, ``flight_log.npz`` and
+    ``mission.toml``) through a fresh estimator fed as ``swing_input`` would feed it."""
+    if swing_input not in ESTIMATOR_INPUTS:
+        raise ValueError(f"swing_input: one of {ESTIMATOR_INPUTS}, got {swing_input!r}")
+    mission = load_mission(run_dir / "mission.toml")
+    state = VehicleState(cable_length_m=mission.vehicle.l, payload_sysid=payload_sysid, swing_input=swing_input)
+    feed = SwingFeed(mission.companion_params(), swing_input, config or SwingEstimatorConfig())
+    tick_t, tick_thrust = _thrust_lookup(run_dir)
+    ours: tuple[int, int] | None = None  # our (system, component): the companion shares the vehicle's system
+    rows: list[tuple[float, float, float, float, float, float, float]] = []
+    ticks = 0
+    for wall, frame in tlog_frames(run_dir / "flight.tlog"):
+        try:
+            msg = decode_lite(frame)
+        except FrameError:  # a frame the companion rejected too (fuzz, another dialect)
+            continue
+        mtype = msg.get_type()
+        if mtype == "SET_ATTITUDE_TARGET":  # one of our ticks (sent after the tick's estimate)
+            me = (msg.get_srcSystem(), msg.get_srcComponent())
+            if ours is None:
+                ours = me
+            if me != ours:
+                continue
+            ticks += 1
+            est = state.estimate()
+            if est is None:
+                continue
+            feed.maybe_start(state)
+            chosen = feed.choose(est)
+            i = bisect.bisect_left(tick_t, est.t_s - 1e-6)
+            if i < len(tick_t) and abs(tick_t[i] - est.t_s) < 1e-3 and tick_thrust[i] > 0.0:
+                feed.commanded(est.t_s, float(tick_thrust[i]))
+            sensor = state.swing_sensor if state.swing_sensor is not None and \
+                est.t_s - state.swing_sensor_t_s <= state.swing_max_age_s else None
+            se = feed.last
+            rows.append((est.t_s,
+                         float(chosen.swing[0]) if se is not None else math.nan,
+                         float(chosen.swing[1]) if se is not None else math.nan,
+                         float(sensor[0]) if sensor is not None else math.nan,
+                         float(sensor[1]) if sensor is not None else math.nan,
+                         se.fade if se is not None else math.nan,
+                         se.sigma_rad if se is not None else math.nan))
+            continue
+        if ours is not None and (msg.get_srcSystem(), msg.get_srcComponent()) == ours:
+            continue  # our own commands and requests
+        mt = state.ingest(msg, wall)
+        if mt != "REJECTED":
+            feed.ingest(mt, msg, state)
+            if mt == "GLOBAL_POSITION_INT":
+                feed.take_fresh_offsets()
+    arr = np.array(rows, dtype=float).reshape(-1, 7)
+    both = np.all(np.isfinite(arr[:, 1:5]), axis=1)
+    sensor_err = None
+    if np.any(both):
+        e = np.hypot(arr[both, 1] - arr[both, 3], arr[both, 2] - arr[both, 4])
+        sensor_err = {"ticks": int(both.sum()), "rms_rad": float(np.sqrt(np.mean(e ** 2))), "max_rad": float(e.max())}
+    series = {k: arr[:, j] for j, k in enumerate(("t_s", "alpha", "beta", "sensor_alpha", "sensor_beta", "fade",
+                                                   "sigma_rad"))}
+    return ReplayResult(swing_input, ticks, int(np.isfinite(arr[:, 1]).sum()), feed.fix_error_summary(),
+                        sensor_err, dict(feed.counts), series)
+
+
+def _config_with(sets: list[str]) -> SwingEstimatorConfig:
+    cfg = SwingEstimatorConfig()
+    kinds = {f.name: f for f in fields(cfg)}
+    changes: dict[str, Any] = {}
+    for item in sets:
+        key, _, value = item.partition("=")
+        if key not in kinds:
+            raise SystemExit(f"--set {item}: no such estimator setting (one of {', '.join(sorted(kinds))})")
+        parsed = json.loads(value) if value[:1] in "[(" else float(value)
+        changes[key] = tuple(parsed) if isinstance(parsed, list) else parsed
+    cfg = replace(cfg, **changes)
+    cfg.validate()
+    return cfg
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m lab.swing_replay", description=__doc__.split("\n\n")[0])
+    ap.add_argument("run_dir", type=Path, help="a run folder with flight.tlog, flight_log.npz and mission.toml")
+    ap.add_argument("--swing-input", default="estimate_imu", choices=ESTIMATOR_INPUTS)
+    ap.add_argument("--payload-sysid", type=int, default=2, help="the payload's MAVLink system (default 2)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="an estimator setting (SwingEstimatorConfig field), e.g. q_force=1.0; repeatable")
+    args = ap.parse_args(argv)
+    res = replay(args.run_dir, args.swing_input, _config_with(args.set), args.payload_sysid)
+    print(json.dumps(res.summary(), indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
