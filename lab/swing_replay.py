@@ -31,7 +31,8 @@ import numpy as np
 
 from companion.core.mission import load_mission
 from companion.estimation.swing_estimator import SwingEstimatorConfig
-from companion.estimation.swing_feed import ESTIMATOR_INPUTS, SwingFeed
+from companion.estimation.swing_feed import ESTIMATOR_INPUTS, SLACK_FRACTION, SwingFeed
+from companion.estimation.swing_model import swing_from_offset
 from companion.estimation.vehicle_state import VehicleState
 from companion.mavlink_io.codec import FrameError, decode_lite
 
@@ -78,7 +79,8 @@ class ReplayResult:
     fix_error: dict[str, float | int] | None  # vs the payload's fixes (rad)
     sensor_error: dict[str, float | int] | None  # vs the cable-angle sensor (rad)
     counts: dict[str, int]
-    series: dict[str, np.ndarray]  # t_s, estimate α β, sensor α β (NaN where absent), fade, sigma
+    series: dict[str, np.ndarray]  # per tick: t_s, alpha, beta, sensor_alpha, sensor_beta (NaN where absent),
+    # fade, sigma_rad, drag_n_per_mps, payload_drag_n_per_mps2; "fixes": (n, 3) taut payload fixes (t s, α, β rad)
 
     def summary(self) -> dict[str, Any]:
         return {"swing_input": self.swing_input, "ticks": self.ticks, "estimated_ticks": self.estimated_ticks,
@@ -90,18 +92,28 @@ def _thrust_lookup(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
         return np.asarray(z["t_s"], dtype=float), np.asarray(z["thrust_n"], dtype=float)
 
 
-def replay(run_dir: Path, swing_input: str = "estimate_imu", config: SwingEstimatorConfig | None = None,
-           payload_sysid: int = 2) -> ReplayResult:
+def replay(run_dir: Path, swing_input: str = "estimate_imu", settings: dict[str, Any] | None = None,
+           payload_sysid: int = 2, payload_mass_kg: float | None = None,
+           cable_length_m: float | None = None) -> ReplayResult:
     """Replay ``run_dir`` (a ``slungpilot fly`` run folder with ``flight.tlog``, ``flight_log.npz`` and
-    ``mission.toml``) through a fresh estimator fed as ``swing_input`` would feed it."""
+    ``mission.toml``) through a fresh estimator fed as ``swing_input`` would feed it, configured as the app
+    configures it from the mission, with ``settings`` (SwingEstimatorConfig fields) changed; ``payload_mass_kg``
+    / ``cable_length_m`` replace the mission's (its ``[payload]`` table)."""
     if swing_input not in ESTIMATOR_INPUTS:
         raise ValueError(f"swing_input: one of {ESTIMATOR_INPUTS}, got {swing_input!r}")
     mission = load_mission(run_dir / "mission.toml")
-    state = VehicleState(cable_length_m=mission.vehicle.l, payload_sysid=payload_sysid, swing_input=swing_input)
-    feed = SwingFeed(mission.companion_params(), swing_input, config or SwingEstimatorConfig())
+    params = mission.companion_params()
+    params = replace(params, m=params.m if payload_mass_kg is None else payload_mass_kg,
+                     l=params.l if cable_length_m is None else cable_length_m)
+    params.validate()
+    state = VehicleState(cable_length_m=params.l, payload_sysid=payload_sysid, swing_input=swing_input)
+    config = replace(SwingEstimatorConfig(init_payload_drag=mission.payload.drag_n_per_mps2), **(settings or {}))
+    config.validate()
+    feed = SwingFeed(params, swing_input, config)
     tick_t, tick_thrust = _thrust_lookup(run_dir)
     ours: tuple[int, int] | None = None  # our (system, component): the companion shares the vehicle's system
-    rows: list[tuple[float, float, float, float, float, float, float]] = []
+    rows: list[tuple[float, ...]] = []
+    fixes: list[tuple[float, float, float]] = []  # taut payload fixes (t s, α, β rad)
     ticks = 0
     for wall, frame in tlog_frames(run_dir / "flight.tlog"):
         try:
@@ -133,7 +145,9 @@ def replay(run_dir: Path, swing_input: str = "estimate_imu", config: SwingEstima
                          float(sensor[0]) if sensor is not None else math.nan,
                          float(sensor[1]) if sensor is not None else math.nan,
                          se.fade if se is not None else math.nan,
-                         se.sigma_rad if se is not None else math.nan))
+                         se.sigma_rad if se is not None else math.nan,
+                         se.drag_n_per_mps if se is not None else math.nan,
+                         se.payload_drag_n_per_mps2 if se is not None else math.nan))
             continue
         if ours is not None and (msg.get_srcSystem(), msg.get_srcComponent()) == ours:
             continue  # our own commands and requests
@@ -141,32 +155,33 @@ def replay(run_dir: Path, swing_input: str = "estimate_imu", config: SwingEstima
         if mt != "REJECTED":
             feed.ingest(mt, msg, state)
             if mt == "GLOBAL_POSITION_INT":
-                feed.take_fresh_offsets()
-    arr = np.array(rows, dtype=float).reshape(-1, 7)
+                for t_fix, off, _vel in feed.take_fresh_offsets():
+                    if float(np.linalg.norm(off)) >= SLACK_FRACTION * feed.params.l:
+                        fixes.append((t_fix, *swing_from_offset(off)))
+    arr = np.array(rows, dtype=float).reshape(-1, 9)
     both = np.all(np.isfinite(arr[:, 1:5]), axis=1)
     sensor_err = None
     if np.any(both):
         e = np.hypot(arr[both, 1] - arr[both, 3], arr[both, 2] - arr[both, 4])
         sensor_err = {"ticks": int(both.sum()), "rms_rad": float(np.sqrt(np.mean(e ** 2))), "max_rad": float(e.max())}
     series = {k: arr[:, j] for j, k in enumerate(("t_s", "alpha", "beta", "sensor_alpha", "sensor_beta", "fade",
-                                                   "sigma_rad"))}
+                                                   "sigma_rad", "drag_n_per_mps", "payload_drag_n_per_mps2"))}
+    series["fixes"] = np.array(fixes, dtype=float).reshape(-1, 3)
     return ReplayResult(swing_input, ticks, int(np.isfinite(arr[:, 1]).sum()), feed.fix_error_summary(),
                         sensor_err, dict(feed.counts), series)
 
 
-def _config_with(sets: list[str]) -> SwingEstimatorConfig:
-    cfg = SwingEstimatorConfig()
-    kinds = {f.name: f for f in fields(cfg)}
+def parse_settings(sets: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` items (SwingEstimatorConfig fields; a value is a number or a JSON list) as a dict."""
+    names = {f.name for f in fields(SwingEstimatorConfig)}
     changes: dict[str, Any] = {}
     for item in sets:
         key, _, value = item.partition("=")
-        if key not in kinds:
-            raise SystemExit(f"--set {item}: no such estimator setting (one of {', '.join(sorted(kinds))})")
-        parsed = json.loads(value) if value[:1] in "[(" else float(value)
+        if key not in names:
+            raise SystemExit(f"--set {item}: no such estimator setting (one of {', '.join(sorted(names))})")
+        parsed = json.loads(value) if value[:1] == "[" else float(value)
         changes[key] = tuple(parsed) if isinstance(parsed, list) else parsed
-    cfg = replace(cfg, **changes)
-    cfg.validate()
-    return cfg
+    return changes
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -174,10 +189,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("run_dir", type=Path, help="a run folder with flight.tlog, flight_log.npz and mission.toml")
     ap.add_argument("--swing-input", default="estimate_imu", choices=ESTIMATOR_INPUTS)
     ap.add_argument("--payload-sysid", type=int, default=2, help="the payload's MAVLink system (default 2)")
+    ap.add_argument("--payload-mass", type=float, metavar="KG", help="the payload mass the estimator assumes")
+    ap.add_argument("--cable-length", type=float, metavar="M", help="the cable length the estimator assumes")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="an estimator setting (SwingEstimatorConfig field), e.g. q_force=1.0; repeatable")
     args = ap.parse_args(argv)
-    res = replay(args.run_dir, args.swing_input, _config_with(args.set), args.payload_sysid)
+    try:
+        res = replay(args.run_dir, args.swing_input, parse_settings(args.set), args.payload_sysid, args.payload_mass,
+                     args.cable_length)
+    except ValueError as exc:  # a setting or override out of range
+        raise SystemExit(f"error: {exc}") from None
     print(json.dumps(res.summary(), indent=1))
     return 0
 

@@ -108,6 +108,14 @@ def test_payload_table_overrides_the_companions_model_not_the_vehicle(tmp_path):
     only_l = load_mission(_write(tmp_path, GOOD + "[payload]\ncable_length_m = 0.8\n"))
     assert (only_l.companion_params().m, only_l.companion_params().l) == (0.25, 0.8)
     assert not only_l.payload.identify
+    assert only_l.payload.drag_n_per_mps2 == 0.0  # no drag said: the estimator holds the payload's drag at 0
+
+
+def test_payload_drag_coefficient_round_trips(tmp_path):
+    m = load_mission(_write(tmp_path, GOOD + "[payload]\ndrag_n_per_mps2 = 0.043\n"))
+    assert m.payload.drag_n_per_mps2 == 0.043 and not m.payload.is_default
+    assert m.companion_params() == m.vehicle  # drag alone changes nothing of the model's masses and lengths
+    assert load_mission(_write(tmp_path, mission_to_toml(m))).payload == m.payload
 
 
 @pytest.mark.parametrize(
@@ -119,6 +127,7 @@ def test_payload_table_overrides_the_companions_model_not_the_vehicle(tmp_path):
         ("identify = 1", "[payload] identify: expected bool"),
         ("length = 1.0", "[payload]: unknown key 'length'"),
         ("mass_kg = nan", "[payload] mass_kg: must be finite"),
+        ("drag_n_per_mps2 = -0.01", "[payload] drag_n_per_mps2: must be in [0, 10]"),
     ],
 )
 def test_bad_payload_table_names_file_and_key(tmp_path, table, needle):

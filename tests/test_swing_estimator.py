@@ -105,8 +105,10 @@ def test_converges_from_an_unknown_swing_on_every_path(path):
                  fixes="fixes" in path or path == "fused", skip=lambda t: t < 0.1)
     e = _err(RUN, ests, t_from=4.0)
     rms = float(np.sqrt(np.mean(e * e)))
-    # measured: imu 0.0071, imu+vel 0.0023, fixes 0.0141, fixes+vel 0.0082, fused 0.0060
-    assert rms < {"imu": 0.012, "imu+vel": 0.005, "fixes": 0.02, "fixes+vel": 0.012, "fused": 0.01}[path], rms
+    # measured: imu 0.0071, imu+vel 0.0054, fixes 0.0145, fixes+vel 0.0084, fused 0.0061. imu+vel was 0.0023
+    # before the airframe's drag coefficient became a state: in this uncontrolled drift the velocity only grows,
+    # and a drag c·v then looks like a wind that grows with it, so c is found only loosely (0.27 N per m/s, truly 0)
+    assert rms < {"imu": 0.012, "imu+vel": 0.008, "fixes": 0.02, "fixes+vel": 0.012, "fused": 0.01}[path], rms
     first = _err(RUN, ests)[:5]
     assert np.max(np.abs(first)) > 0.08  # it did start wrong
     last = ests[-1]
@@ -300,3 +302,72 @@ def test_fixes_raise_the_process_noise_when_the_model_does_not_fit():
     assert fits.q_swing_scale < 2.0 and fits.resets == 0 and e_fits < 1.05 * e_fits_fixed + 1e-4
     # the feed-forward is derived from the same model: fade it out for the payload the model does not fit
     assert adaptive.estimate(9.996).fade < 0.5 < 0.9 < fits.estimate(9.996).fade
+
+
+def _simulate_dragging(c_true: float = 0.8, k_true: float = 0.04, duration_s: float = 20.0, seed: int = 1):
+    """A vehicle flown back and forth (roll and pitch swept at 0.10 and 0.15 Hz, up to 2.6 m/s) whose airframe drags
+    by −c·(v_N, v_E, 0) and whose payload drags by −k·|v_p|·v_p; truth from the estimator's own kernel (RK2 at
+    1 ms, a force on the payload entering as its generalized forces). Rows every 4 ms: (t, swing, v, euler,
+    thrust, accelerometer with 0.03 m/s² noise, velocity with 0.02 m/s noise)."""
+    from companion.estimation.swing_model import payload_drag_unit, rotation_from_euler, translation_swing_accel
+
+    rng = np.random.default_rng(seed)
+    p, dt = P, 0.001
+    s, v = np.zeros(4), np.zeros(3)
+
+    def euler(t):
+        return 0.15 * math.sin(2 * math.pi * 0.1 * t), -0.2 * math.sin(2 * math.pi * 0.15 * t), 0.3
+
+    def deriv(t, s, v):
+        phi, th, psi = euler(t)
+        R = rotation_from_euler(phi, th, psi)
+        T = (p.M + p.m) * p.g / (math.cos(phi) * math.cos(th))
+        f = -R[:, 2] * T + np.array([-c_true * v[0], -c_true * v[1], 0.0])
+        u = payload_drag_unit(*s, *v, p.l)
+        a = translation_swing_accel(*s, *f, p.M, p.m, p.g, p.Ip, p.l, k_true * u[0], k_true * u[1], k_true * u[2])
+        return np.array([s[2], s[3], a[0], a[1]]), np.array(a[2:]), R, T
+
+    rows = []
+    for i in range(round(duration_s / dt)):
+        t = i * dt
+        ds, dv, R, T = deriv(t, s, v)
+        if i % 4 == 0:
+            rows.append((t, s.copy(), v.copy(), euler(t), T, R.T @ (dv - [0.0, 0.0, p.g]) + rng.normal(0, 0.03, 3),
+                         v + rng.normal(0, 0.02, 3)))
+        ds2, dv2, _, _ = deriv(t + 0.5 * dt, s + 0.5 * dt * ds, v + 0.5 * dt * dv)
+        s, v = s + dt * ds2, v + dt * dv2
+    return rows
+
+
+DRAGGING = _simulate_dragging()
+
+
+def _sensorless_on_dragging(cfg: SwingEstimatorConfig) -> tuple[float, SwingEstimate]:
+    est = SwingEstimator(P, cfg, t0_s=0.0)
+    errs, last = [], None
+    for k, (t, swing, _, euler, thrust, f_b, vel) in enumerate(DRAGGING):
+        est.set_attitude_euler(t, euler, (0.0, 0.0, 0.0))
+        est.set_thrust(t, thrust)
+        if k % 5 == 0:
+            est.update_imu(t, f_b)
+            est.update_velocity(t, vel)
+        last = est.estimate(t)
+        if t > 8.0:
+            errs.append(math.hypot(*(last.swing[:2] - swing[:2])))
+    return float(np.sqrt(np.mean(np.square(errs)))), last
+
+
+def test_airframe_and_payload_drag_are_modelled_not_taken_for_swing():
+    """Sensorless (IMU + velocity) on a dragging airframe and payload (ArduPilot's SITL quad and SIM_SLUP payload
+    drag like this). With the payload's drag given (the mission's [payload] drag_n_per_mps2) and the airframe's
+    learnt, the swing is tracked (measured 0.0022 rad, c found 0.86 for 0.8); without the payload's drag the
+    payload's trailing angle is missed (0.088 rad); without the airframe's drag state 0.024 rad."""
+    base = SwingEstimatorConfig(imu_sigma_mps2=0.035, vel_sigma_mps=0.02)
+    rms, last = _sensorless_on_dragging(replace(base, init_payload_drag=0.04))
+    assert rms < 0.005, rms
+    assert 0.6 < last.drag_n_per_mps < 1.0 and 0.03 < last.payload_drag_n_per_mps2 < 0.05
+    unaware, _ = _sensorless_on_dragging(base)  # k = 0 held: the payload said not to drag
+    assert unaware > 10 * rms, unaware
+    no_airframe_drag, _ = _sensorless_on_dragging(replace(base, init_payload_drag=0.04, init_drag_sigma_per_s=1e-9,
+                                                          q_drag=1e-12))
+    assert no_airframe_drag > 4 * rms, no_airframe_drag

@@ -144,3 +144,53 @@ def test_offset_from_two_global_positions():
     # GLOBAL_POSITION_INT's quantization (1e-7 deg, 1 mm) is ~1 cm horizontally: the offset's resolution
     q = payload_offset_from_global(lat + 1e-7, lon, alt, lat, lon, alt)
     assert 0.010 < q[0] < 0.012
+
+
+def test_a_force_on_the_payload_obeys_newton_on_both_bodies():
+    """The payload force p enters as generalized forces (p on ξ, Jᵀ·p on s): with Ip = 0 the airframe and the
+    payload each obey Newton's law with one cable tension along the cable between them."""
+    p = VehicleParams(Ip=0.0)
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        al, be = rng.uniform(-0.8, 0.8, 2)
+        dal, dbe = rng.uniform(-2.0, 2.0, 2)
+        f = rng.uniform(-5.0, 5.0, 3) + np.array([0.0, 0.0, -14.0])
+        push = rng.uniform(-1.0, 1.0, 3)
+        dda, ddb, ax, ay, az = translation_swing_accel(al, be, dal, dbe, *f, p.M, p.m, p.g, p.Ip, p.l, *push)
+        xi_dd = np.array([ax, ay, az])
+        eps = 1e-6  # r̈ = J·s̈ + J̇·ṡ, J̇·ṡ by a central difference along ṡ
+        J = payload_offset_jacobian(al, be, p.l)
+        Jdot = (payload_offset_jacobian(al + eps * dal, be + eps * dbe, p.l)
+                - payload_offset_jacobian(al - eps * dal, be - eps * dbe, p.l)) / (2 * eps)
+        r_dd = J @ [dda, ddb] + Jdot @ [dal, dbe]
+        g = np.array([0.0, 0.0, p.g])
+        cable_on_airframe = p.M * (xi_dd - g) - f  # what pulls the airframe besides f and gravity
+        cable_on_payload = p.m * (xi_dd + r_dd - g) - push
+        np.testing.assert_allclose(cable_on_airframe, -cable_on_payload, atol=1e-6)  # one tension, both ends
+        r = np.array(payload_offset_m(al, be, p.l))
+        assert np.linalg.norm(np.cross(cable_on_airframe, r)) < 1e-6 * max(1.0, np.linalg.norm(cable_on_airframe))
+
+
+def test_drag_states_enter_the_airframe_and_payload_forces():
+    """x[14] = c drags the airframe by −c·(v_N, v_E, 0); x[15] = k drags the payload by −k·|v_p|·v_p; both are
+    random walks (no drift) and move the accelerometer's prediction."""
+    from companion.estimation.swing_model import I_DRAG, I_PDRAG, airframe_force_ned_n, payload_force_ned_n
+
+    p = PARAMS[0]
+    x = np.zeros(N_STATE)
+    x[0:4] = (0.1, -0.05, 0.3, 0.2)
+    x[4:7] = (2.0, -1.0, 0.1)
+    R = rotation_from_euler(0.05, -0.1, 0.3)
+    T = p.hover_thrust_n
+    base = np.array(airframe_force_ned_n(x, R, T))
+    x[I_DRAG] = 0.8
+    np.testing.assert_allclose(np.array(airframe_force_ned_n(x, R, T)) - base, [-1.6, 0.8, 0.0], atol=1e-12)
+    J = payload_offset_jacobian(x[0], x[1], p.l)
+    v_p = x[4:7] + J @ x[2:4]
+    x[I_PDRAG] = 0.05
+    np.testing.assert_allclose(payload_force_ned_n(x, p.l), -0.05 * np.linalg.norm(v_p) * v_p, atol=1e-12)
+    xd = dynamics(0.0, x, [T, 0.05, -0.1, 0.3], p)
+    assert xd[I_DRAG] == 0.0 and xd[I_PDRAG] == 0.0
+    x0 = x.copy()
+    x0[I_DRAG] = x0[I_PDRAG] = 0.0
+    assert np.linalg.norm(imu_specific_force(x, R, T, p) - imu_specific_force(x0, R, T, p)) > 0.3

@@ -37,6 +37,8 @@ def test_replay_reproduces_the_flights_own_estimate(sensorless_run):
     assert res.sensor_error["rms_rad"] == pytest.approx(flown["rms_rad"], rel=0.1)
     assert res.sensor_error["max_rad"] == pytest.approx(flown["max_rad"], rel=0.1)
     assert res.counts["imu"] >= res.estimated_ticks  # HIGHRES_IMU reached the estimator
+    est = rep["swing_estimator"]  # the bundled vehicle has no drag: the estimator finds little, and holds the
+    assert 0.0 <= est["drag_n_per_mps"] < 0.3 and est["payload_drag_n_per_mps2"] == 0.0  # payload's at the mission's 0
 
 
 def test_replay_with_other_inputs_and_settings(sensorless_run, capsys):

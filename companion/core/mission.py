@@ -31,7 +31,8 @@ Format (TOML; every table strict: unknown keys, missing required keys and wrong 
 ``[vehicle]`` is the whole physical vehicle (the bundled simulator flies it; the companion's model uses it too).
 ``[payload]`` lets the companion's model differ from it: a measured ``mass_kg`` / ``cable_length_m`` overrides
 ``[vehicle]`` m / l for the companion (and for identification: a given value is never identified);
-``identify = true`` asks for :func:`companion.estimation.payload_id.identify_payload` on the values not given.
+``identify = true`` asks for :func:`companion.estimation.payload_id.identify_payload` on the values not given;
+``drag_n_per_mps2`` is the payload's drag coefficient for the swing estimator (default 0: negligible drag).
 :meth:`Mission.companion_params` is the model the companion should fly with before any identification.
 
 A start or goal whose airframe circle (r_uav + L_uav) would overlap an obstacle's safety ring
@@ -93,12 +94,15 @@ class MissionTable:
 
 @dataclass(frozen=True)
 class PayloadConfig:
-    """The ``[payload]`` table: measured payload mass (kg) and cable length (m), each None when not given, and
-    whether to identify the ones not given in flight."""
+    """The ``[payload]`` table: measured payload mass (kg) and cable length (m), each None when not given,
+    whether to identify the ones not given in flight, and the payload's drag coefficient ``drag_n_per_mps2``
+    (k in p = −k·|v|·v, N per (m/s)²: ½·ρ·C_d·A, e.g. 0.043 for a 30 cm sphere; 0, the default, for a payload
+    whose drag is negligible), which the swing estimator starts from and refines (docs/swing-estimation.md)."""
 
     mass_kg: float | None = None
     cable_length_m: float | None = None
     identify: bool = False
+    drag_n_per_mps2: float = 0.0
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for non-physical values."""
@@ -106,11 +110,14 @@ class PayloadConfig:
             raise ValueError(f"mass_kg: must be in (0, 100], got {self.mass_kg}")
         if self.cable_length_m is not None and not (0.0 < self.cable_length_m <= 20.0):
             raise ValueError(f"cable_length_m: must be in (0, 20] (the model's range), got {self.cable_length_m}")
+        if not (math.isfinite(self.drag_n_per_mps2) and 0.0 <= self.drag_n_per_mps2 <= 10.0):
+            raise ValueError(f"drag_n_per_mps2: must be in [0, 10] N per (m/s)², got {self.drag_n_per_mps2}")
 
     @property
     def is_default(self) -> bool:
         """True when the table says nothing (absent or empty)."""
-        return self.mass_kg is None and self.cable_length_m is None and not self.identify
+        return self.mass_kg is None and self.cable_length_m is None and not self.identify and \
+            self.drag_n_per_mps2 == 0.0
 
 
 @dataclass(frozen=True)
@@ -233,6 +240,8 @@ def mission_to_toml(mission: Mission) -> str:
         if p.cable_length_m is not None:
             lines.append(f"cable_length_m = {float(p.cable_length_m)!r}")
         lines.append(f"identify = {'true' if p.identify else 'false'}")
+        if p.drag_n_per_mps2:
+            lines.append(f"drag_n_per_mps2 = {float(p.drag_n_per_mps2)!r}")
     for o in mission.obstacles:
         lines += [
             "",

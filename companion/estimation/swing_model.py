@@ -14,10 +14,22 @@ payload offset r = l·[sα·cβ, −sβ, cα·cβ] and a_c = J̇·ṡ::
 ``d`` (N, NED) is every force on the airframe the model does not know: wind, drag, thrust-model error. Eq. 14
 applies it to ξ only (its two swing rows are zero), i.e. it acts on the airframe, not on the payload.
 
-State x (14,)::
+The airframe's own drag changes as fast as its velocity, too fast for a random walk to follow, so its part that is
+linear in the velocity is modelled: f = F − c·(v_N, v_E, 0) + d, with c (N per m/s) a state. Rotors drag linearly
+in the airspeed across them (blade flapping and induced drag; ArduPilot's EKF has EK3_DRAG_MCOEF for it, and its
+SITL quad drags ~0.8 N per m/s); with it d is left the wind and the slow rest. The bundled vehicle has no drag
+(c = 0): the estimator learns that too. Only the horizontal part: along z, drag and thrust error are one (δT).
 
-    [α, β, α̇, β̇,  v_N, v_E, v_D,  d_N, d_E, d_D,  b_x, b_y, b_z,  δT]
+The payload drags too: p = −k·|v_p|·v_p on the payload (v_p = v + J·ṡ its velocity, still air), k a state. In
+cruise it makes the payload trail behind the vertical by k·v²/(m·g) (0.06 rad at 1.8 m/s for ArduPilot's SITL
+payload, 0.25 kg of 30 cm sphere); without it that pull on the airframe would be read as the airframe's own drag
+and the trailing angle missed. It enters the Lagrangian's generalized forces as p on ξ and Jᵀ·p on s.
+
+State x (16,)::
+
+    [α, β, α̇, β̇,  v_N, v_E, v_D,  d_N, d_E, d_D,  b_x, b_y, b_z,  δT,  c,  k]
      rad, rad/s    airframe m/s     force on the airframe, N  accelerometer bias, m/s², body FRD  thrust error, N
+                                      airframe drag, N per m/s; payload drag, N per (m/s)²
 
 The thrust in the model is the commanded one plus δT (F = −R·[0, 0, T + δT]): the thrust a vehicle produces
 is not the thrust the companion asked for (thrust curve, hover-thrust normalization, motor lag, and a rotor
@@ -25,7 +37,7 @@ that saturates while the attitude loop fights a torque). δT is fast (the accele
 is slow (wind, drag).
 
 Process model (python-control's f(t, x, u, params)): α̇, β̇ as states, [α̈, β̈] and v̇ = ξ̈ from the closed form
-above; d, b and δT are random walks (zero drift plus process noise). u = [T, φ, θ, ψ] (N, rad).
+above; d, b, δT, c and k are random walks (zero drift plus process noise). u = [T, φ, θ, ψ] (N, rad).
 
 Measurement models:
 
@@ -50,15 +62,17 @@ import numpy as np
 
 from companion.core.model import VehicleParams
 
-N_STATE = 14
+N_STATE = 16
 I_AL, I_BE, I_DAL, I_DBE = 0, 1, 2, 3
 I_THRUST = 13
+I_DRAG = 14
+I_PDRAG = 15
 SL_SWING = slice(0, 4)
 SL_VEL = slice(4, 7)
 SL_FORCE = slice(7, 10)
 SL_BIAS = slice(10, 13)
 STATE_NAMES = ("alpha", "beta", "alpha_dot", "beta_dot", "v_n", "v_e", "v_d", "d_n", "d_e", "d_d",
-               "b_x", "b_y", "b_z", "thrust_err")
+               "b_x", "b_y", "b_z", "thrust_err", "drag_coef", "payload_drag")
 
 
 def rotation_from_euler(phi: float, theta: float, psi: float) -> np.ndarray:
@@ -124,10 +138,12 @@ def thrust_force_ned_n(R: np.ndarray, thrust_n: float) -> tuple[float, float, fl
 
 def translation_swing_accel(
     al: float, be: float, dal: float, dbe: float, fx: float, fy: float, fz: float,
-    M: float, m: float, g: float, Ip: float, l: float,
+    M: float, m: float, g: float, Ip: float, l: float, px: float = 0.0, py: float = 0.0, pz: float = 0.0,
 ) -> tuple[float, float, float, float, float]:
-    """(α̈, β̈, ẍ, ÿ, z̈) of the model for swing state (α, β, α̇, β̇) and the non-gravity, non-cable force on
-    the airframe f = F + d (N, NED). rad/s², m/s². Same algebra as ``companion.core.model._deriv``."""
+    """(α̈, β̈, ẍ, ÿ, z̈) of the model for swing state (α, β, α̇, β̇), the non-gravity, non-cable force on
+    the airframe f = F + d (N, NED) and a force p on the payload (its drag; N, NED). rad/s², m/s². With p = 0 the
+    same algebra as ``companion.core.model._deriv``; p enters as its generalized forces (the payload sits at
+    ξ + r(s)): p on ξ and Jᵀ·p on s."""
     sa, ca, sb, cb = math.sin(al), math.cos(al), math.sin(be), math.cos(be)
     mt = M + m
     j0a = l * ca * cb
@@ -140,11 +156,11 @@ def translation_swing_accel(
     ac0 = l * (-sa * cb * (dal2 + dbe2) - 2.0 * ca * sb * dal * dbe)
     ac1 = l * (sb * dbe2)
     ac2 = l * (-ca * cb * (dal2 + dbe2) + 2.0 * sa * sb * dal * dbe)
-    r0 = fx - m * ac0
-    r1 = fy - m * ac1
-    r2 = fz + mt * g - m * ac2
-    rsa = -m * (j0a * ac0 + j2a * (ac2 - g))
-    rsb = -m * (j0b * ac0 + j1b * ac1 + j2b * (ac2 - g))
+    r0 = fx + px - m * ac0
+    r1 = fy + py - m * ac1
+    r2 = fz + pz + mt * g - m * ac2
+    rsa = -m * (j0a * ac0 + j2a * (ac2 - g)) + j0a * px + j2a * pz
+    rsb = -m * (j0b * ac0 + j1b * ac1 + j2b * (ac2 - g)) + j0b * px + j1b * py + j2b * pz
     ka = m * l * l * cb * cb * M / mt + Ip
     kb = m * l * l * M / mt + Ip
     dda = (rsa - m * (j0a * r0 + j2a * r2) / mt) / ka
@@ -153,6 +169,18 @@ def translation_swing_accel(
     ay = (r1 - m * j1b * ddb) / mt
     az = (r2 - m * (j2a * dda + j2b * ddb)) / mt
     return dda, ddb, ax, ay, az
+
+
+def payload_drag_unit(al: float, be: float, dal: float, dbe: float, vn: float, ve: float, vd: float,
+                      l: float) -> tuple[float, float, float]:
+    """−|v_p|·v_p for the payload's velocity v_p = v + J·ṡ (m/s, NED): its quadratic drag per unit coefficient
+    (multiply by k, N per (m/s)², for the force in N). Still air: the wind on the payload is not modelled."""
+    sa, ca, sb, cb = math.sin(al), math.cos(al), math.sin(be), math.cos(be)
+    un = vn + l * (ca * cb * dal - sa * sb * dbe)
+    ue = ve - l * cb * dbe
+    ud = vd + l * (-sa * cb * dal - ca * sb * dbe)
+    s = math.sqrt(un * un + ue * ue + ud * ud)
+    return -s * un, -s * ue, -s * ud
 
 
 def accel_force_jacobian_rows(al: float, be: float, M: float, m: float, Ip: float, l: float) -> tuple:
@@ -205,15 +233,31 @@ def swing_from_offset(offset_ned_m) -> tuple[float, float]:
     return math.atan2(rx, rz), math.asin(max(-1.0, min(1.0, -ry / n)))
 
 
+def airframe_force_ned_n(x, R: np.ndarray, thrust_n: float) -> tuple[float, float, float]:
+    """f = F − c·(v_N, v_E, 0) + d: every non-gravity, non-cable force on the airframe in state x (N, NED), thrust
+    ``thrust_n`` + δT along −z body."""
+    fx, fy, fz = thrust_force_ned_n(R, thrust_n + float(x[I_THRUST]))
+    c = float(x[I_DRAG])
+    return fx - c * float(x[4]) + float(x[7]), fy - c * float(x[5]) + float(x[8]), fz + float(x[9])
+
+
+def payload_force_ned_n(x, l: float) -> tuple[float, float, float]:
+    """p = −k·|v_p|·v_p, the payload's drag in state x (N, NED)."""
+    k = float(x[I_PDRAG])
+    u = payload_drag_unit(float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), float(x[5]),
+                          float(x[6]), l)
+    return k * u[0], k * u[1], k * u[2]
+
+
 def dynamics(t: float, x, u, params: VehicleParams) -> np.ndarray:
-    """ẋ = f(t, x, u, params) of the estimator's state (14,), u = [T (N), φ, θ, ψ (rad)] (python-control's
-    convention). The random-walk states (d, b, δT) have zero drift."""
+    """ẋ = f(t, x, u, params) of the estimator's state (15,), u = [T (N), φ, θ, ψ (rad)] (python-control's
+    convention). The random-walk states (d, b, δT, c, k) have zero drift."""
     x = np.asarray(x, dtype=np.float64)
     R = rotation_from_euler(float(u[1]), float(u[2]), float(u[3]))
-    fx, fy, fz = thrust_force_ned_n(R, float(u[0]) + x[I_THRUST])
+    fx, fy, fz = airframe_force_ned_n(x, R, float(u[0]))
     p = params
     dda, ddb, ax, ay, az = translation_swing_accel(
-        x[0], x[1], x[2], x[3], fx + x[7], fy + x[8], fz + x[9], p.M, p.m, p.g, p.Ip, p.l)
+        x[0], x[1], x[2], x[3], fx, fy, fz, p.M, p.m, p.g, p.Ip, p.l, *payload_force_ned_n(x, p.l))
     out = np.zeros(N_STATE)
     out[0], out[1], out[2], out[3] = x[2], x[3], dda, ddb
     out[4], out[5], out[6] = ax, ay, az
@@ -223,10 +267,10 @@ def dynamics(t: float, x, u, params: VehicleParams) -> np.ndarray:
 def imu_specific_force(x, R: np.ndarray, thrust_n: float, params: VehicleParams) -> np.ndarray:
     """Predicted accelerometer reading f_b = Rᵀ·(ξ̈ − g·e_z) + b (m/s², body FRD)."""
     x = np.asarray(x, dtype=np.float64)
-    fx, fy, fz = thrust_force_ned_n(R, thrust_n + x[I_THRUST])
+    fx, fy, fz = airframe_force_ned_n(x, R, thrust_n)
     p = params
-    _, _, ax, ay, az = translation_swing_accel(
-        x[0], x[1], x[2], x[3], fx + x[7], fy + x[8], fz + x[9], p.M, p.m, p.g, p.Ip, p.l)
+    _, _, ax, ay, az = translation_swing_accel(x[0], x[1], x[2], x[3], fx, fy, fz, p.M, p.m, p.g, p.Ip, p.l,
+                                               *payload_force_ned_n(x, p.l))
     return R.T @ np.array([ax, ay, az - p.g]) + x[SL_BIAS]
 
 

@@ -54,6 +54,7 @@ from companion.core.model import payload_offset_ned_m
 from companion.core.obstacles import Obstacle
 from companion.core.rotations import quat_from_euler
 from companion.estimation.estimate import Estimate
+from companion.estimation.swing_estimator import SwingEstimatorConfig
 from companion.estimation.swing_feed import SwingFeed
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
@@ -207,7 +208,8 @@ class FlightApp:
             cable_length_m=mission.vehicle.l, payload_sysid=opts.payload_sysid, swing_input=opts.swing_input,
             max_time_rate=1e4 if opts.lockstep else 2.0,
         )
-        self.swing_feed = SwingFeed(mission.companion_params(), opts.swing_input)
+        self.swing_feed = SwingFeed(mission.companion_params(), opts.swing_input,
+                                    SwingEstimatorConfig(init_payload_drag=mission.payload.drag_n_per_mps2))
         self.swing_sources: dict[str, int] = {}
         self._last_swing_source = ""
         self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path, sock=opts.sock,
@@ -770,6 +772,9 @@ class FlightApp:
                 "error_at_fixes": feed.fix_error_summary(),
                 "sources_last_second": None if last is None else list(last.sources),
                 "fade_last": None if last is None else last.fade,
+                # what it learnt of the drags (the airframe's N per m/s, the payload's N per (m/s)²)
+                "drag_n_per_mps": None if last is None else round(last.drag_n_per_mps, 4),
+                "payload_drag_n_per_mps2": None if last is None else round(last.payload_drag_n_per_mps2, 5),
                 "filters": feed.ran.selection_facts() if hasattr(feed.ran, "selection_facts") else None}
 
     def _provisional(self) -> dict[str, Any]:
