@@ -93,3 +93,46 @@ def test_select_keeps_rows_and_columns_aligned():
     np.testing.assert_array_equal(sub.arr("pos")[:, 0], [0.0, 2.0, 4.0])
     np.testing.assert_allclose(sub.arr("swing")[:, 0], [0.0, 0.02, 0.04])
     assert len(sub.phase) == 3 and len(sub.r_max_m) == 3
+
+
+def test_columns_read_like_the_lists_they_replace_across_chunk_boundaries():
+    """FlightLog's numeric columns are float64 chunks (Column.CHUNK rows each), not a Python object per value; they
+    read as lists did: len, index, slices, iteration, numpy conversion, truthiness; select keeps rows and chunks."""
+    from companion.report.metrics import Column
+
+    n = Column.CHUNK * 2 + 7
+    rng = np.random.default_rng(0)
+    rows = rng.normal(size=(n, 3))
+    col, t = Column(3), Column(1)
+    assert not col and len(col) == 0 and np.asarray(col).shape == (0, 3)
+    for i, r in enumerate(rows):
+        col.append(r)
+        t.append(i * 0.004)
+    assert col and len(col) == n
+    np.testing.assert_array_equal(np.asarray(col), rows)
+    np.testing.assert_array_equal(col[Column.CHUNK - 3 : Column.CHUNK + 5], rows[Column.CHUNK - 3 : Column.CHUNK + 5])
+    np.testing.assert_array_equal(col[-1], rows[-1])
+    row = col[5]
+    row[:] = 0.0  # a copy: the column is unchanged
+    np.testing.assert_array_equal(col[5], rows[5])
+    assert t[Column.CHUNK] == pytest.approx(Column.CHUNK * 0.004) and isinstance(t[3], float)
+    assert [float(v) for v in t][:3] == [0.0, 0.004, 0.008]
+    np.testing.assert_array_equal(col[::1000], rows[::1000])
+    with pytest.raises(IndexError):
+        col[n]
+    keep = np.zeros(n, dtype=bool)
+    keep[[0, Column.CHUNK, n - 1]] = True
+    taken = col.take(np.flatnonzero(keep))
+    np.testing.assert_array_equal(np.asarray(taken), rows[keep])
+    taken.append(np.ones(3))  # a taken column keeps growing
+    assert len(taken) == 4 and np.asarray(taken)[-1].tolist() == [1.0, 1.0, 1.0]
+    col.append(np.nan)  # a scalar fills the row (NaN: unknown)
+    assert np.all(np.isnan(col[-1]))
+
+
+def test_a_log_of_many_ticks_selects():
+    log = _log([(0.004 * i, "cruise", (0.001 * i, 0.0), (0.0, 0.0), (0.001 * i, 0.0)) for i in range(9000)])
+    assert len(log) == 9000 and log.arr("pos").shape == (9000, 3)
+    half = log.select(np.arange(9000) % 2 == 0)
+    assert len(half) == 4500 and half.phase[0] == "cruise"
+    np.testing.assert_array_equal(half.arr("t"), log.arr("t")[::2])

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -26,36 +27,116 @@ import numpy as np
 from companion.core.obstacles import Obstacle
 
 GOAL_TOL_M = 0.1
-_NAN4 = np.full(4, np.nan)
-_NAN4.flags.writeable = False
 SETTLE_RAD = 0.05
+
+
+class Column:
+    """One per-tick numeric column of ``width`` floats, kept in float64 chunks of :attr:`CHUNK` rows (no Python
+    object per value: 8 bytes a number, against ~100 for a small numpy array per row). Reads like the list it
+    replaces: ``len``, ``col[i]`` (a float, or a copy of the row), ``col[a:b]`` and ``np.asarray(col)`` (arrays of
+    shape (n,) or (n, width)), iteration, truthiness."""
+
+    CHUNK = 4096
+    __slots__ = ("_chunks", "_n", "width")
+
+    def __init__(self, width: int = 1, values=()) -> None:
+        self.width = int(width)
+        self._chunks: list[np.ndarray] = []
+        self._n = 0
+        if len(values):
+            self._fill(np.asarray(values, dtype=np.float64))
+
+    def _fill(self, rows: np.ndarray) -> None:
+        """Set the (empty) column to ``rows``, shape (n,) or (n, width)."""
+        n = len(rows)
+        for k in range(0, n, self.CHUNK):
+            c = self._new_chunk()
+            c[: min(self.CHUNK, n - k)] = rows[k : k + self.CHUNK]
+            self._chunks.append(c)
+        self._n = n
+
+    def _new_chunk(self) -> np.ndarray:
+        return np.empty(self.CHUNK if self.width == 1 else (self.CHUNK, self.width), dtype=np.float64)
+
+    def append(self, value) -> None:
+        i = self._n % self.CHUNK
+        if i == 0:
+            self._chunks.append(self._new_chunk())
+        self._chunks[-1][i] = value
+        self._n += 1
+
+    def __len__(self) -> int:
+        return self._n
+
+    def _range(self, start: int, stop: int) -> np.ndarray:
+        shape = (stop - start,) if self.width == 1 else (stop - start, self.width)
+        out = np.empty(shape, dtype=np.float64)
+        k = start
+        while k < stop:
+            c, i = divmod(k, self.CHUNK)
+            take = min(self.CHUNK - i, stop - k)
+            out[k - start : k - start + take] = self._chunks[c][i : i + take]
+            k += take
+        return out
+
+    def __getitem__(self, key):
+        if isinstance(key, slice):
+            start, stop, step = key.indices(self._n)
+            if step != 1:
+                return self._range(0, self._n)[key]
+            return self._range(start, max(start, stop))
+        i = int(key)
+        if i < 0:
+            i += self._n
+        if not 0 <= i < self._n:
+            raise IndexError(f"row {key} of {self._n}")
+        c, j = divmod(i, self.CHUNK)
+        v = self._chunks[c][j]
+        return float(v) if self.width == 1 else v.copy()
+
+    def __iter__(self):
+        for i in range(self._n):
+            yield self[i]
+
+    def array(self) -> np.ndarray:
+        """Every row as one new array, (n,) or (n, width)."""
+        return self._range(0, self._n)
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        a = self.array()
+        return a if dtype is None else a.astype(dtype, copy=False)
+
+    def take(self, idx: np.ndarray) -> Column:
+        """A new column of the rows ``idx``."""
+        return Column(self.width, self.array()[idx])
 
 
 @dataclass
 class FlightLog:
-    """Append-per-tick recorder. After :meth:`append` calls, the ``*_arr`` views are numpy arrays (N, k)."""
+    """Append-per-tick recorder: numeric columns are :class:`Column` s (float64 chunks), the two label columns lists
+    of shared strings; :meth:`arr` gives a column as a numpy array (N,) or (N, k)."""
 
     planner: str = ""
     controller: str = ""
     mission: str = ""
     obstacles: tuple[Obstacle, ...] = ()
     goal_tol_m: float = GOAL_TOL_M  # "at the goal" horizontally (the flight's arrival tolerance, m)
-    t: list[float] = field(default_factory=list)
-    pos: list[np.ndarray] = field(default_factory=list)
-    vel: list[np.ndarray] = field(default_factory=list)
-    euler: list[np.ndarray] = field(default_factory=list)
-    swing: list[np.ndarray] = field(default_factory=list)  # [α, β, α̇, β̇], NaN when unknown (the best measurement)
-    swing_used: list[np.ndarray] = field(default_factory=list)  # the estimate the controller flew on, NaN if none
-    payload_pos: list[np.ndarray] = field(default_factory=list)
-    ref_pos: list[np.ndarray] = field(default_factory=list)
-    ref_vel: list[np.ndarray] = field(default_factory=list)
-    ref_acc: list[np.ndarray] = field(default_factory=list)
-    euler_cmd: list[np.ndarray] = field(default_factory=list)
-    thrust_n: list[float] = field(default_factory=list)
-    ff_accel: list[np.ndarray] = field(default_factory=list)
-    force_att: list[np.ndarray] = field(default_factory=list)
-    force_rep: list[np.ndarray] = field(default_factory=list)
-    r_max_m: list[float] = field(default_factory=list)
+    t: Column = field(default_factory=partial(Column, 1))
+    pos: Column = field(default_factory=partial(Column, 3))
+    vel: Column = field(default_factory=partial(Column, 3))
+    euler: Column = field(default_factory=partial(Column, 3))
+    swing: Column = field(default_factory=partial(Column, 4))  # [α, β, α̇, β̇], NaN when unknown (the best measurement)
+    swing_used: Column = field(default_factory=partial(Column, 4))  # the estimate the controller flew on, NaN if none
+    payload_pos: Column = field(default_factory=partial(Column, 3))
+    ref_pos: Column = field(default_factory=partial(Column, 3))
+    ref_vel: Column = field(default_factory=partial(Column, 3))
+    ref_acc: Column = field(default_factory=partial(Column, 3))
+    euler_cmd: Column = field(default_factory=partial(Column, 3))
+    thrust_n: Column = field(default_factory=partial(Column, 1))
+    ff_accel: Column = field(default_factory=partial(Column, 3))
+    force_att: Column = field(default_factory=partial(Column, 2))
+    force_rep: Column = field(default_factory=partial(Column, 2))
+    r_max_m: Column = field(default_factory=partial(Column, 1))
     phase: list[str] = field(default_factory=list)
     envelope_mode: list[str] = field(default_factory=list)
     wall_time_s: float | None = None
@@ -65,24 +146,21 @@ class FlightLog:
         """Record one tick; ``cmd`` is a :class:`companion.flight.core.Command` (or None: zeros); ``swing_used``
         the swing estimate the controller flew on (None when it flew on the measurement or on nothing)."""
         self.t.append(float(t_s))
-        self.swing_used.append(_NAN4 if swing_used is None else np.array(swing_used, dtype=np.float64))
-        self.pos.append(np.array(pos, dtype=np.float64))
-        self.vel.append(np.array(vel, dtype=np.float64))
-        self.euler.append(np.array(euler, dtype=np.float64))
-        self.swing.append(np.full(4, np.nan) if swing is None else np.array(swing, dtype=np.float64))
-        self.payload_pos.append(
-            np.full(3, np.nan) if payload_pos is None else np.array(payload_pos, dtype=np.float64)
-        )
-        z3 = np.zeros(3)
+        self.swing_used.append(math.nan if swing_used is None else swing_used)
+        self.pos.append(pos)
+        self.vel.append(vel)
+        self.euler.append(euler)
+        self.swing.append(math.nan if swing is None else swing)
+        self.payload_pos.append(math.nan if payload_pos is None else payload_pos)
         if cmd is None:
-            self.ref_pos.append(z3)
-            self.ref_vel.append(z3)
-            self.ref_acc.append(z3)
-            self.euler_cmd.append(z3)
+            self.ref_pos.append(0.0)
+            self.ref_vel.append(0.0)
+            self.ref_acc.append(0.0)
+            self.euler_cmd.append(0.0)
             self.thrust_n.append(0.0)
-            self.ff_accel.append(z3)
-            self.force_att.append(np.zeros(2))
-            self.force_rep.append(np.zeros(2))
+            self.ff_accel.append(0.0)
+            self.force_att.append(0.0)
+            self.force_rep.append(0.0)
             self.r_max_m.append(math.nan)
             self.phase.append("")
             self.envelope_mode.append("")
@@ -106,14 +184,19 @@ class FlightLog:
         """A new log with only the rows where ``keep`` (bool, (N,)) is true."""
         idx = np.flatnonzero(keep)
         out = FlightLog()
-        for f in dataclasses.fields(self):  # per-tick columns are lists; everything else is the flight's own
+        for f in dataclasses.fields(self):  # per-tick columns; everything else is the flight's own
             col = getattr(self, f.name)
-            setattr(out, f.name, [col[i] for i in idx] if isinstance(col, list) else col)
+            if isinstance(col, Column):
+                col = col.take(idx)
+            elif isinstance(col, list):
+                col = [col[i] for i in idx]
+            setattr(out, f.name, col)
         return out
 
     def arr(self, name: str) -> np.ndarray:
         """Column ``name`` as a numpy array ((N,) or (N, k))."""
-        return np.asarray(getattr(self, name), dtype=np.float64)
+        col = getattr(self, name)
+        return col.array() if isinstance(col, Column) else np.asarray(col, dtype=np.float64)
 
 
 def _first_index(mask: np.ndarray) -> int | None:
