@@ -372,8 +372,8 @@ class SwingEstimator:
             _, Rl, w = a[1]
             b0, b1, b2 = thrust_axis_by_rates(Rl, w, dt)
         th = self._thr.at(t)
-        T = (self._hover_n if th is None else th[1][0]) + float(x[13])
-        c = float(x[14])
+        T = (self._hover_n if th is None else th[1][0]) + float(x[I_THRUST])
+        c = float(x[I_DRAG])
         return (-b0 * T - c * float(x[4]) + float(x[7]), -b1 * T - c * float(x[5]) + float(x[8]),
                 -b2 * T + float(x[9]), b0, b1, b2)
 

@@ -17,7 +17,7 @@ applies it to ξ only (its two swing rows are zero), i.e. it acts on the airfram
 The airframe's own drag changes as fast as its velocity, too fast for a random walk to follow, so its part that is
 linear in the velocity is modelled: f = F − c·(v_N, v_E, 0) + d, with c (N per m/s) a state. Rotors drag linearly
 in the airspeed across them (blade flapping and induced drag; ArduPilot's EKF has EK3_DRAG_MCOEF for it, and its
-SITL quad drags ~0.8 N per m/s); with it d is left the wind and the slow rest. The bundled vehicle has no drag
+SITL quad drags ~1 N per m/s); with it d is left the wind and the slow rest. The bundled vehicle has no drag
 (c = 0): the estimator learns that too. Only the horizontal part: along z, drag and thrust error are one (δT).
 
 The payload drags too: p = −k·|v_p|·v_p on the payload (v_p = v + J·ṡ its velocity, still air), k a state. In
@@ -141,9 +141,9 @@ def translation_swing_accel(
     M: float, m: float, g: float, Ip: float, l: float, px: float = 0.0, py: float = 0.0, pz: float = 0.0,
 ) -> tuple[float, float, float, float, float]:
     """(α̈, β̈, ẍ, ÿ, z̈) of the model for swing state (α, β, α̇, β̇), the non-gravity, non-cable force on
-    the airframe f = F + d (N, NED) and a force p on the payload (its drag; N, NED). rad/s², m/s². With p = 0 the
-    same algebra as ``companion.core.model._deriv``; p enters as its generalized forces (the payload sits at
-    ξ + r(s)): p on ξ and Jᵀ·p on s."""
+    the airframe f (thrust, drag and d; N, NED) and a force p on the payload (its drag; N, NED). rad/s², m/s².
+    With p = 0 the same algebra as ``companion.core.model._deriv``; p enters as its generalized forces (the
+    payload sits at ξ + r(s)): p on ξ and Jᵀ·p on s."""
     sa, ca, sb, cb = math.sin(al), math.cos(al), math.sin(be), math.cos(be)
     mt = M + m
     j0a = l * ca * cb
@@ -250,7 +250,7 @@ def payload_force_ned_n(x, l: float) -> tuple[float, float, float]:
 
 
 def dynamics(t: float, x, u, params: VehicleParams) -> np.ndarray:
-    """ẋ = f(t, x, u, params) of the estimator's state (15,), u = [T (N), φ, θ, ψ (rad)] (python-control's
+    """ẋ = f(t, x, u, params) of the estimator's state (16,), u = [T (N), φ, θ, ψ (rad)] (python-control's
     convention). The random-walk states (d, b, δT, c, k) have zero drift."""
     x = np.asarray(x, dtype=np.float64)
     R = rotation_from_euler(float(u[1]), float(u[2]), float(u[3]))
