@@ -3,6 +3,7 @@ payload identification and the estimator's cost per update. Numbers are printed,
 
     python -m lab.swing_bench                  # everything on the Table 2 forest (a few minutes)
     python -m lab.swing_bench --forests 30     # plus the error and the closed loop over 30 random forests
+    python -m lab.swing_bench --forests 30 --only forests --planner shaped   # that closed loop, another planner
     python -m lab.swing_bench --only cost      # one section: error | sih | forests | closed | id | sensitivity | cost
 
 Truth: the bundled physics (sim_bridge.physics.VehicleSim) under eq. 49's wind, in-process; measurements:
@@ -92,10 +93,14 @@ def section_forests(n: int, workers: int) -> None:
         print(f"| {p} | {statistics.median(v):.4f} | {_p90(v):.4f} | {v[-1]:.4f} |")
 
 
-def _closed_job(path: str | None, seed: int | None = None) -> tuple[str, dict, float | None]:
+def _closed_job(path: str | None, seed: int | None = None,
+                planner: str | None = None) -> tuple[str, dict, float | None]:
     """One in-process flight of the Table 2 forest (``seed`` None) or of random forest ``seed``: on the cable
-    sensor (``path`` None), on no swing input (``"none"``) or on the estimate from ``path``'s sensors."""
+    sensor (``path`` None), on no swing input (``"none"``) or on the estimate from ``path``'s sensors; with
+    ``planner`` instead of the mission's own."""
     m = _forest() if seed is None else generate_forest(seed)
+    if planner is not None:
+        m = m.with_(planner=planner)
     if path is None:
         r = compute_metrics(fly_inprocess(m), m)
         return "cable sensor", r, None
@@ -125,16 +130,17 @@ def section_closed(workers: int) -> None:
 CLOSED_FOREST_PATHS = ("imu", "fixes+vel", "fused")
 
 
-def _closed_forest_job(args: tuple[int, str | None]) -> tuple[int, str | None, dict]:
-    seed, path = args
-    return seed, path, _closed_job(path, seed)[1]
+def _closed_forest_job(args: tuple[int, str | None, str | None]) -> tuple[int, str | None, dict]:
+    seed, path, planner = args
+    return seed, path, _closed_job(path, seed, planner)[1]
 
 
-def section_closed_forests(n: int, workers: int) -> None:
+def section_closed_forests(n: int, workers: int, planner: str | None = None) -> None:
     """Issue 11's closed-loop targets over random forests: per swing input the max swing (median / p90 / worst),
     its excess over the same forest flown on the cable sensor, and the time to goal and clearance lost."""
-    print(f"\n## Closed loop over {n} random forests (lab.forests seeds 0..{n - 1}, eq. 49, in-process)\n")
-    jobs = [(seed, path) for seed in range(n) for path in (None, *CLOSED_FOREST_PATHS)]
+    print(f"\n## Closed loop over {n} random forests (lab.forests seeds 0..{n - 1}, eq. 49, in-process, planner "
+          f"{planner or 'safe, the missions own'})\n")
+    jobs = [(seed, path, planner) for seed in range(n) for path in (None, *CLOSED_FOREST_PATHS)]
     with ProcessPoolExecutor(workers) as ex:
         res = {(seed, path): r for seed, path, r in ex.map(_closed_forest_job, jobs)}
     targets = {"imu": 0.27, "fixes+vel": 0.26, "fused": 0.26}
@@ -284,6 +290,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--forests", type=int, default=0,
                     help="random forests for the error and closed-loop sections (default 0)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--planner", choices=("safe", "shaped", "improved", "traditional"),
+                    help="the random forests' closed loop flown with this planner (default: the missions' own, safe)")
     a = ap.parse_args(argv)
     only = set(a.only or SECTIONS)
     if a.forests <= 0:
@@ -296,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
         section_sih(truth)
     if "forests" in only:
         section_forests(a.forests, a.workers)
-        section_closed_forests(a.forests, a.workers)
+        section_closed_forests(a.forests, a.workers, a.planner)
     if "closed" in only:
         section_closed(a.workers)
     if "id" in only:
