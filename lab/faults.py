@@ -268,12 +268,11 @@ def diverged(workdir: Path, *, realtime: bool = False) -> dict[str, Any]:
 
 def _descent_from_tlog(tlog: Path) -> tuple[float, float]:
     """Fastest downward speed (m/s) and highest altitude (m above home) the vehicle reported."""
-    from pymavlink import mavutil
+    from companion.mavlink_io.link import tlog_messages
 
-    mlog = mavutil.mavlink_connection(str(tlog))
     vz, z = 0.0, 0.0
-    while (m := mlog.recv_match(type="LOCAL_POSITION_NED")) is not None:
-        if m.get_srcSystem() == 1:
+    for _, m in tlog_messages(tlog):
+        if m.get_type() == "LOCAL_POSITION_NED" and m.get_srcSystem() == 1:
             vz, z = max(vz, m.vz), max(z, -m.z)
     return vz, z
 

@@ -21,7 +21,6 @@ import argparse
 import bisect
 import json
 import math
-import struct
 import sys
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
@@ -31,42 +30,10 @@ import numpy as np
 
 from companion.core.mission import load_mission
 from companion.estimation.swing_estimator import SwingEstimatorConfig
-from companion.estimation.swing_feed import ESTIMATOR_INPUTS, SLACK_FRACTION, SwingFeed
+from companion.estimation.swing_feed import ESTIMATOR_INPUTS, SLACK_FRACTION, SwingFeed, estimator_config
 from companion.estimation.swing_model import swing_from_offset
 from companion.estimation.vehicle_state import VehicleState
-from companion.mavlink_io.codec import FrameError, decode_lite
-
-_STX_V1, _STX_V2 = 0xFE, 0xFD
-_SIGNED = 0x01
-
-
-def tlog_frames(path: Path) -> list[tuple[float, bytes]]:
-    """(UNIX time s, one MAVLink frame) for every frame of a tlog (records: 8-byte big-endian µs + bytes; a
-    record may hold several frames). A torn or unknown tail ends the record."""
-    data = path.read_bytes()
-    out: list[tuple[float, bytes]] = []
-    i = 0
-    while i + 8 <= len(data):
-        (t_us,) = struct.unpack_from(">Q", data, i)
-        i += 8
-        # the record runs until the next frame start we can size; frames are self-delimiting
-        while i < len(data):
-            stx = data[i]
-            if stx == _STX_V2 and i + 3 <= len(data):
-                n = 12 + data[i + 1] + (13 if data[i + 2] & _SIGNED else 0)
-            elif stx == _STX_V1 and i + 2 <= len(data):
-                n = 8 + data[i + 1]
-            else:
-                break
-            if i + n > len(data):
-                return out  # a torn last record
-            out.append((t_us * 1e-6, data[i:i + n]))
-            i += n
-            if i + 8 <= len(data) and data[i] not in (_STX_V1, _STX_V2):
-                break  # the next record's time stamp
-        else:
-            break
-    return out
+from companion.mavlink_io.link import tlog_messages
 
 
 @dataclass
@@ -107,7 +74,7 @@ def replay(run_dir: Path, swing_input: str = "estimate_imu", settings: dict[str,
                      l=params.l if cable_length_m is None else cable_length_m)
     params.validate()
     state = VehicleState(cable_length_m=params.l, payload_sysid=payload_sysid, swing_input=swing_input)
-    config = replace(SwingEstimatorConfig(init_payload_drag=mission.payload.drag_n_per_mps2), **(settings or {}))
+    config = replace(estimator_config(mission), **(settings or {}))
     config.validate()
     feed = SwingFeed(params, swing_input, config)
     tick_t, tick_thrust = _thrust_lookup(run_dir)
@@ -115,11 +82,7 @@ def replay(run_dir: Path, swing_input: str = "estimate_imu", settings: dict[str,
     rows: list[tuple[float, ...]] = []
     fixes: list[tuple[float, float, float]] = []  # taut payload fixes (t s, α, β rad)
     ticks = 0
-    for wall, frame in tlog_frames(run_dir / "flight.tlog"):
-        try:
-            msg = decode_lite(frame)
-        except FrameError:  # a frame the companion rejected too (fuzz, another dialect)
-            continue
+    for wall, msg in tlog_messages(run_dir / "flight.tlog"):
         mtype = msg.get_type()
         if mtype == "SET_ATTITUDE_TARGET":  # one of our ticks (sent after the tick's estimate)
             me = (msg.get_srcSystem(), msg.get_srcComponent())

@@ -214,6 +214,43 @@ def test_companion_link_fast_path_gives_what_pymavlink_gives(tmp_path) -> None:
     assert types == [m.get_type() for m in ref]
 
 
+def test_signed_input_is_recorded_as_signed_frames_that_tlog_readers_parse(tmp_path) -> None:
+    """With signing on, each accepted frame goes to the .tlog whole, signature included: mavutil and
+    companion.mavlink_io.link.tlog_frames read back every message (a frame with the signed flag but no
+    signature would make both misread the records after it)."""
+    import time as _time
+
+    from pymavlink import mavutil
+
+    from companion.mavlink_io.codec import decode_lite
+    from companion.mavlink_io.link import MavlinkLink, tlog_frames
+
+    key = bytes(range(32))
+    sink = _Sink()
+    mav = M.MAVLink(sink, srcSystem=1, srcComponent=1)
+    mav.signing.secret_key = key
+    mav.signing.link_id = 0
+    mav.signing.timestamp = int((_time.time() - 1420070400) * 1e5)
+    mav.signing.sign_outgoing = True
+    mav.attitude_send(1000, 0.01, -0.02, 0.3, 0.0, 0.1, 0.2)  # pymavlink's own senders sign
+    mav.local_position_ned_send(1000, 1.0, 2.0, -3.0, 0.1, 0.2, -0.3)
+    mav.system_time_send(0, 1000)
+    got: list = []
+    link = MavlinkLink("udpin://127.0.0.1:14999", got.append, tlog=tmp_path / "t.tlog", signing_key=key)
+    link._on_datagram(b"".join(sink.frames), ("127.0.0.1", 14580))
+    link.close()
+    expected = ["ATTITUDE", "LOCAL_POSITION_NED", "SYSTEM_TIME"]
+    assert [m.get_type() for m in got] == expected and not link.rejected
+    frames = [f for _, f in tlog_frames(tmp_path / "t.tlog")]
+    assert frames == sink.frames  # as received, signatures and all
+    assert [decode_lite(f[:-13]).get_type() for f in frames] == expected
+    log = mavutil.mavlink_connection(str(tmp_path / "t.tlog"))
+    types = []
+    while (m := log.recv_match()) is not None:
+        types.append(m.get_type())
+    assert types == expected
+
+
 def test_companion_link_counts_bad_input_and_still_delivers_good_frames() -> None:
     good = _vehicle_datagram()
     rng = random.Random(3)

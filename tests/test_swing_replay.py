@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from lab.swing_replay import main, replay, tlog_frames
+from companion.mavlink_io.link import tlog_frames
+from lab.swing_replay import main, replay
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow

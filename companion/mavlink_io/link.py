@@ -30,7 +30,7 @@ import socket
 import struct
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,7 +42,7 @@ from companion.disk_writer import DiskWriter
 from companion.errors import ConfigError, LinkError
 from companion.mavlink_io import signing
 from companion.mavlink_io.codec import STX_V2 as _STX_V2
-from companion.mavlink_io.codec import crc_extra_of, decode_lite
+from companion.mavlink_io.codec import FrameError, crc_extra_of, decode_lite
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +115,50 @@ class TlogWriter:
             self._hand_over(time.monotonic())
             self._closed = True
             self._writer.close()
+
+
+_STX_V1 = 0xFE
+
+
+def tlog_frames(path: Path) -> list[tuple[float, bytes]]:
+    """(UNIX time s, one MAVLink frame) for every frame of a .tlog (records: 8-byte big-endian µs + bytes;
+    :class:`TlogWriter` writes one frame a record, other tools may write several). A torn or unknown tail ends
+    the record; a torn last record is dropped."""
+    data = path.read_bytes()
+    out: list[tuple[float, bytes]] = []
+    i = 0
+    while i + _TLOG_STAMP.size <= len(data):
+        (t_us,) = _TLOG_STAMP.unpack_from(data, i)
+        i += _TLOG_STAMP.size
+        while i < len(data):  # the record runs until the next frame start we can size; frames are self-delimiting
+            stx = data[i]
+            if stx == _STX_V2 and i + 3 <= len(data):
+                n = _MIN_FRAME + data[i + 1] + (signing.SIGNATURE_LEN if data[i + 2] & signing.IFLAG_SIGNED else 0)
+            elif stx == _STX_V1 and i + 2 <= len(data):
+                n = 8 + data[i + 1]
+            else:
+                break
+            if i + n > len(data):
+                return out
+            out.append((t_us * 1e-6, data[i : i + n]))
+            i += n
+            if i + _TLOG_STAMP.size <= len(data) and data[i] not in (_STX_V1, _STX_V2):
+                break  # the next record's time stamp
+        else:
+            break
+    return out
+
+
+def tlog_messages(path: Path) -> Iterator[tuple[float, Any]]:
+    """(UNIX time s, decoded message) for every frame of a .tlog the codec decodes (signed ones read without
+    their signature, which is not checked here); others are skipped."""
+    for t_s, frame in tlog_frames(path):
+        if frame[0] == _STX_V2 and frame[2] & signing.IFLAG_SIGNED:
+            frame = frame[: -signing.SIGNATURE_LEN]
+        try:
+            yield t_s, decode_lite(frame)
+        except FrameError:
+            continue
 
 
 RCVBUF_BYTES = 4 << 20  # asked of the kernel (it grants up to net.core.rmem_max)
@@ -310,8 +354,8 @@ class MavlinkLink:
         return out
 
     def _split_signed(self, data: bytes) -> list[tuple[bytes, Any]]:
-        """With signing on: the datagram's frames whose signature and timestamp check out (signature stripped);
-        unsigned, forged and replayed frames and anything unframed are counted and dropped."""
+        """With signing on: (frame as received, message) for the datagram's frames whose signature and timestamp
+        check out; unsigned, forged and replayed frames and anything unframed are counted and dropped."""
         out = []
         i, n = 0, len(data)
         while i < n:
@@ -332,9 +376,8 @@ class MavlinkLink:
             if kind is not None:
                 self._count(kind, f"signed frame from system {frame[5]}")
                 continue
-            frame = frame[: -signing.SIGNATURE_LEN]
-            try:
-                out.append((frame, decode_lite(frame)))
+            try:  # decoded without its signature, recorded with it (a .tlog frame is the frame as received)
+                out.append((frame, decode_lite(frame[: -signing.SIGNATURE_LEN])))
             except Exception as exc:  # bad CRC or unknown id inside a valid signature: count, never raise
                 self._count("undecodable", repr(exc)[:120])
         return out
