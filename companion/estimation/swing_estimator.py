@@ -41,6 +41,7 @@ from companion.estimation.swing_model import (
     SL_BIAS,
     accel_force_jacobian_rows,
     payload_drag_unit,
+    payload_force_ned_n,
     payload_offset_jacobian,
     payload_offset_m,
     rotate_by_rates,
@@ -487,10 +488,8 @@ class SwingEstimator:
     # ------------------------------------------------------------------------------------------ the filter
     def _acc(self, x: np.ndarray, f: tuple[float, float, float]) -> tuple[float, float, float, float, float]:
         M, m, g, Ip, l = self._pp
-        k = float(x[I_PDRAG])
-        u = payload_drag_unit(x[0], x[1], x[2], x[3], x[4], x[5], x[6], l)
         return translation_swing_accel(x[0], x[1], x[2], x[3], f[0], f[1], f[2], M, m, g, Ip, l,
-                                       k * u[0], k * u[1], k * u[2])
+                                       *payload_force_ned_n(x, l))
 
     def _acc_jacobian(self, x: np.ndarray, f, base) -> np.ndarray:
         """∂(α̈, β̈, ẍ, ÿ, z̈)/∂x (5×16): swing, velocity and payload-drag columns by forward differences (the
@@ -533,15 +532,12 @@ class SwingEstimator:
         n = max(1, math.ceil(span / self.cfg.step_s - 1e-9))
         h = span / n
         M, m, g, Ip, l = self._pp
-        kp = float(x[I_PDRAG])
+        drags = x[I_PDRAG] != 0.0
         for k in range(n):
             f0, f1, f2, _, _, _ = self._force(t0 + (k + 0.5) * h, x)
             a0, a1, a2, a3 = float(x[0]), float(x[1]), float(x[2]), float(x[3])
-            if kp != 0.0:  # the payload's drag, held over the step like the airframe's forces
-                u = payload_drag_unit(a0, a1, a2, a3, x[4], x[5], x[6], l)
-                p0, p1, p2 = kp * u[0], kp * u[1], kp * u[2]
-            else:
-                p0 = p1 = p2 = 0.0
+            # the payload's drag, held over the step like the airframe's forces
+            p0, p1, p2 = payload_force_ned_n(x, l) if drags else (0.0, 0.0, 0.0)
             k1 = translation_swing_accel(a0, a1, a2, a3, f0, f1, f2, M, m, g, Ip, l, p0, p1, p2)
             m2 = a2 + 0.5 * h * k1[0]
             m3 = a3 + 0.5 * h * k1[1]

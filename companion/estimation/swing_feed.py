@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from companion.core.mission import Mission
 from companion.core.model import VehicleParams
 from companion.estimation.estimate import Estimate
 from companion.estimation.swing_estimator import SwingEstimate, SwingEstimator, SwingEstimatorConfig
@@ -70,6 +71,12 @@ _PLAUSIBLE = np.array([MAX_SWING_RAD, MAX_SWING_RAD, MAX_SWING_RATE_RAD_S, MAX_S
 _NUMERIC_FAILURES = (ArithmeticError, np.linalg.LinAlgError)
 _USED_HISTORY = 1000  # estimates kept for scoring fixes (2-4 s at 250 Hz)
 _PENDING_FIXES = 16  # payload fixes waiting for a vehicle fix after them (1.6 s at 10 Hz)
+
+
+def estimator_config(mission: Mission) -> SwingEstimatorConfig:
+    """The estimator's configuration a mission asks for: the defaults, with the payload's drag coefficient from
+    its ``[payload]`` table."""
+    return SwingEstimatorConfig(init_payload_drag=mission.payload.drag_n_per_mps2)
 
 
 @dataclass

@@ -54,8 +54,7 @@ from companion.core.model import payload_offset_ned_m
 from companion.core.obstacles import Obstacle
 from companion.core.rotations import quat_from_euler
 from companion.estimation.estimate import Estimate
-from companion.estimation.swing_estimator import SwingEstimatorConfig
-from companion.estimation.swing_feed import SwingFeed
+from companion.estimation.swing_feed import SwingFeed, estimator_config
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
 from companion.flight.health import DeafSpells, LinkHealth, lockstep_telemetry_wall_s
@@ -208,8 +207,7 @@ class FlightApp:
             cable_length_m=mission.vehicle.l, payload_sysid=opts.payload_sysid, swing_input=opts.swing_input,
             max_time_rate=1e4 if opts.lockstep else 2.0,
         )
-        self.swing_feed = SwingFeed(mission.companion_params(), opts.swing_input,
-                                    SwingEstimatorConfig(init_payload_drag=mission.payload.drag_n_per_mps2))
+        self.swing_feed = SwingFeed(mission.companion_params(), opts.swing_input, estimator_config(mission))
         self.swing_sources: dict[str, int] = {}
         self._last_swing_source = ""
         self.link = MavlinkLink(opts.connect, self._on_message, tlog=opts.tlog_path, sock=opts.sock,
