@@ -125,3 +125,35 @@ def test_arrival_tolerance_follows_the_autopilots_reported_accuracy():
     assert FlightCore.arrival_tolerance_m(est(0.02)) == 0.1
     assert FlightCore.arrival_tolerance_m(est(0.2)) == pytest.approx(0.2)
     assert ARRIVE_DWELL_S > 0.0
+
+
+def test_estimate_with_position_keeps_every_other_field():
+    """The tick's cheap copy of an estimate at another position equals dataclasses.replace, field for field (a
+    field added to Estimate and forgotten in with_position fails here)."""
+    from dataclasses import fields, replace
+
+    est = Estimate(1.5, np.array([1.0, 2.0, -3.0]), np.array([0.1, 0.2, 0.3]), np.array([0.01, 0.02, 0.03]),
+                   np.array([0.4, 0.5, 0.6]), np.array([0.1, -0.1, 0.2, -0.2]), "estimate", 0.7, 0.33, 0.05)
+    for f in fields(Estimate):  # every field differs from its default, so a dropped one shows
+        assert f.default is not getattr(est, f.name) or f.name == "pos_ned_m"
+    moved = est.with_position(np.array([9.0, 8.0, 7.0]))
+    want = replace(est, pos_ned_m=np.array([9.0, 8.0, 7.0]))
+    for f in fields(Estimate):
+        assert np.array_equal(getattr(moved, f.name), getattr(want, f.name)), f.name
+
+
+def test_setpoint_then_after_setpoint_is_update():
+    """The app sends the setpoint before the loop-lag bookkeeping (FlightCore.after_setpoint); flown that way the
+    commands are the ones update() gives, tick for tick, and the lag is measured either way."""
+    a, b = FlightCore(_mission()), FlightCore(_mission())
+    rng = np.random.default_rng(3)
+    for k in range(600):
+        e = Estimate(0.004 * k, np.array([0.002 * k, 0.0, -2.0]), np.array([0.5, 0.0, 0.0]),
+                     np.array([*(0.05 * np.sin(0.05 * k) + 0.001 * rng.standard_normal(2)), 0.0]), np.zeros(3),
+                     np.array([0.05, -0.02, 0.1, 0.1]), "cable_sensor")
+        ca = a.update(e)
+        cb = b.setpoint(e)
+        b.after_setpoint(e, cb)
+        np.testing.assert_array_equal(ca.q_ned_frd_wxyz, cb.q_ned_frd_wxyz)
+        assert ca.thrust_n == cb.thrust_n
+    assert a.loop_lag.updates > 0 and a.loop_lag.updates == b.loop_lag.updates and a.loop_lag.lag_s == b.loop_lag.lag_s

@@ -43,7 +43,7 @@ def attitude_from_force(force_ned_n, yaw_rad: float) -> tuple[np.ndarray, float,
 
     Scalar arithmetic (cross products written out): this runs every control tick.
     """
-    fx, fy, fz = (float(v) for v in force_ned_n)
+    fx, fy, fz = map(float, force_ned_n)
     thrust = math.sqrt(fx * fx + fy * fy + fz * fz)
     if thrust < 1e-09:
         zx, zy, zz = 0.0, 0.0, 1.0

@@ -173,7 +173,7 @@ class SmcPositionController:
         p = self.params
         mt = p.M + p.m
         if swing is not None:
-            al, be, dal, dbe = (float(v) for v in swing)
+            al, be, dal, dbe = map(float, swing)
             dda, ddb = float(swing_acc[0]), float(swing_acc[1])
             f_pay = _payload_reaction(al, be, dal, dbe, dda, ddb, p.m, p.l)
             if self.ff is not None:

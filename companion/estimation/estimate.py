@@ -39,6 +39,12 @@ class Estimate:
     swing_bound_rad: float | None = None
     pos_accuracy_m: float | None = None  # 1σ horizontal position accuracy the autopilot reports (m), if it does
 
+    def with_position(self, pos_ned_m: np.ndarray) -> Estimate:
+        """The same estimate at another position (m, NED): ``dataclasses.replace`` without its per-call field
+        introspection (this runs every control tick)."""
+        return Estimate(self.t_s, pos_ned_m, self.vel_ned_mps, self.euler_rad, self.rates_frd_rad_s, self.swing,
+                        self.swing_source, self.swing_fade, self.swing_bound_rad, self.pos_accuracy_m)
+
 
 def swing_from_payload(
     pos_ned_m: np.ndarray,

@@ -128,6 +128,7 @@ class VehicleState:
     rejected: Counter = field(default_factory=Counter)
     statustext: list[str] = field(default_factory=list)
     mode_class: Callable[[int], str] = field(default=lambda custom_mode: "other", repr=False)
+    _mode_memo: tuple[Callable[[int], str] | None, int, str] = field(default=(None, 0, "other"), repr=False)
     _clock_wall_s: float | None = None
 
     @property
@@ -139,8 +140,13 @@ class VehicleState:
 
     @property
     def mode(self) -> str:
-        """The mode in the flight sequence's words (``offboard``, ``hold``, ``land``, ``takeoff``, ``other``)."""
-        return self.mode_class(self.custom_mode)
+        """The mode in the flight sequence's words (``offboard``, ``hold``, ``land``, ``takeoff``, ``other``).
+        Classified again only when the custom mode (or the classifier) changed: the tick asks every period."""
+        cls, custom, mode = self._mode_memo
+        if cls is not self.mode_class or custom != self.custom_mode:
+            mode = self.mode_class(self.custom_mode)
+            self._mode_memo = (self.mode_class, self.custom_mode, mode)
+        return mode
 
     @property
     def on_ground(self) -> bool:
@@ -367,7 +373,7 @@ class VehicleState:
         ):
             swing = self._payload_swing()
             source = "payload_position" if swing is not None else "none"
-        if swing is not None and not np.all(np.isfinite(swing)):
+        if swing is not None and not all(map(math.isfinite, swing)):
             swing, source = None, "none"
         return Estimate(
             t_s=self.t_s,

@@ -149,6 +149,7 @@ class LoopStats:
     tick_cpu_s: list[float] = field(default_factory=list)  # the same ticks in this thread's CPU time
     send_s: list[float] = field(default_factory=list)
     ingest_s: list[float] = field(default_factory=list)  # live obstacle parsing after each tick (outside it)
+    after_s: list[float] = field(default_factory=list)  # the flight core's bookkeeping after the send (outside it)
     jitter_s: list[float] = field(default_factory=list)
     first: tuple[float, float] | None = None  # (wall monotonic s, vehicle time s) of the first tick with telemetry
     last: tuple[float, float] | None = None
@@ -156,7 +157,8 @@ class LoopStats:
     def summary(self, window: int | None = None) -> dict[str, float | int | None]:
         """ticks; tick (compute) and send time p50/p99/max (ms); the tick's CPU time p50/p99 (ms: what it costs
         when not preempted; on a busy machine the wall time includes other processes' time slices); late ticks;
-        preempted ticks and the thread's scheduling policy; jitter p99 and max (ms, real time only).
+        preempted ticks and the thread's scheduling policy; jitter p99 and max (ms, real time only); p99 of the
+        obstacle input's parsing and of the flight core's bookkeeping, both after the send (ms).
 
         ``window``: the timings of the last ``window`` ticks only (``window_ticks`` says so). The journal's
         provisional report, made on the event loop once a second, uses it: over a whole long flight the
@@ -168,6 +170,7 @@ class LoopStats:
 
         t, tc, snd, j = arr(self.tick_s), arr(self.tick_cpu_s), arr(self.send_s), arr(self.jitter_s)
         ingest = self.ingest_s[-window:] if window else self.ingest_s
+        after = self.after_s[-window:] if window else self.after_s
         return {
             "ticks": self.ticks,
             "window_ticks": window,
@@ -179,6 +182,7 @@ class LoopStats:
             "send_ms_p50": float(np.percentile(snd, 50) * 1e3),
             "send_ms_p99": float(np.percentile(snd, 99) * 1e3),
             "ingest_ms_p99": float(np.percentile(ingest, 99) * 1e3) if ingest else 0.0,
+            "after_ms_p99": float(np.percentile(after, 99) * 1e3) if after else 0.0,
             "late_ticks": self.late_ticks,
             "preempted_ticks": self.preempted_ticks,
             "scheduling": self.scheduling,
@@ -501,7 +505,7 @@ class FlightApp:
         """An estimate in the mission frame (positions relative to :attr:`origin_ned_m`)."""
         if not self.origin_ned_m.any():
             return est
-        return replace(est, pos_ned_m=est.pos_ned_m - self.origin_ned_m)
+        return est.with_position(est.pos_ned_m - self.origin_ned_m)
 
     def _observe(self, est: Estimate | None, wall: float) -> Observation:
         st = self.state
@@ -564,7 +568,7 @@ class FlightApp:
                     if self.opts.inject_tick_error_at_s is not None and est.t_s >= self.opts.inject_tick_error_at_s:
                         raise RuntimeError("injected tick fault (SLUNGPILOT_INJECT_TICK_ERROR_AT_S)")
                     obstacles = self._obstacles(est)
-                    cmd = self.core.update(est, obstacles)
+                    cmd = self.core.setpoint(est, obstacles)
                     if self.core.arrival["t_s"] is not None:  # the report's "at the goal" follows the flight's
                         self.log.goal_tol_m = self.core.arrival["tolerance_m"]
                     self.swing_feed.commanded(est.t_s, cmd.thrust_n)
@@ -598,6 +602,8 @@ class FlightApp:
                 self._send_tick_only()
             self._last_answer_wall = time.monotonic()
         sent = time.perf_counter()
+        if cmd is not None and est is not None:
+            self._after_setpoint(est, cmd)
         self._log_transitions()
         if self.seq.finished:
             self._done.set()
@@ -621,6 +627,21 @@ class FlightApp:
                 sink.on_tick(est, cmd, self)
             except Exception:
                 log.exception("telemetry sink %s failed; continuing", type(sink).__name__)
+
+    def _after_setpoint(self, est: Estimate, cmd: Command) -> None:
+        """The flight core's bookkeeping once the setpoint is out (the loop-lag measurement), timed apart from
+        the tick; a failure there is counted with the tick errors and logged, but does not escalate as failing
+        ticks do: the setpoint went out (only the loop-lag measurement stands still)."""
+        start = time.perf_counter()
+        try:
+            self.core.after_setpoint(est, cmd)
+        except Exception as exc:
+            self.stats.tick_errors += 1
+            wall = time.monotonic()
+            if wall - self._last_error_log >= 1.0:
+                self._last_error_log = wall
+                log.error("control bookkeeping failed (%d tick errors in all): %r", self.stats.tick_errors, exc)
+        self.stats.after_s.append(time.perf_counter() - start)
 
     def _recent_valid(self, wall: float) -> tuple[float, np.ndarray, float] | None:
         """The last valid setpoint if it is at most one telemetry timeout old, else None (stream nothing)."""

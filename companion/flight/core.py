@@ -284,7 +284,26 @@ class FlightCore:
 
     # ------------------------------------------------------------------------------------------------
     def update(self, est: Estimate, obstacles: Sequence[Obstacle] | None = None) -> Command:
-        """The setpoint for this tick. ``obstacles`` None means the mission's own list.
+        """The setpoint for this tick and the bookkeeping after it: :meth:`setpoint`, then
+        :meth:`after_setpoint`. ``obstacles`` None means the mission's own list."""
+        cmd = self.setpoint(est, obstacles)
+        self.after_setpoint(est, cmd)
+        return cmd
+
+    def after_setpoint(self, est: Estimate, cmd: Command) -> None:
+        """What this tick adds that does not shape its own setpoint, for a caller that sends the setpoint first:
+        the loop-lag measurement (this tick's attitude against the commands of the ticks before) and this
+        tick's command into its ring. The next :meth:`setpoint` uses the lag measured here.
+
+        The measurement updates every other tick and costs more than the rest of the bookkeeping (~10 numpy
+        calls, which run cold in a real-time tick), so the app does it after the setpoint is out."""
+        self.loop_lag.observe(float(est.euler_rad[0]), float(est.euler_rad[1]))
+        euler = cmd.euler_cmd_rad
+        self.loop_lag.command(float(euler[0]), float(euler[1]))
+
+    def setpoint(self, est: Estimate, obstacles: Sequence[Obstacle] | None = None) -> Command:
+        """The setpoint for this tick (no loop-lag bookkeeping: :meth:`after_setpoint`, or :meth:`update` for both).
+        ``obstacles`` None means the mission's own list.
 
         Cost matters here (it runs at the control rate, and the lockstep loop waits for it): tiny vectors
         are handled as floats (math.hypot, no numpy temporaries); arrays are built only for the Command.
@@ -306,7 +325,7 @@ class FlightCore:
         self._advance_phase(est)
         obs = self._advance_obstacles(obs, est.t_s)
         ff_cfg, smc_cfg = self.cfg.feedforward, self.cfg.smc
-        lag = self.loop_lag.observe(float(est.euler_rad[0]), float(est.euler_rad[1]))
+        lag = self.loop_lag.lag_s  # as measured up to the last tick (after_setpoint)
         nominal = self.profile.nominal_loop_lag_s
         self.lag_trust = lag_trust(lag, nominal, ff_cfg.lag_full_excess_s, ff_cfg.lag_zero_excess_s)
         gain_scale = 1.0
@@ -375,10 +394,9 @@ class FlightCore:
             swing_acc if ctl_swing is not None else (0.0, 0.0), max(dt, 1e-4),
         )
         lim = self.cfg.limits
-        fx, fy, fz = (float(v) for v in ctl.force_ned_n)
+        fx, fy, fz = ctl.force_ned_n.tolist()
         force = limit_force_xyz(fx, fy, fz, lim.tilt_max_rad, self._thrust_min, self._thrust_max)
         q, thrust, euler = attitude_from_force(force, self.yaw_rad)
-        self.loop_lag.command(float(euler[0]), float(euler[1]))
         return Command(
             t_s=est.t_s, q_ned_frd_wxyz=q, thrust_n=thrust,
             thrust_norm=self.profile.thrust_to_norm(thrust, self.params.hover_thrust_n), euler_cmd_rad=euler,

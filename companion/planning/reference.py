@@ -51,7 +51,7 @@ class ReferenceGenerator:
     def step(self, v_des_ned_mps, dt_s: float) -> None:
         """Advance by ``dt_s`` seconds towards ``v_des_ned_mps`` (3,), respecting all limits."""
         p = self.params
-        vx, vy, vz = (float(c) for c in v_des_ned_mps)
+        vx, vy, vz = map(float, v_des_ned_mps)
         n = math.hypot(vx, vy)
         if n > p.v_max_mps:
             s = p.v_max_mps / n

@@ -54,7 +54,7 @@ def predicted_envelope_m(inp: PlanInput) -> float:
     l = inp.cable_l_m
     if inp.swing is None:
         return max(l, r2)
-    a, b, da, db = (float(v) for v in inp.swing)
+    a, b, da, db = map(float, inp.swing)
     w = math.sqrt(inp.g_mps2 / l)
     amp_a = min(math.hypot(a, da / w), 0.5 * math.pi)
     amp_b = min(math.hypot(b, db / w), 0.5 * math.pi)
@@ -171,10 +171,14 @@ class SafePlanner:
         sp = speed if not heading_in else max(speed, 0.5 * p.v_max_mps * w)
         vx, vy = sp * vdx, sp * vdy
 
-        # 3. barrier projection
+        # 3. barrier projection: (allowed approach speed, normal) per obstacle, then three passes
+        barriers = []
+        for gn in gaps:
+            g = gn[4]
+            allow = p.gamma * g if g < 0.0 else min(p.gamma * g, math.sqrt(2.0 * p.a_brake_mps2 * g))
+            barriers.append((allow, gn[5], gn[6]))
         for _ in range(3):
-            for _g, _nx, _ny, _o, g, nx, ny, *_ in gaps:
-                allow = p.gamma * g if g < 0.0 else min(p.gamma * g, math.sqrt(2.0 * p.a_brake_mps2 * g))
+            for allow, nx, ny in barriers:
                 vn = vx * nx + vy * ny
                 if vn < -allow:
                     k = -allow - vn
