@@ -683,7 +683,8 @@ SCENARIOS = {
     "zenoh_flood": zenoh_flood,
     # the same flood, the control loops SCHED_FIFO (fly --rt-priority): what the kernel's preemption costs
     "zenoh_flood_rt": lambda workdir: zenoh_flood(workdir, rt_priority=10),
-    # every list different: none can be adopted again unparsed
+    # every list different: none can be adopted again unparsed (normal scheduling, and SCHED_FIFO)
+    "zenoh_flood_varying": lambda workdir: zenoh_flood(workdir, vary=True),
     "zenoh_flood_varying_rt": lambda workdir: zenoh_flood(workdir, rt_priority=10, vary=True),
     "jitter": jitter,
     "signed_forced_disarm": signed_forced_disarm,
