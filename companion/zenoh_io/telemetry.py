@@ -187,7 +187,7 @@ class ZenohTelemetry:
         self.ring_full = 0  # drains that found a ring full: older samples may have been dropped inside Zenoh
         self.ingest_budget_s = INGEST_BUDGET_S
         self.min_parse_interval_s = MIN_PARSE_INTERVAL_S
-        self.held = 0  # per ingest, the publishers whose changed sample waited for their parse interval
+        self.held = 0  # ingests at which a publisher's changed sample waited for its parse interval
         self._parse_started: dict[str, float] = {}  # publisher key → app time its last parse started
         self.dropped_local = 0
         self.worker_errors = 0
@@ -418,10 +418,9 @@ class ZenohTelemetry:
         self._drain()
         if self._parser is not None or self._waiting:
             deadline = time.perf_counter() + self.ingest_budget_s
-            held: set[str] = set()
             while True:
                 if self._parser is None:
-                    picked = self._next_to_parse(now_s, held)
+                    picked = self._next_to_parse(now_s)
                     if picked is None:
                         break
                     self._parse_started[picked[0]] = now_s
@@ -437,13 +436,13 @@ class ZenohTelemetry:
                     self._adopted[p.key] = (p.raw, p.obstacles, p.expires_s)
                 if time.perf_counter() > deadline:
                     break
-            self.held += len(held)
 
-    def _next_to_parse(self, now_s: float, held: set[str]) -> tuple[str, bytes] | None:
+    def _next_to_parse(self, now_s: float) -> tuple[str, bytes] | None:
         """The first waiting (publisher key, sample) due for parsing at app time ``now_s``, taken out of the
         waiting set; None when there is none. On the way, samples equal to their publisher's last adopted one are
         adopted again without parsing, and changed ones whose publisher's last parse started less than
-        ``min_parse_interval_s`` ago stay waiting (their keys added to ``held``)."""
+        ``min_parse_interval_s`` ago stay waiting (``held``)."""
+        held = False
         for key in list(self._waiting):
             raw = self._waiting[key]
             prev = self._adopted.get(key)
@@ -453,10 +452,12 @@ class ZenohTelemetry:
                 self.store.adopt(key, prev[1], prev[2], now_s)  # refreshes its age and expiry
                 continue
             if now_s - self._parse_started.get(key, -math.inf) < self.min_parse_interval_s:
-                held.add(key)
+                held = True
                 continue
             del self._waiting[key]
+            self.held += held
             return key, raw
+        self.held += held
         return None
 
     def obstacle_source(self, mission_obstacles: Sequence[Obstacle]) -> Callable[[float], tuple[Obstacle, ...]]:
