@@ -104,37 +104,3 @@ def test_a_burst_beyond_the_ring_keeps_the_newest_and_says_the_ring_was_full():
         assert zt.ring_full == 1 and zt.superseded == INBOX_RING - 1, "only the ring's newest samples were drained"
         _ingest_until(zt, 0.2, lambda: zt.store.accepted_count == 1)
         assert zt.obstacles_current(0.2)[0].x_m == 100.0 + burst - 1
-
-
-def test_a_publishers_changed_lists_are_parsed_at_most_once_per_interval():
-    """A publisher faster than MIN_PARSE_INTERVAL_S (app time) gets its changed lists parsed at that rate: a newer
-    list waits (counted as held), is parsed once the interval has passed, and meanwhile another publisher's list
-    and a byte-identical re-send (adopted without parsing) are not held up."""
-    from companion.zenoh_io.telemetry import MIN_PARSE_INTERVAL_S
-
-    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
-    with ZenohTelemetry(zenoh_config("companion", listen=[ep]), TelemetryOptions(vehicle_id="6")) as zt, \
-            zenoh.open(zenoh_config("listener", connect=[ep])) as s:
-        cam, other = s.declare_publisher(KEY), s.declare_publisher("slungpilot/6/obstacles/in/other")
-        deadline = time.monotonic() + 15
-        while not (cam.matching_status.matching and other.matching_status.matching) and time.monotonic() < deadline:
-            time.sleep(0.02)
-        assert MIN_PARSE_INTERVAL_S == zt.min_parse_interval_s == 0.02
-        cam.put(_payload(10.0, n=4))
-        _ingest_until(zt, 1.000, lambda: zt.store.accepted_count == 1)  # its parse started at app time 1.000
-        cam.put(_payload(11.0, n=4))  # changed, 4 ms later: waits
-        other.put(_payload(50.0, n=4))
-        time.sleep(0.5)
-        zt.ingest(1.004)
-        assert zt.held == 1 and zt.store.accepted_count == 2, "the other publisher's list went through, cam's waited"
-        assert sorted(o.x_m for o in zt.obstacles_current(1.004))[:2] == [10.0, 12.0]
-        cam.put(_payload(12.0, n=4))  # newer still, while the last one waits: it replaces it, never parsed
-        time.sleep(0.5)
-        zt.ingest(1.016)
-        assert zt.held == 2 and zt.superseded == 1 and zt.store.accepted_count == 2
-        zt.ingest(1.020)  # the interval has passed: the newest is parsed
-        assert zt.store.accepted_count == 3 and zt.held == 2
-        assert min(o.x_m for o in zt.obstacles_current(1.020)) == 12.0
-        cam.put(_payload(12.0, n=4))  # the same bytes again at once: adopted without parsing, never held
-        _ingest_until(zt, 1.021, lambda: zt.store.accepted_count == 4)
-        assert zt.unchanged == 1 and zt.held == 2

@@ -272,7 +272,7 @@ def run_options(app: FlightApp, args: argparse.Namespace, mission: Mission, run_
                         "obstacles_in_accepted": zt.store.accepted_count,
                         "obstacles_in_rejected": zt.store.rejected_count,
                         "obstacles_in_unchanged": zt.unchanged, "obstacles_in_superseded": zt.superseded,
-                        "obstacles_in_held": zt.held, "obstacles_in_ring_full": zt.ring_full}
+                        "obstacles_in_ring_full": zt.ring_full}
     return out
 
 

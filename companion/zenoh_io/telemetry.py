@@ -50,11 +50,6 @@ MAX_PUBLISHERS_WAITING = 256  # distinct publishers with an unread sample; beyon
 # INBOX_RING samples per period (16 kHz at 250 Hz); worst-case memory INBOX_RING x 256 kB per subscriber
 INBOX_RING = 64
 INGEST_BUDGET_S = 0.3e-3  # parsing time one control tick may spend on live obstacle input
-# a publisher's changed list is parsed at most this often (app time, s); a newer one waits, newest wins. A perception
-# node publishes at 10-30 Hz; a faster publisher (a flood of ever-changing lists) would otherwise keep the parser busy
-# after every tick, and its work evicts the control tick's code and data from the cache: under a 1 kHz flood of
-# changed 256-trunk lists the tick's CPU p99 was 0.87 ms against 0.65 ms with unchanged ones
-MIN_PARSE_INTERVAL_S = 0.02
 MAX_QUEUE = 2000
 Vec = Sequence[float] | np.ndarray
 
@@ -186,9 +181,6 @@ class ZenohTelemetry:
         self.superseded = 0  # samples replaced by a newer one from the same publisher before they were parsed
         self.ring_full = 0  # drains that found a ring full: older samples may have been dropped inside Zenoh
         self.ingest_budget_s = INGEST_BUDGET_S
-        self.min_parse_interval_s = MIN_PARSE_INTERVAL_S
-        self.held = 0  # ingests at which a publisher's changed sample waited for its parse interval
-        self._parse_started: dict[str, float] = {}  # publisher key → app time its last parse started
         self.dropped_local = 0
         self.worker_errors = 0
         self._queue: queue.SimpleQueue | None = None
@@ -354,7 +346,6 @@ class ZenohTelemetry:
         body.setdefault("obstacles_in", {
             "accepted": self.store.accepted_count, "rejected": self.store.rejected_count,
             "inbox_dropped": self.inbox_dropped, "superseded": self.superseded, "unchanged": self.unchanged,
-            "held": self.held,
             "ring_full": self.ring_full,
             "pending": len(self._waiting) + (self._parser is not None),
             "sources": list(self.store.sources()),
@@ -420,11 +411,16 @@ class ZenohTelemetry:
             deadline = time.perf_counter() + self.ingest_budget_s
             while True:
                 if self._parser is None:
-                    picked = self._next_to_parse(now_s)
-                    if picked is None:
+                    if not self._waiting:
                         break
-                    self._parse_started[picked[0]] = now_s
-                    self._parser = SampleParser(*picked)
+                    key = next(iter(self._waiting))
+                    raw = self._waiting.pop(key)
+                    prev = self._adopted.get(key)
+                    if prev is not None and prev[0] == raw:
+                        self.unchanged += 1
+                        self.store.adopt(key, prev[1], prev[2], now_s)  # refreshes its age and expiry
+                        continue
+                    self._parser = SampleParser(key, raw)
                 p = self._parser
                 if not p.work(deadline):
                     break
@@ -436,29 +432,6 @@ class ZenohTelemetry:
                     self._adopted[p.key] = (p.raw, p.obstacles, p.expires_s)
                 if time.perf_counter() > deadline:
                     break
-
-    def _next_to_parse(self, now_s: float) -> tuple[str, bytes] | None:
-        """The first waiting (publisher key, sample) due for parsing at app time ``now_s``, taken out of the
-        waiting set; None when there is none. On the way, samples equal to their publisher's last adopted one are
-        adopted again without parsing, and changed ones whose publisher's last parse started less than
-        ``min_parse_interval_s`` ago stay waiting (``held``)."""
-        held = False
-        for key in list(self._waiting):
-            raw = self._waiting[key]
-            prev = self._adopted.get(key)
-            if prev is not None and prev[0] == raw:
-                del self._waiting[key]
-                self.unchanged += 1
-                self.store.adopt(key, prev[1], prev[2], now_s)  # refreshes its age and expiry
-                continue
-            if now_s - self._parse_started.get(key, -math.inf) < self.min_parse_interval_s:
-                held = True
-                continue
-            del self._waiting[key]
-            self.held += held
-            return key, raw
-        self.held += held
-        return None
 
     def obstacle_source(self, mission_obstacles: Sequence[Obstacle]) -> Callable[[float], tuple[Obstacle, ...]]:
         """``t_s -> obstacles`` for ``FlyOptions.obstacle_source`` (no parsing: pair it with :meth:`ingest` as
