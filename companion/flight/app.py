@@ -470,8 +470,7 @@ class FlightApp:
         except Exception:
             self.stats.ingest_errors += 1
             wall = time.monotonic()
-            if wall - self._last_error_log >= 1.0:
-                self._last_error_log = wall
+            if self._error_log_due(wall):
                 log.exception("obstacle input failed (%d times); flying with the obstacles adopted so far",
                               self.stats.ingest_errors)
         self.stats.ingest_s.append(time.perf_counter() - start)
@@ -584,8 +583,7 @@ class FlightApp:
         except Exception as exc:  # the loop boundary: count, log once a second, keep the vehicle safe
             self._tick_errors_in_row += 1
             self.stats.tick_errors += 1
-            if wall - self._last_error_log >= 1.0:
-                self._last_error_log = wall
+            if self._error_log_due(wall):
                 log.error("control tick failed (%d in a row, %d in all): %r", self._tick_errors_in_row,
                           self.stats.tick_errors, exc, exc_info=self.stats.tick_errors == 1)
             setpoint = self._recent_valid(wall) if stream in (Stream.CORE, Stream.DESCENT) else None
@@ -628,6 +626,14 @@ class FlightApp:
             except Exception:
                 log.exception("telemetry sink %s failed; continuing", type(sink).__name__)
 
+    def _error_log_due(self, wall: float) -> bool:
+        """Whether a failure at monotonic time ``wall`` (s) gets logged: failing ticks, obstacle input and the
+        after-send bookkeeping share one log at most once a second (a failure every tick would flood it)."""
+        if wall - self._last_error_log < 1.0:
+            return False
+        self._last_error_log = wall
+        return True
+
     def _after_setpoint(self, est: Estimate, cmd: Command) -> None:
         """The flight core's bookkeeping once the setpoint is out (the loop-lag measurement), timed apart from
         the tick; a failure there is counted with the tick errors and logged, but does not escalate as failing
@@ -638,8 +644,7 @@ class FlightApp:
         except Exception as exc:
             self.stats.tick_errors += 1
             wall = time.monotonic()
-            if wall - self._last_error_log >= 1.0:
-                self._last_error_log = wall
+            if self._error_log_due(wall):
                 log.error("control bookkeeping failed (%d tick errors in all): %r", self.stats.tick_errors, exc)
         self.stats.after_s.append(time.perf_counter() - start)
 
