@@ -243,24 +243,15 @@ def test_random_forest_with_crossing_trunks_in_process_is_clean():
 
 
 def test_the_flight_core_hands_the_planner_the_swing_estimate_uncertainty():
-    from dataclasses import dataclass
+    from dataclasses import replace
 
-    from companion.flight.core import _swing_sigma_rad
+    from companion.estimation.estimate import swing_sigma_rad
 
-    @dataclass
-    class WithSigma:
-        swing: np.ndarray
-        swing_sigma_rad: float
-
-    @dataclass
-    class WithBound:
-        swing: np.ndarray
-        swing_bound_rad: float
-
-    assert _swing_sigma_rad(_est(0.0, [0, 0, -2])) == 0.0  # the cable sensor: exact
-    assert _swing_sigma_rad(WithSigma(np.zeros(4), 0.05)) == 0.05
+    assert swing_sigma_rad(_est(0.0, [0, 0, -2])) == 0.0  # the cable sensor: exact
     # a 3σ bound around |(α, β)| = 0.05: σ = (0.2 − 0.05)/3
-    assert _swing_sigma_rad(WithBound(np.array([0.03, 0.04, 0.0, 0.0]), 0.2)) == pytest.approx(0.05)
+    bounded = replace(_est(0.0, [0, 0, -2]), swing=np.array([0.03, 0.04, 0.0, 0.0]), swing_source="estimate",
+                      swing_bound_rad=0.2)
+    assert swing_sigma_rad(bounded) == pytest.approx(0.05)
 
 
 @pytest.mark.slow

@@ -3,6 +3,7 @@
 from companion.control.attitude import attitude_from_force, limit_force, limit_force_xyz
 from companion.control.params import ControllerConfig, load_controller_config
 from companion.control.position import (
+    PositionController,
     PositionOutput,
     SwingAccelEstimator,
     feedforward_acc,
@@ -15,6 +16,7 @@ CONTROLLER_NAMES = ("smc_ff", "smc", "pid")
 __all__ = [
     "CONTROLLER_NAMES",
     "ControllerConfig",
+    "PositionController",
     "PositionOutput",
     "SwingAccelEstimator",
     "attitude_from_force",

@@ -36,10 +36,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
-from companion.control.params import FeedForwardGains, PidGains, SmcGains
+from companion.control.params import ControllerConfig, FeedForwardGains, PidGains, SmcGains
 from companion.core.model import VehicleParams
 
 
@@ -53,6 +54,30 @@ class PositionOutput:
     ff_acc_mps2: np.ndarray
     f_payload_n: np.ndarray
     sliding: np.ndarray
+
+
+class PositionController(Protocol):
+    """Everything the flight core uses of a position controller; every controller implements all of it.
+
+    ``gain_scale``: horizontal stiffness factor (0..1, 1 = the configured gains) the core sets each tick from
+    the loop lag where ``softens_with_lag`` (the SMC; the PID baseline keeps its gains and ignores it);
+    ``swing_feedforward``: whether :meth:`update` adds the anti-swing feed-forward ff(swing) to the reference
+    acceleration (``smc_ff``): the core then hands it a_ref − ff(nominal swing) of a planned reference.
+    """
+
+    gain_scale: float
+
+    @property
+    def softens_with_lag(self) -> bool: ...
+
+    @property
+    def swing_feedforward(self) -> bool: ...
+
+    def update(self, pos, vel, ref_pos, ref_vel, ref_acc, swing: np.ndarray | None, swing_acc,
+               dt_s: float) -> PositionOutput:
+        """One control step: position, velocity and reference (NED (3,), SI units), swing [α, β, α̇, β̇] (rad,
+        rad/s) or None, its acceleration [α̈, β̈] (rad/s²), the time step (s); the thrust force to fly."""
+        ...
 
 
 def _payload_reaction(
@@ -152,6 +177,8 @@ class SmcPositionController:
     Scalar arithmetic per axis (this runs every control tick).
     """
 
+    softens_with_lag = True
+
     def __init__(
         self, gains: SmcGains, params: VehicleParams, feedforward: FeedForwardGains | None, acc_max_mps2: float
     ) -> None:
@@ -165,6 +192,11 @@ class SmcPositionController:
         self._k = tuple(float(v) for v in gains.k)
         self._ks = tuple(float(v) for v in gains.k_sat)
         self._bl = tuple(float(v) for v in gains.boundary)
+
+    @property
+    def swing_feedforward(self) -> bool:
+        """Whether the anti-swing feed-forward is on (``smc_ff``)."""
+        return self.ff is not None
 
     def update(
         self, pos, vel, ref_pos, ref_vel, ref_acc, swing: np.ndarray | None, swing_acc, dt_s: float
@@ -212,10 +244,15 @@ class SmcPositionController:
 
 
 class PidPositionController:
-    """Cascade PID baseline: position P → velocity PI with anti-windup clamp; no payload knowledge."""
+    """Cascade PID baseline: position P → velocity PI with anti-windup clamp; no payload knowledge (no
+    feed-forward) and no loop-lag softening (``gain_scale`` stays 1 and is not used)."""
+
+    softens_with_lag = False
+    swing_feedforward = False
 
     def __init__(self, gains: PidGains, params: VehicleParams, acc_max_mps2: float) -> None:
         self.gains = gains
+        self.gain_scale = 1.0
         self.params = params
         self.acc_max = acc_max_mps2
         self._kp = np.array(gains.kp)
@@ -240,7 +277,7 @@ class PidPositionController:
         return PositionOutput(force, acc, np.zeros(3), np.zeros(3), ev)
 
 
-def make_position_controller(name: str, cfg, params: VehicleParams):
+def make_position_controller(name: str, cfg: ControllerConfig, params: VehicleParams) -> PositionController:
     """``smc_ff`` | ``smc`` | ``pid`` from a :class:`~companion.control.params.ControllerConfig`."""
     a_max = cfg.limits.acc_max_mps2
     if name == "smc_ff":

@@ -46,6 +46,24 @@ class Estimate:
                         self.swing_source, self.swing_fade, self.swing_bound_rad, self.pos_accuracy_m)
 
 
+def widened_swing(alpha_rad: float, beta_rad: float, bound_rad: float) -> tuple[float, float]:
+    """(α, β) (rad) stretched along their direction to the magnitude ``bound_rad`` (|swing| + 3σ of an uncertain
+    estimate), the swing angles the envelope (eqs. 20–21) assumes; along α when the swing is ~0."""
+    mag = math.hypot(alpha_rad, beta_rad)
+    if mag > 1e-9:
+        return alpha_rad * bound_rad / mag, beta_rad * bound_rad / mag
+    return bound_rad, 0.0
+
+
+def swing_sigma_rad(est: Estimate) -> float:
+    """1σ (rad) of the swing's error, for a planner that widens its envelope by it: from the estimate's 3σ bound
+    ``swing_bound_rad`` = |(α, β)| + 3σ, else 0 (no bound: an exact sensor, or no swing)."""
+    bound = est.swing_bound_rad
+    if bound is not None and est.swing is not None and math.isfinite(float(bound)):
+        return max(0.0, (float(bound) - math.hypot(float(est.swing[0]), float(est.swing[1]))) / 3.0)
+    return 0.0
+
+
 def swing_from_payload(
     pos_ned_m: np.ndarray,
     payload_pos_ned_m: np.ndarray,

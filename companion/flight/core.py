@@ -53,6 +53,7 @@ import numpy as np
 from companion.autopilots.profile import VehicleProfile
 from companion.control import (
     ControllerConfig,
+    PositionController,
     SwingAccelEstimator,
     attitude_from_force,
     feedforward_acc,
@@ -62,9 +63,9 @@ from companion.control import (
 from companion.core.envelope import full_cable_r_max_m, r_max_m
 from companion.core.mission import Mission
 from companion.core.obstacles import Obstacle
-from companion.estimation.estimate import Estimate
+from companion.estimation.estimate import Estimate, swing_sigma_rad, widened_swing
 from companion.estimation.loop_lag import LoopLagEstimator, lag_trust
-from companion.planning import PlanInput, ReferenceGenerator, make_planner
+from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator, make_planner
 
 log = logging.getLogger(__name__)
 
@@ -126,7 +127,9 @@ def climb_altitude_ned_m(z0_ned_m: float, start_z_ned_m: float, cable_m: float) 
 
 
 class FlightCore:
-    """Per-tick flight logic for one mission; call :meth:`update` with each new estimate."""
+    """Per-tick flight logic for one mission; call :meth:`update` with each new estimate.
+
+    ``period_s``: the control period (s): the loop lag is counted in it, and the first tick steps by it."""
 
     def __init__(self, mission: Mission, gains: ControllerConfig | None = None, profile: VehicleProfile | None = None,
                  period_s: float = 0.004):
@@ -134,14 +137,14 @@ class FlightCore:
         self.cfg = gains or ControllerConfig()
         self.profile = profile or VehicleProfile()
         self.params = mission.vehicle
-        self.planner = make_planner(mission.planner, self.cfg.planner, self.params)
-        self._timed = bool(getattr(self.planner, "time_parameterised", False))
+        self.period_s = period_s
+        self.planner: Planner = make_planner(mission.planner, self.cfg.planner, self.params)
+        self._timed = self.planner.time_parameterised
         self._moving_mission = any(o.vx_mps != 0.0 or o.vy_mps != 0.0 for o in mission.obstacles)
         self.no_route = False
         self.t_no_route_s: float | None = None
         self._timed_stop = False  # hold_here / descend asked while a time-parameterised planner was flying
-        self.controller = make_position_controller(mission.controller, self.cfg, self.params)
-        self._softens = hasattr(self.controller, "gain_scale")  # the SMC; the PID baseline has no lag softening
+        self.controller: PositionController = make_position_controller(mission.controller, self.cfg, self.params)
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
         self.loop_lag = LoopLagEstimator(period_s)
         self.lag_trust = 1.0  # the feed-forward's trust from the measured loop lag (this tick)
@@ -320,7 +323,7 @@ class FlightCore:
             self._climb_z = climb_altitude_ned_m(z, float(m.start_ned_m[2]), self.params.l)
             if abs(z - self._climb_z) < ARRIVE_VERT_M:
                 self.phase = "cruise"
-        dt = 0.004 if self.t_prev_s is None else est.t_s - self.t_prev_s
+        dt = self.period_s if self.t_prev_s is None else est.t_s - self.t_prev_s
         self.t_prev_s = est.t_s
         self._advance_phase(est)
         obs = self._advance_obstacles(obs, est.t_s)
@@ -329,7 +332,7 @@ class FlightCore:
         nominal = self.profile.nominal_loop_lag_s
         self.lag_trust = lag_trust(lag, nominal, ff_cfg.lag_full_excess_s, ff_cfg.lag_zero_excess_s)
         gain_scale = 1.0
-        if self._softens:
+        if self.controller.softens_with_lag:
             gain_scale = self.controller.gain_scale = lag_trust(lag, nominal, smc_cfg.lag_scale_start_s,
                                                                 smc_cfg.lag_scale_end_s, smc_cfg.lag_scale_min)
         self.lag_stats.add(lag, self.lag_trust, gain_scale)
@@ -338,11 +341,7 @@ class FlightCore:
         if swing is not None:
             a_env, b_env = float(swing[0]), float(swing[1])
             if est.swing_bound_rad is not None:  # an uncertain estimate: the envelope assumes |swing| + 3σ
-                mag = math.hypot(a_env, b_env)
-                if mag > 1e-9:
-                    a_env, b_env = a_env * est.swing_bound_rad / mag, b_env * est.swing_bound_rad / mag
-                else:
-                    a_env, b_env = est.swing_bound_rad, 0.0
+                a_env, b_env = widened_swing(a_env, b_env, est.swing_bound_rad)
             r_max = r_max_m(a_env, b_env, self.params)
             mode = "swing"
             swing_acc = self.swing_acc.update_scalar(est.t_s, float(swing[2]), float(swing[3]))
@@ -406,7 +405,7 @@ class FlightCore:
         )
 
     def _plan_timed(self, est: Estimate, obs: Sequence[Obstacle], swing: np.ndarray | None, r_max: float, z: float,
-                    dt: float):
+                    dt: float) -> PlanOutput:
         """Cruise / hold / no_route / done with a time-parameterised planner: its horizontal reference, the
         vertical channel towards the goal's altitude (or held where it is after no route)."""
         m = self.mission
@@ -417,7 +416,7 @@ class FlightCore:
             vel_mps=np.asarray(est.vel_ned_mps[:2], dtype=np.float64), ref_pos_m=np.array(ref.p[:2]),
             ref_vel_mps=np.array(ref.v[:2]), goal_m=self._goal_xy, r_max_m=r_max, swing=swing,
             cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
-            swing_sigma_rad=_swing_sigma_rad(est),
+            swing_sigma_rad=swing_sigma_rad(est),
         )
         out = self.planner.plan(inp, obs)
         if out.no_route and not self.no_route:
@@ -437,12 +436,13 @@ class FlightCore:
         ref.set_horizontal(r.pos_m, r.vel_mps, r.acc_mps2)
         return out
 
-    def _acc_for_controller(self, out, est: Estimate) -> list[float] | None:
-        """Reference acceleration for the controller: a_ref − ff(nominal swing) with the smc_ff controller fed
-        the cable sensor or the swing estimate (the feed-forward then acts on the deviation from the planned
-        swing; scaled by the same trust as the controller's swing), else None."""
+    def _acc_for_controller(self, out: PlanOutput, est: Estimate) -> list[float] | None:
+        """Reference acceleration for the controller: a_ref − ff(nominal swing) with a feed-forward controller
+        (``swing_feedforward``, the smc_ff) fed the cable sensor or the swing estimate (the feed-forward then acts
+        on the deviation from the planned swing; scaled by the same trust as the controller's swing), else None."""
         r = out.reference
-        if r is None or self.mission.controller != "smc_ff" or est.swing_source not in ("cable_sensor", "estimate"):
+        if (r is None or not self.controller.swing_feedforward
+                or est.swing_source not in ("cable_sensor", "estimate")):
             return None
         fade = self._swing_trust(est)
         a, b, da, db, dda, ddb = r.swing_nom
@@ -450,8 +450,6 @@ class FlightCore:
         ref = self.ref
         assert ref is not None
         return [ref.a[0] - fade * float(ff[0]), ref.a[1] - fade * float(ff[1]), ref.a[2] - fade * float(ff[2])]
-
-
     def _swing_trust(self, est: Estimate) -> float:
         """How much of the swing the controller acts on (0..1): the estimate's ``swing_fade`` (1 for the cable
         sensor) times this tick's loop-lag trust."""
@@ -498,14 +496,3 @@ class _LagStats:
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
 
-
-def _swing_sigma_rad(est: Estimate) -> float:
-    """1σ (rad) of the swing estimate's error for the planner's envelope: ``est.swing_sigma_rad`` if the estimate
-    carries it, else from a 3σ bound ``est.swing_bound_rad`` = |(α, β)| + 3σ, else 0 (an exact sensor)."""
-    sigma = getattr(est, "swing_sigma_rad", None)
-    if sigma is not None:
-        return max(0.0, float(sigma))
-    bound = getattr(est, "swing_bound_rad", None)
-    if bound is not None and est.swing is not None and math.isfinite(float(bound)):
-        return max(0.0, (float(bound) - math.hypot(float(est.swing[0]), float(est.swing[1]))) / 3.0)
-    return 0.0

@@ -58,11 +58,16 @@ def rho_star_improved_m(o: Obstacle, r_max_m: float) -> float:
 class ApfPlanner:
     """``traditional`` or ``improved`` APF (see module docstring); ``none`` is attraction only."""
 
+    time_parameterised = False
+
     def __init__(self, kind: str, params: PlannerParams) -> None:
         if kind not in ("traditional", "improved", "none"):
             raise ValueError(f"planner: unknown APF kind {kind!r}")
         self.name = kind
         self.params = params
+
+    def stop(self) -> None:
+        """Nothing to stop: the flight core holds the reference itself (:class:`~companion.planning.base.Planner`)."""
 
     def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
         """Resultant force (eq. 26 / 28) at the measured position, read as desired velocity."""

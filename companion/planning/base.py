@@ -7,7 +7,7 @@ the safe planner builds it directly. The :class:`~companion.planning.reference.R
 the desired velocity into a flyable reference (position, velocity, acceleration) with acceleration and jerk
 limits; the position controller tracks that reference.
 
-A *time-parameterised* planner (class attribute ``time_parameterised = True``: the ``shaped`` planner)
+A *time-parameterised* planner (``time_parameterised`` True: the ``shaped`` planner)
 produces the horizontal reference itself, :class:`ReferenceSample` in ``PlanOutput.reference``, including the
 payload's nominal swing along it; the flight core then flies that reference instead of integrating
 ``v_des_mps``. Such a planner may also find that no route to the goal exists (``PlanOutput.no_route``).
@@ -82,11 +82,27 @@ class PlanOutput:
 
 
 class Planner(Protocol):
-    """A planner: ``plan(inp, obstacles) -> PlanOutput``; ``name`` is its registry name."""
+    """Everything the flight core uses of a planner; every planner implements all of it.
 
-    name: str
+    ``name``: its registry name; ``time_parameterised``: whether :meth:`plan` gives the horizontal reference
+    itself (``PlanOutput.reference``) rather than a desired velocity.
+    """
 
-    def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput: ...
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def time_parameterised(self) -> bool: ...
+
+    def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
+        """The plan at ``inp.t_s`` around ``obstacles`` (see :class:`PlanOutput`)."""
+        ...
+
+    def stop(self) -> None:
+        """Stop the mission where the plan allows and hold there (a hold the flight sequence asked for); takes
+        effect at the next :meth:`plan`. A no-op for planners that give a desired velocity: the flight core
+        then holds the reference itself."""
+        ...
 
 
 def saturate(v: np.ndarray, limit: float) -> np.ndarray:

@@ -78,6 +78,7 @@ class SafePlanner:
     """
 
     name = "safe"
+    time_parameterised = False
 
     def __init__(self, params: PlannerParams) -> None:
         self.params = params
@@ -127,6 +128,9 @@ class SafePlanner:
         """(gap m at the reference point itself, unit normal from the obstacle (2,), obstacle) per relevant
         obstacle (no look-ahead; the margin includes the current and predicted tracking error)."""
         return [(gn[7], np.array(gn[8:10]), gn[3]) for gn in self._gaps(inp, obstacles)]
+
+    def stop(self) -> None:
+        """Nothing to stop: the flight core holds the reference itself (:class:`~companion.planning.base.Planner`)."""
 
     def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
         """Desired horizontal velocity at the reference point (m/s, NED (2,))."""
