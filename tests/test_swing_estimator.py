@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from companion.core.model import VehicleParams, accelerations, payload_offset_ned_m, rk4_step
+from companion.estimation.estimate import widened_swing
 from companion.estimation.swing_estimator import (
     SwingEstimate,
     SwingEstimator,
     SwingEstimatorConfig,
-    widened_swing,
 )
 
 P = VehicleParams()
@@ -249,12 +249,9 @@ def test_per_axis_imu_noise_is_accepted():
 
 
 def test_widened_swing_keeps_the_direction():
-    s = SwingEstimate(0.0, np.array([0.06, -0.08, 0.0, 0.0]), np.zeros(2), np.eye(4), 0.01, 0.13, 1.0,
-                      np.zeros(3), np.zeros(3), {}, ())
-    a, b = widened_swing(s)
+    a, b = widened_swing(0.06, -0.08, 0.13)
     assert math.isclose(math.hypot(a, b), 0.13) and math.isclose(a / b, 0.06 / -0.08)
-    z = replace(s, swing=np.zeros(4), bound_rad=0.05)
-    assert widened_swing(z) == (0.05, 0.0)
+    assert widened_swing(0.0, 0.0, 0.05) == (0.05, 0.0)
 
 
 

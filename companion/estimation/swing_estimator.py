@@ -356,10 +356,6 @@ class SwingEstimator:
             return None
         return min(max(t - a[0], -_MAX_EXTRAPOLATE_S), _MAX_EXTRAPOLATE_S), a[1]
 
-    def _thrust(self, t: float) -> float:
-        th = self._thr.at(t)
-        return self._hover_n if th is None else th[1][0]
-
     def _force(self, t: float, x: np.ndarray) -> tuple[float, float, float, float, float, float]:
         """(f, body z axis) at time t (N and unit vector, NED): f = F − c·(v_N, v_E, 0) + d, every non-gravity,
         non-cable force on the airframe, with the thrust T + δT along −z body (attitude from the sample before t
@@ -559,12 +555,12 @@ class SwingEstimator:
         A[2:7, :] = J * h
         return _IN + A + 0.5 * (A @ A)
 
-    def _cov(self, P: np.ndarray, J: np.ndarray, h: float) -> np.ndarray:
-        """P after h seconds with the accelerations' Jacobian J, plus Q·h."""
+    def _cov(self, P: np.ndarray, J: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+        """(P after h seconds with the accelerations' Jacobian J, plus Q·h; the step's transition Φ)."""
         Phi = self._phi(J, h)
         P = Phi @ P @ Phi.T
         P[np.diag_indices(N_STATE)] += self._Qc * h
-        return P
+        return P, Phi
 
     def _propagate(self, x, P, t0: float, t1: float):
         """(x, P, acc, J, Φ) at t1 from (x, P) at t0: the mean in steps of ``step_s``, the covariance in steps of at
@@ -582,9 +578,7 @@ class SwingEstimator:
             f = self._force(tb, x)
             acc = self._acc(x, f)
             J = self._acc_jacobian(x, f, acc)
-            Phi = self._phi(J, tb - ta)
-            P = Phi @ P @ Phi.T
-            P[np.diag_indices(N_STATE)] += self._Qc * (tb - ta)
+            P, Phi = self._cov(P, J, tb - ta)
             Phi_total = Phi @ Phi_total
             ta = tb
         if J is None:
@@ -697,6 +691,11 @@ class SwingEstimator:
             e.P = 0.5 * (P + P.T)
 
     # ------------------------------------------------------------------------------------------- output
+    def selection_facts(self) -> None:
+        """For the report, like ``TwoModelEstimator.selection_facts`` (:mod:`companion.estimation.two_model`): one
+        filter, nothing was chosen (None)."""
+        return None
+
     @property
     def t_processed_s(self) -> float:
         """Time of the newest processed measurement (or the start)."""
@@ -740,7 +739,7 @@ class SwingEstimator:
         f = self._force(t_x, x)
         a = self._acc(x, f)
         if t_x - t_P >= self.cfg.cov_step_s:
-            P = self._cov(P, self._acc_jacobian(x, f, a), t_x - t_P)
+            P, _ = self._cov(P, self._acc_jacobian(x, f, a), t_x - t_P)
             t_P = t_x
         self._shadow = (self._version, t_x, x, t_P, P)
         Ps = P[0:2, 0:2]
@@ -771,13 +770,3 @@ def _ramp_down(v: float, lo: float, hi: float) -> float:
         return 0.0
     return (hi - v) / (hi - lo)
 
-
-def widened_swing(est: SwingEstimate) -> tuple[float, float]:
-    """(α, β) stretched along their direction to the magnitude ``est.bound_rad`` (|swing| + 3σ), for the
-    envelope (eq. 20–21) when the estimate is uncertain. Pointing along α when the swing is ~0."""
-    a, b = float(est.swing[0]), float(est.swing[1])
-    mag = math.hypot(a, b)
-    if mag < 1e-9:
-        return est.bound_rad, 0.0
-    k = est.bound_rad / mag
-    return a * k, b * k

@@ -190,7 +190,6 @@ class ShapedPlanner:
         bare = ro + sd + r2 + 0.02
         contact = ro + r2
         allo = static + moving
-        n = len(allo)
         is_m = np.array([False] * len(static) + [True] * len(moving), dtype=np.bool_)
         r_all = np.array([o.radius_m + o.safe_distance_m for o in allo], dtype=np.float64)
         pred = Predicted(
@@ -202,7 +201,6 @@ class ShapedPlanner:
             ring_payload=r_all + np.where(is_m, margin, -0.01),
             growth=np.where(is_m, self.params.predict_growth_mps, 0.0), moving=is_m,
         )
-        del n
         return c, ring, bare, contact, moving, pred
 
     def _rows(self, prof: Profile) -> np.ndarray:
@@ -326,7 +324,7 @@ class ShapedPlanner:
             cc, rr, hh = capsules(cc, rr, hh, conflicts, pred, t, self.envelope_m(inp),
                                   p.track_margin_m + self.err_peak_m, inp.airframe_r_m, p.predict_growth_mps)
         self.last = {"candidates": tried, "cur_ok": cur_ok, "remaining_s": remaining,
-                     "durations": [round(cd.duration_s, 3) for cd in cands] if True else []}
+                     "durations": [round(cd.duration_s, 3) for cd in cands]}
         if chosen is not None:
             cand, rows, u, ref, base = chosen
             better = not optional or cand.duration_s < remaining - p.replan_hysteresis_s
