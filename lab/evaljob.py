@@ -3,15 +3,17 @@
 * :func:`scenario_spec`: the forest of a scenario — ``static`` (as given), ``moving`` (plus crossing trunks),
   ``fenced`` (the goal ringed by trunks, no route exists).
 * :func:`run_eval_job`: fly a :class:`lab.runner.Job` (MAVLink lockstep through :func:`lab.runner.run_job`, or
-  in-process), then add the clearance and collisions against moving obstacles where they are at each instant
-  (the flight report treats every obstacle as standing still), the ``no_route`` class, and the physical bound
-  of :mod:`lab.compare`.
+  in-process), then add the collisions with moving obstacles, the ``no_route`` class, and the physical bound of
+  :mod:`lab.compare`.
+
+Clearance and collisions are the flight report's own (:mod:`companion.report.scoring`, moving obstacles where they
+are at each logged time): ``evaluate`` scores no flight itself, so it cannot disagree with ``fly``.
 """
 
 from __future__ import annotations
 
+import json
 import logging
-import math
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -20,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from companion.core.mission import mission_to_toml
+from companion.report.scoring import is_moving
 from lab.compare import bound_time_s
 from lab.forests import ForestSpec
 from lab.runner import REPORT_KEYS, Job, classify, process_facts, run_job
@@ -41,28 +44,18 @@ def scenario_spec(spec: ForestSpec, scenario: str, movers: int = 2) -> ForestSpe
     raise ValueError(f"scenario: must be one of {', '.join(SCENARIOS)}, got {scenario!r}")
 
 
-def clearances_moving(t_s: np.ndarray, pos_ned_m: np.ndarray, payload_ned_m: np.ndarray, obstacles,
-                      airframe_r_m: float) -> np.ndarray:
-    """Per obstacle, the minimum clearance (m) over the flight with each obstacle where it is at each row's time:
-    its file position at the mission clock's zero — the first row, the first setpoint — moved at its velocity
-    (the convention of :mod:`companion.flight.core`). Airframe circle and payload point, each only while below
-    the obstacle's top, as in :func:`companion.report.metrics.clearances`; +inf if never below."""
-    t = np.asarray(t_s, dtype=np.float64)
-    dt = t - t[0]
-    pos = np.asarray(pos_ned_m, dtype=np.float64)
-    pay = np.asarray(payload_ned_m, dtype=np.float64)
-    out = np.full(len(obstacles), math.inf)
-    for i, o in enumerate(obstacles):
-        ox, oy = o.x_m + o.vx_mps * dt, o.y_m + o.vy_mps * dt
-        below = pos[:, 2] > -o.height_m
-        if np.any(below):
-            d = np.hypot(pos[below, 0] - ox[below], pos[below, 1] - oy[below]) - o.radius_m - airframe_r_m
-            out[i] = min(out[i], float(np.min(d)))
-        pb = np.isfinite(pay[:, 2]) & (pay[:, 2] > -o.height_m)
-        if np.any(pb):
-            d = np.hypot(pay[pb, 0] - ox[pb], pay[pb, 1] - oy[pb]) - o.radius_m
-            out[i] = min(out[i], float(np.min(d)))
-    return out
+def _report_facts(run_dir: str | None, moving: bool) -> dict[str, Any]:
+    """``collisions_moving`` from the run folder's ``report.json`` (0 when there is none: the flight failed before
+    its report). Warns when the report had no mission clock zero to place ``moving`` obstacles by (it then scored
+    them at their file positions, :mod:`companion.report.scoring`)."""
+    path = Path(run_dir) / "report.json" if run_dir else None
+    if path is None or not path.exists():
+        return {"collisions_moving": 0}
+    rep = json.loads(path.read_text())
+    if moving and rep.get("obstacle_clock_t0_s") is None:
+        log.warning("%s: no mission clock zero in the flight log; moving obstacles scored at their file positions",
+                    path)
+    return {"collisions_moving": int(rep.get("collisions_moving") or 0)}
 
 
 def _fly_inprocess(job: Job) -> dict[str, Any]:
@@ -83,9 +76,9 @@ def _fly_inprocess(job: Job) -> dict[str, Any]:
 
 
 def run_eval_job(job: Job) -> dict[str, Any]:
-    """Fly ``job`` (:func:`lab.runner.run_job`'s result keys) and add what the evaluator measures beyond the
-    flight report: collisions and clearance against moving obstacles where they are at each instant, the
-    ``no_route`` class, the physical bound. Successful runs' folders are removed afterwards unless kept."""
+    """Fly ``job`` (:func:`lab.runner.run_job`'s result keys) and add what the evaluator classifies by beyond
+    :func:`lab.runner.classify`: the report's collisions with moving obstacles, the ``no_route`` class, the
+    physical bound. Successful runs' folders are removed afterwards unless kept."""
     if job.mode == "inprocess":
         job.run_dir.mkdir(parents=True, exist_ok=True)
         mission_file = job.run_dir / "mission.toml"
@@ -102,18 +95,7 @@ def run_eval_job(job: Job) -> dict[str, Any]:
     else:
         out = run_job(replace(job, keep_run_dir=True))
     m = job.mission
-    moving = [i for i, o in enumerate(m.obstacles) if o.vx_mps != 0.0 or o.vy_mps != 0.0]
-    npz = Path(out["run_dir"]) / "flight_log.npz" if out.get("run_dir") else None
-    if moving and not out.get("error") and npz is not None and npz.exists():
-        with np.load(npz) as z:
-            clear = clearances_moving(z["t_s"], z["pos_ned_m"], z["payload_pos_ned_m"], m.obstacles,
-                                      m.vehicle.r_uav + m.vehicle.L_uav)
-        finite = clear[np.isfinite(clear)]
-        out["min_clearance_m"] = float(finite.min()) if finite.size else None
-        out["collisions"] = int(np.sum(clear < 0.0))
-        out["collisions_moving"] = int(np.sum(clear[moving] < 0.0))
-    else:
-        out["collisions_moving"] = 0
+    out.update(_report_facts(None if out.get("error") else out.get("run_dir"), any(map(is_moving, m.obstacles))))
     out["class"] = classify(out)
     if out["class"] == "stuck" and out.get("outcome") == "no_route":
         out["class"] = "no_route"

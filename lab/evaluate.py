@@ -12,7 +12,7 @@ Scenarios (``--scenarios``), each reported as its own class on the same seeds: `
 Outcome classes (:func:`lab.runner.classify`, refined by :func:`lab.evaljob.run_eval_job`): ``success`` =
 goal reached (within 0.1 m horizontally) with zero collisions; ``collision`` = at least one obstacle's
 clearance < 0 (airframe circle or payload point; a moving obstacle where it is at that instant,
-:func:`lab.evaljob.clearances_moving`); ``no_route`` = the planner established that no route exists and
+:mod:`companion.report.scoring`); ``no_route`` = the planner established that no route exists and
 held (the flight's outcome ``no_route``; the shaped planner);
 ``stuck`` = no collision and the goal never reached before the mission timeout (a local minimum of the
 potential field, an orbit or a stall); ``lost_control`` = not reached and the payload swung past the model's

@@ -152,4 +152,5 @@ def fly_inprocess(
         sim.step(n_sub)
         tick += 1
     flog.wall_time_s = time.perf_counter() - wall0
+    flog.obstacle_clock_t0_s = core.t0_s  # where the report places the moving obstacles (report.scoring)
     return flog

@@ -1,5 +1,6 @@
 """compute_metrics on hand-made logs."""
 
+import json
 import math
 
 import numpy as np
@@ -136,3 +137,110 @@ def test_a_log_of_many_ticks_selects():
     half = log.select(np.arange(9000) % 2 == 0)
     assert len(half) == 4500 and half.phase[0] == "cruise"
     np.testing.assert_array_equal(half.arr("t"), log.arr("t")[::2])
+
+
+# --- moving obstacles: scored where they are at each logged time (issue 25, "a wrong report") ---------------------
+
+T0 = 10.0  # the mission clock's zero (vehicle time of the first setpoint, s)
+AIRFRAME = 0.28  # r_uav + L_uav of the default vehicle (m)
+
+
+def _crossing_log(obstacles, clock_t0_s=T0):
+    """One second on the ground-level start before the first setpoint (no command), then 6 s flying along y = 0
+    from x = 0 to x = 6 at 1 m/s, rows every 10 ms; the payload hangs 1 m straight below."""
+    log = FlightLog(planner="shaped", controller="smc_ff", obstacles=tuple(obstacles), obstacle_clock_t0_s=clock_t0_s)
+    for k in range(100):
+        log.append(T0 - 1.0 + 0.01 * k, np.array([0.0, 0.0, -2.0]), np.zeros(3), np.zeros(3), np.zeros(4),
+                   np.array([0.0, 0.0, -1.0]), None)
+    for k in range(601):
+        x = 0.01 * k
+        log.append(T0 + 0.01 * k, np.array([x, 0.0, -2.0]), np.array([1.0, 0.0, 0.0]), np.zeros(3), np.zeros(4),
+                   np.array([x, 0.0, -1.0]), _Cmd("cruise"))
+    return log
+
+
+def _crossing_trunk(**kw):
+    """A 0.2 m trunk whose file position (3, 0) is on the path, moving +y at 0.5 m/s from the clock's zero: when
+    the vehicle reaches x = 3 (3 s after the zero) it is at (3, 1.5)."""
+    return Obstacle(3.0, 0.0, 0.2, vy_mps=0.5, **kw)
+
+
+# relative to the vehicle the trunk starts 3 m ahead and moves at (−1, 0.5) m/s: closest 3·0.5/√1.25 m at 2.4 s
+CROSSING_MISS_M = 3.0 * 0.5 / math.sqrt(1.25)
+
+
+def _crossing_mission(obstacles=()):
+    return Mission("crossing", np.array([0.0, 0.0, -2.0]), np.array([6.0, 0.0, -2.0]), "shaped", "smc_ff", 30.0,
+                   obstacles=tuple(obstacles))
+
+
+def test_a_trunk_crossing_the_path_is_scored_where_it_was(tmp_path):
+    """The vehicle flies through the trunk's file position, but the trunk has moved on: 1.34 m centre to centre,
+    0.86 m of airframe clearance. The report (compute_metrics and the run folder's report.json) says so."""
+    from companion.report.run_folder import write_run
+
+    obs = [_crossing_trunk()]
+    log = _crossing_log(obs)
+    r = compute_metrics(log, _crossing_mission(obs))
+    assert r["collisions"] == 0 and r["collisions_moving"] == 0
+    assert r["min_clearance_m"] == pytest.approx(CROSSING_MISS_M - 0.2 - AIRFRAME, abs=1e-9)
+    assert r["obstacle_clock_t0_s"] == T0
+    rep = write_run(log, _crossing_mission(obs), {"outcome": "completed"}, tmp_path, plots=False)
+    assert rep["collisions"] == 0 and rep["min_clearance_m"] == pytest.approx(0.8616, abs=1e-4)
+    assert json.loads((tmp_path / "report.json").read_text())["collisions"] == 0
+
+
+def test_a_moving_trunk_that_meets_the_vehicle_is_a_collision():
+    """The same trunk timed to be on the path when the vehicle gets there (file position 1.5 m to the side)."""
+    obs = [Obstacle(3.0, -1.5, 0.2, vy_mps=0.5), Obstacle(3.0, 3.0, 0.2)]
+    r = compute_metrics(_crossing_log(obs), _crossing_mission(obs))
+    assert r["collisions"] == 1 and r["collisions_moving"] == 1
+    assert r["min_clearance_m"] == pytest.approx(-0.2 - AIRFRAME, abs=1e-9)
+
+
+def test_before_the_clock_zero_a_moving_trunk_stands_at_its_file_position():
+    """Rows logged before the first setpoint (the vehicle waiting at the start) see the trunk where the file puts
+    it, as the flight core does, not where its velocity would have carried it before the zero."""
+    trunk = Obstacle(0.0, 1.0, 0.2, vy_mps=1.0)  # would have been on the start 1 s before the zero
+    log = _crossing_log([trunk])
+    r = compute_metrics(log, _crossing_mission([trunk]))
+    assert r["collisions"] == 0
+    assert r["min_clearance_m"] == pytest.approx(1.0 - 0.2 - AIRFRAME, abs=1e-9)  # at the zero, on the start
+
+
+def test_without_a_clock_zero_the_old_report_is_kept():
+    """A log without the mission clock's zero (run folders written before it was logged) scores every obstacle at
+    its file position, as the report always did; so do live obstacles, logged where they were seen."""
+    r = compute_metrics(_crossing_log([_crossing_trunk()], clock_t0_s=None), _crossing_mission([_crossing_trunk()]))
+    assert r["collisions"] == 1 and r["collisions_moving"] == 1 and r["obstacle_clock_t0_s"] is None
+    assert r["min_clearance_m"] == pytest.approx(-0.2 - AIRFRAME, abs=1e-9)
+    live = _crossing_trunk(source="zenoh/obstacles/cam")
+    r = compute_metrics(_crossing_log([live]), _crossing_mission([live]))
+    assert r["collisions"] == 1
+
+
+def test_static_trunks_score_as_before():
+    """Standing trunks are untouched by the clock zero: the same numbers with and without it."""
+    obs = [Obstacle(3.0, 0.9, 0.2), Obstacle(5.0, -0.7, 0.3, height_m=1.5)]
+    a = compute_metrics(_crossing_log(obs), _crossing_mission(obs))
+    b = compute_metrics(_crossing_log(obs, clock_t0_s=None), _crossing_mission(obs))
+    # the airframe flies above the 1.5 m trunk; the payload, 1 m lower, passes it at 0.7 m
+    assert a["min_clearance_m"] == b["min_clearance_m"] == pytest.approx(0.7 - 0.3)
+    assert a["collisions"] == b["collisions"] == 0
+
+
+def test_the_journal_keeps_the_clock_zero_and_old_run_folders_still_read(tmp_path):
+    """``slungpilot report RUN_DIR`` rebuilds the report from the journal: with the clock zero the journal kept,
+    the crossing trunk is missed; from a run folder whose partial report has none, the old report comes back."""
+    from companion.report.journal import PARTIAL, Journal, rebuild_run
+
+    obs = [_crossing_trunk()]
+    for name, clock, collisions in (("new", T0, 0), ("old", None, 1)):
+        run = tmp_path / name
+        log = _crossing_log(obs, clock_t0_s=clock)
+        j = Journal(run, log, _crossing_mission(obs))
+        assert j.close({"outcome": "completed"})
+        partial = json.loads((run / PARTIAL).read_text())
+        assert partial.get("obstacle_clock_t0_s") == clock
+        rep = rebuild_run(run, plots=False)
+        assert rep["collisions"] == collisions and rep["obstacle_clock_t0_s"] == clock

@@ -16,8 +16,8 @@ from companion.flight.core import FlightCore
 from companion.planning import PlanInput, PlannerParams, make_planner
 from companion.planning.clearance import Predicted, clearance
 from companion.planning.shaping import pendulum_omega_rad_s
-from companion.report.metrics import compute_metrics
-from lab.evaljob import clearances_moving
+from companion.report.metrics import clearances, compute_metrics
+from companion.report.scoring import obstacle_clearances
 from lab.forests import ForestSpec, generate_forest
 from lab.inprocess import fly_inprocess
 
@@ -53,7 +53,7 @@ def _clearance_of(rows, obstacles):
     pay = np.stack([rows[:, 1] + np.sin(rows[:, 9]) * np.cos(rows[:, 10]), rows[:, 2] - np.sin(rows[:, 10])], 1)
     pos3 = np.c_[rows[:, 1:3], np.full(len(rows), -2.0)]
     pay3 = np.c_[pay, np.full(len(rows), -1.0)]
-    return clearances_moving(rows[:, 0], pos3, pay3, obstacles, AIRFRAME)
+    return obstacle_clearances(rows[:, 0], pos3, pay3, obstacles, AIRFRAME, clock_t0_s=0.0)
 
 
 def test_reference_respects_its_limits_through_the_table2_forest():
@@ -237,7 +237,7 @@ def test_random_forest_with_crossing_trunks_in_process_is_clean():
     assert sum(1 for o in m.obstacles if o.vy_mps or o.vx_mps) == 2
     log = fly_inprocess(m)
     r = compute_metrics(log, m)
-    clear = clearances_moving(log.arr("t"), log.arr("pos"), log.arr("payload_pos"), m.obstacles, AIRFRAME)
+    clear = clearances(log, m.obstacles, AIRFRAME)
     assert r["reached_goal"] and np.all(clear > 0.0)
     assert r["max_swing_rad"] <= 0.25
 

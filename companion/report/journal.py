@@ -10,7 +10,8 @@ Files (next to what :func:`companion.report.run_folder.write_run` writes at the 
   shape (rows, :data:`N_COLUMNS`) float64 (columns in :data:`COLUMNS`; phase and envelope mode as codes);
   a chunk cut short by a kill is ignored on reading;
 * ``report.partial.json``: the run facts so far (outcome ``running`` until the end, transitions, link
-  health), rewritten atomically at each flush.
+  health) and the log's ``obstacle_clock_t0_s`` once set (the mission clock's zero the report places moving
+  obstacles by), rewritten atomically at each flush.
 
 :func:`rebuild_run` turns them back into ``report.json``, ``summary.txt``, ``flight_log.npz`` and the plots
 (``slungpilot report RUN_DIR``).
@@ -95,6 +96,8 @@ class Journal:
             np.save(buf, _rows(self.flog, self._handed, n), allow_pickle=False)
             self.writer.append(self.run_dir / JOURNAL, buf.getvalue())
             self._handed = n
+        if self.flog.obstacle_clock_t0_s is not None:
+            provisional = {**provisional, "obstacle_clock_t0_s": self.flog.obstacle_clock_t0_s}
         self.writer.replace(self.run_dir / PARTIAL, (json.dumps(provisional, default=_jsonable) + "\n").encode())
         self.flushes += 1
 
@@ -158,7 +161,9 @@ def rebuild_run(run_dir: Path, *, plots: bool = True) -> dict[str, Any]:
     """Rebuild ``report.json``, ``summary.txt``, ``flight_log.npz`` and the plots of a run from its journal.
 
     A run that was still going when its companion died keeps the last provisional facts, with the outcome
-    ``interrupted`` (the companion stopped without writing its report) and ``reached_goal`` false.
+    ``interrupted`` (the companion stopped without writing its report) and ``reached_goal`` false. Moving
+    obstacles are placed by the partial report's ``obstacle_clock_t0_s``; a run folder without it (written before
+    the journal kept it) scores them at their file positions, as its report did then.
     """
     from companion.report.run_folder import write_run
 
@@ -174,8 +179,10 @@ def rebuild_run(run_dir: Path, *, plots: bool = True) -> dict[str, Any]:
         extra["outcome"] = "interrupted"
         extra["outcome_detail"] = "the companion stopped without writing its report; rebuilt from the journal"
     extra["rebuilt_from_journal"] = True
+    clock = extra.get("obstacle_clock_t0_s")
     flog = FlightLog(planner=mission.planner, controller=mission.controller, mission=mission.name,
-                     obstacles=mission.obstacles)
+                     obstacles=mission.obstacles,
+                     obstacle_clock_t0_s=float(clock) if isinstance(clock, int | float) else None)
     rows = read_journal(run_dir, flog)
     extra["journal_rows"] = rows
     return write_run(flog, mission, extra, run_dir, plots=plots)

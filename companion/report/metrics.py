@@ -11,7 +11,10 @@ interval), max_swing_rad (max of |α|, |β|), swing_settle_s (time from cruise s
 below 0.05 rad; ``swing_settle_after_arrival_s`` the same counted from the goal time), min_clearance_m
 (minimum over time and obstacles of airframe clearance = horizontal distance − r_obs − (r_uav + L_uav) and
 payload clearance = payload horizontal distance − r_obs, each counted only while that point is below the
-obstacle's top), collisions (obstacles with clearance < 0), planner, controller, sim_time_s.
+obstacle's top; moving obstacles where they are at each row's time, see :mod:`companion.report.scoring`),
+collisions (obstacles with clearance < 0; ``collisions_moving`` those of them with a velocity),
+``obstacle_clock_t0_s`` (the mission clock's zero the moving obstacles were placed by, None if the log had none),
+planner, controller, sim_time_s.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from companion.core.obstacles import Obstacle
+from companion.report.scoring import obstacle_clearances, score
 
 GOAL_TOL_M = 0.1
 SETTLE_RAD = 0.05
@@ -121,6 +125,10 @@ class FlightLog:
     mission: str = ""
     obstacles: tuple[Obstacle, ...] = ()
     goal_tol_m: float = GOAL_TOL_M  # "at the goal" horizontally (the flight's arrival tolerance, m)
+    #: the mission clock's zero (vehicle time, s): the first setpoint (``FlightCore.t0_s``), when the mission's
+    #: moving obstacles are at their file positions. The flight's runner sets it; None (a log or run folder
+    #: without it) scores moving obstacles at their file positions (:mod:`companion.report.scoring`).
+    obstacle_clock_t0_s: float | None = None
     t: Column = field(default_factory=partial(Column, 1))
     pos: Column = field(default_factory=partial(Column, 3))
     vel: Column = field(default_factory=partial(Column, 3))
@@ -213,20 +221,10 @@ def _path_len(xy: np.ndarray) -> float:
 
 
 def clearances(log: FlightLog, obstacles, airframe_r_m: float) -> np.ndarray:
-    """Per obstacle, the minimum clearance (m) over the flight (airframe and payload; +inf if never below)."""
-    pos = log.arr("pos")
-    pay = log.arr("payload_pos")
-    out = np.full(len(obstacles), math.inf)
-    for i, o in enumerate(obstacles):
-        below = pos[:, 2] > -o.height_m
-        if np.any(below):
-            d = np.hypot(pos[below, 0] - o.x_m, pos[below, 1] - o.y_m) - o.radius_m - airframe_r_m
-            out[i] = min(out[i], float(np.min(d)))
-        pb = np.isfinite(pay[:, 2]) & (pay[:, 2] > -o.height_m)
-        if np.any(pb):
-            d = np.hypot(pay[pb, 0] - o.x_m, pay[pb, 1] - o.y_m) - o.radius_m
-            out[i] = min(out[i], float(np.min(d)))
-    return out
+    """Per obstacle, the minimum clearance (m) over the flight (airframe and payload; +inf if never below), moving
+    obstacles placed by the log's mission clock zero (:func:`companion.report.scoring.obstacle_clearances`)."""
+    return obstacle_clearances(log.arr("t"), log.arr("pos"), log.arr("payload_pos"), obstacles, airframe_r_m,
+                               log.obstacle_clock_t0_s)
 
 
 def estimation_error(log: FlightLog) -> dict[str, Any] | None:
@@ -260,7 +258,7 @@ def compute_metrics(log: FlightLog, mission) -> dict[str, Any]:
     end = (i_goal + 1) if i_goal is not None else len(t)
     obstacles = log.obstacles or tuple(mission.obstacles)
     vp = mission.vehicle
-    clear = clearances(log, obstacles, vp.r_uav + vp.L_uav)
+    sc = score(clearances(log, obstacles, vp.r_uav + vp.L_uav), obstacles)
     swing_abs = np.nanmax(np.abs(sw[:, :2]), axis=1) if np.any(np.isfinite(sw[:, :2])) else np.full(len(t), np.nan)
     finite = np.isfinite(swing_abs)
     max_swing = float(np.max(swing_abs[finite])) if np.any(finite) else None
@@ -276,8 +274,6 @@ def compute_metrics(log: FlightLog, mission) -> dict[str, Any]:
         else:
             settle_abs = float(t[over[-1] + 1])
     t_goal = float(t[i_goal]) if i_goal is not None else None
-    min_clear = float(np.min(clear)) if len(clear) and np.all(np.isfinite(clear[np.isfinite(clear)])) and np.any(
-        np.isfinite(clear)) else None
     return {
         "mission": mission.name,
         "planner": log.planner or mission.planner,
@@ -292,8 +288,10 @@ def compute_metrics(log: FlightLog, mission) -> dict[str, Any]:
         "swing_settle_after_arrival_s": (
             None if settle_abs is None or t_goal is None else max(0.0, settle_abs - t_goal)
         ),
-        "min_clearance_m": min_clear,
-        "collisions": int(np.sum(clear < 0.0)),
+        "min_clearance_m": sc.min_clearance_m,
+        "collisions": sc.collisions,
+        "collisions_moving": sc.collisions_moving,
+        "obstacle_clock_t0_s": log.obstacle_clock_t0_s,
         "sim_time_s": float(t[-1] - t[0]),
         "wall_time_s": log.wall_time_s,
     }

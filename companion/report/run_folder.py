@@ -55,7 +55,7 @@ def build_report(flog: FlightLog, mission: Mission, extra: dict[str, Any]) -> di
             "mission": mission.name, "planner": mission.planner, "controller": mission.controller,
             "reached_goal": False, "time_to_goal_s": None, "path_length_m": 0.0, "payload_path_length_m": 0.0,
             "max_swing_rad": None, "swing_settle_s": None, "min_clearance_m": None, "collisions": 0,
-            "sim_time_s": 0.0,
+            "collisions_moving": 0, "obstacle_clock_t0_s": flog.obstacle_clock_t0_s, "sim_time_s": 0.0,
         }
     else:
         # Metrics describe the mission the companion flew (climb, cruise, hold), not the autopilot's own landing
