@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from companion.control import (
+    CONTROLLER_NAMES,
     ControllerConfig,
+    PositionController,
     attitude_from_force,
     feedforward_acc,
     limit_force,
@@ -152,3 +154,21 @@ def test_feedforward_is_bounded():
     small = np.array([0.02, 0.01, 0.0, 0.0])
     np.testing.assert_allclose(ctl.update(z3, z3, z3, z3, z3, small, np.zeros(2), 0.004).ff_acc_mps2,
                                free.update(z3, z3, z3, z3, z3, small, np.zeros(2), 0.004).ff_acc_mps2)
+
+
+@pytest.mark.parametrize("name", CONTROLLER_NAMES)
+def test_every_controller_declares_what_it_does(name):
+    """The PositionController protocol in full, and each declaration true of what update() does: only a
+    feed-forward controller answers a swing with a feed-forward, only one that softens_with_lag answers a lower
+    gain_scale with a different force."""
+    ctl = make_position_controller(name, ControllerConfig(), P)
+    assert isinstance(ctl, PositionController) and ctl.gain_scale == 1.0
+    assert ctl.softens_with_lag is name.startswith("smc") and ctl.swing_feedforward is (name == "smc_ff")
+    args = (np.zeros(3), np.zeros(3), np.array([1.0, -0.5, -2.0]), np.zeros(3), np.zeros(3),
+            np.array([0.1, -0.05, 0.2, 0.1]), np.array([0.3, -0.1]), 0.004)
+    stiff = make_position_controller(name, ControllerConfig(), P).update(*args)
+    assert bool(np.any(stiff.ff_acc_mps2 != 0.0)) is ctl.swing_feedforward
+    ctl.gain_scale = 0.25
+    soft = ctl.update(*args)
+    assert bool(np.any(soft.force_ned_n != stiff.force_ned_n)) is ctl.softens_with_lag
+

@@ -161,3 +161,14 @@ def test_after_setpoint_measures_the_loop_lag_the_next_setpoint_uses():
     assert core.loop_lag.updates > 0
     assert abs(core.loop_lag.lag_s - delay * 0.004) <= 0.008 + 1e-12, core.loop_lag.lag_s
     assert core.lag_trust < 1.0  # the setpoint after the measurement faded the feed-forward
+
+
+def test_the_first_tick_steps_the_reference_by_the_control_period():
+    """Before a second estimate gives a time step, the core steps by its period_s (the jerk-limited climb's first
+    acceleration is jerk × dt): not by a fixed 4 ms."""
+    acc = {}
+    for period in (0.004, 0.02):
+        core = FlightCore(_mission(), period_s=period)
+        acc[period] = float(core.update(_est(0.0, [0.0, 0.0, 0.0])).ref_acc_ned_mps2[2])
+    assert acc[0.004] < 0.0 and acc[0.02] == pytest.approx(5.0 * acc[0.004])
+

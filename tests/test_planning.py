@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 
 from companion.core.obstacles import Obstacle
-from companion.planning import PlanInput, PlannerParams, ReferenceGenerator, SafePlanner, make_planner
+from companion.planning import (
+    PLANNER_NAMES,
+    PlanInput,
+    Planner,
+    PlannerParams,
+    ReferenceGenerator,
+    SafePlanner,
+    make_planner,
+)
 from companion.planning.apf import attractive_force, repulsive_force, rho0_traditional_m, rho_star_improved_m
 from companion.planning.safe import predicted_envelope_m
 
@@ -176,3 +184,20 @@ def test_side_choice_prefers_room():
     out = sp.plan(_inp([0.9, 0.0], goal=(6.0, 0.0), ref_vel=(1.0, 0.0)), [OBS, other])
     assert sp.side != 0
     assert out.v_des_mps[1] > 0.0
+
+
+@pytest.mark.parametrize("name", PLANNER_NAMES)
+def test_every_planner_implements_what_the_flight_core_uses(name):
+    """The Planner protocol in full: name, time_parameterised (a reference exactly when declared), stop()."""
+    pl = make_planner(name)
+    assert isinstance(pl, Planner) and pl.name == name
+    assert pl.time_parameterised is (name == "shaped")
+    out = pl.plan(_inp([0.0, 0.0]), [Obstacle(5.0, 0.5, 0.3)])
+    assert (out.reference is not None) is pl.time_parameterised
+    pl.stop()
+    after = pl.plan(_inp([0.0, 0.0], t=0.004), [Obstacle(5.0, 0.5, 0.3)])
+    if pl.time_parameterised:
+        assert out.mode == "track" and after.mode == "hold"  # the shaped planner stops along its plan
+    else:
+        assert after.mode == out.mode and np.array_equal(after.v_des_mps, out.v_des_mps)  # a no-op
+

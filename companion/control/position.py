@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -56,6 +56,7 @@ class PositionOutput:
     sliding: np.ndarray
 
 
+@runtime_checkable
 class PositionController(Protocol):
     """Everything the flight core uses of a position controller; every controller implements all of it.
 

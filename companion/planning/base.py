@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -81,6 +81,7 @@ class PlanOutput:
     no_route: bool = False
 
 
+@runtime_checkable
 class Planner(Protocol):
     """Everything the flight core uses of a planner; every planner implements all of it.
 
