@@ -110,3 +110,46 @@ def test_evaluate_cli_refuses_bad_arguments(tmp_path, capsys):
 def test_forest_spec_defaults_match_the_issue():
     s = ForestSpec()
     assert (s.length_m, s.r_min_m, s.r_max_m, s.density_per_100m2, s.wind_scale) == (20.0, 0.15, 0.35, 3.0, 1.0)
+
+
+def _brute_clearance(npz: Path, obstacle, airframe_r_m: float, clock_t0_s: float | None) -> float:
+    """The trunk's clearance over the logged rows, row by row with Obstacle.at_time (the independent reckoning)."""
+    import math
+
+    import numpy as np
+
+    best = math.inf
+    with np.load(npz) as z:
+        for t, p, q in zip(z["t_s"], z["pos_ned_m"], z["payload_pos_ned_m"], strict=True):
+            o = obstacle if clock_t0_s is None else obstacle.at_time(max(0.0, float(t) - clock_t0_s))
+            if p[2] > -o.height_m:
+                best = min(best, math.hypot(p[0] - o.x_m, p[1] - o.y_m) - o.radius_m - airframe_r_m)
+            if np.isfinite(q[2]) and q[2] > -o.height_m:
+                best = min(best, math.hypot(q[0] - o.x_m, q[1] - o.y_m) - o.radius_m)
+    return best
+
+
+def test_evaluate_and_the_flight_report_score_a_crossing_trunk_alike(tmp_path):
+    """A trunk stands on the path at (5, 0) at the mission clock's zero and crosses it at 1.5 m/s, long gone when
+    the vehicle gets there. evaluate's result and the flight's own report.json give the same clearance and no
+    collision, and that clearance is the trunk's where it was at each logged time; at its file position the
+    vehicle would have flown through it (what the report said before it placed moving trunks)."""
+    from companion.config import shipped_config
+    from companion.core.obstacles import Obstacle
+    from lab.evaljob import run_eval_job
+    from lab.runner import Job
+
+    trunk = Obstacle(5.0, 0.0, 0.3, vy_mps=1.5)
+    m = load_mission(shipped_config("missions/forest.toml")).with_(planner="shaped", obstacles=(trunk,), hold_s=1.0,
+                                                                   land=False)
+    out = run_eval_job(Job("crossing", m, tmp_path / "run", mode="inprocess", keep_run_dir=True))
+    rep = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert out["class"] == "success" and out["collisions"] == rep["collisions"] == 0
+    assert out["collisions_moving"] == rep["collisions_moving"] == 0
+    assert out["min_clearance_m"] == rep["min_clearance_m"]
+    airframe = m.vehicle.r_uav + m.vehicle.L_uav
+    clock = rep["obstacle_clock_t0_s"]
+    assert clock is not None
+    npz = tmp_path / "run" / "flight_log.npz"
+    assert rep["min_clearance_m"] == pytest.approx(_brute_clearance(npz, trunk, airframe, clock), abs=1e-9)
+    assert _brute_clearance(npz, trunk, airframe, None) < 0.0
