@@ -3,21 +3,36 @@
 from __future__ import annotations
 
 import argparse
-import asyncio
 import dataclasses
 import logging
+import os
 import sys
 
 from companion.config import dataclass_from_table
 from companion.core.model import VehicleParams, load_vehicle_params
 from companion.core.wind import WindConfig
 from companion.errors import ConfigError
-from companion.flight.scheduling import RT_PRIORITY_MAX, request_fifo
 from companion.mavlink_io.signing import load_key_file
 from sim_bridge.imu import ImuNoise
 from sim_bridge.vehicle import SitlConfig, SitlVehicle
 
 log = logging.getLogger(__name__)
+
+RT_PRIORITY_MAX = 99
+
+
+def request_fifo(priority: int) -> bool:
+    """Run this process ``SCHED_FIFO`` at ``priority`` (1..99), as PX4 runs its tasks on Linux; children fall
+    back to normal scheduling. Returns False (and says why in the log) when refused: no CAP_SYS_NICE and
+    ``ulimit -r`` below ``priority``, or not Linux."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(priority))
+    except (OSError, AttributeError) as exc:
+        log.warning("SCHED_FIFO %d refused (%s; needs CAP_SYS_NICE or `ulimit -r` >= %d): the vehicle runs at "
+                    "normal priority", priority, exc, priority)
+        return False
+    log.info("vehicle loop runs SCHED_FIFO at priority %d", priority)
+    return True
 
 
 def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
@@ -138,7 +153,7 @@ def run_sitl(args: argparse.Namespace) -> int:
         vehicle = SitlVehicle(cfg)  # start-up work (model kernels) at normal priority
         if args.rt_priority and not args.lockstep:  # lockstep runs flat out: FIFO would starve the rest
             request_fifo(args.rt_priority)
-        return asyncio.run(vehicle.run(ready_cb=ready))
+        return vehicle.run(ready_cb=ready)
     except OSError as exc:
         raise ConfigError(f"cannot bind the SITL ports: {exc}") from None
     except KeyboardInterrupt:

@@ -273,6 +273,11 @@ def hot_payload(msgid: int, v: Any, snap: Snapshot | None = None) -> tuple[int, 
     return None
 
 
+def send_marker(mav: mavlink2.MAVLink, t_us: int) -> None:
+    """The lockstep end-of-step marker: SYSTEM_TIME with time_boot_ms = simulated ms, time_unix_usec 0."""
+    mf.send_system_time(mav, 0, (t_us // 1000) & 0xFFFFFFFF)
+
+
 def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any, snap: Snapshot | None = None) -> bool:
     """Send one message of the vehicle system, ``v`` being the running vehicle; False if unknown here.
 

@@ -8,12 +8,9 @@ from the onboard link, then the due telemetry, then SYSTEM_TIME as end-of-step m
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import dataclasses
 import logging
 import math
-import signal
 import time
 from dataclasses import dataclass, field
 
@@ -28,7 +25,7 @@ from companion.errors import ModelError
 from companion.mavlink_io.signing import SigningVerifier
 from sim_bridge import commands, telemetry
 from sim_bridge.imu import ImuModel, ImuNoise
-from sim_bridge.link import MavUdpLink, RejectCounters, open_link
+from sim_bridge.link import MavUdpLink, RejectCounters
 from sim_bridge.params import build_param_table, gains_from_params
 from sim_bridge.physics import InnerLoopGains, RotorConfig, VehicleSim
 from sim_bridge.position_hold import PositionHoldGains, position_control_target
@@ -98,7 +95,9 @@ class SitlConfig:
 
 
 class SitlVehicle:
-    """The running vehicle. Create, then ``await run()`` (returns the exit code)."""
+    """The running vehicle. Create, then ``run()`` (returns the exit code): lockstep runs a plain blocking loop
+    (:mod:`sim_bridge.lockstep`), real time an asyncio loop (:mod:`sim_bridge.realtime`); both drive the same
+    vehicle logic here through :meth:`attach_links`, :meth:`on_message` and :meth:`advance`."""
 
     def __init__(self, cfg: SitlConfig) -> None:
         self.cfg = cfg
@@ -138,7 +137,7 @@ class SitlVehicle:
         self.onboard: MavUdpLink | None = None
         self.gcs: MavUdpLink | None = None
         self._payload_mavs: list = []
-        self._stop: asyncio.Event | None = None
+        self.stop_requested = False  # set by SIGINT/SIGTERM or --duration; the runner then returns
         self._last_marker_wall = 0.0
         self._last_hb_wall = 0.0
         self._last_step_wall = 0.0  # lockstep: when a client last stepped the simulation
@@ -374,14 +373,7 @@ class SitlVehicle:
             if self.mode == px4_modes.OFFBOARD:
                 self.sim.set_attitude_target(*self._sp_newtons(self._last_sp))
         if self.cfg.lockstep and link is self.onboard:
-            links = self._links()
-            for lk in links:
-                lk.begin_batch()
-            self.advance()
-            self._last_step_wall = time.monotonic()
-            self._send_marker()
-            for lk in links:
-                lk.flush()
+            self._lockstep_step()
 
     def on_position_target(self, msg) -> None:
         """SET_POSITION_TARGET_LOCAL_NED: an offboard setpoint (stream and flight) as in PX4."""
@@ -439,8 +431,8 @@ class SitlVehicle:
         self.steps += 1
         self._after_step()
         self._send_due_telemetry()
-        if self.cfg.duration_s is not None and self.t_us >= self.cfg.duration_s * 1e6 and self._stop:
-            self._stop.set()
+        if self.cfg.duration_s is not None and self.t_us >= self.cfg.duration_s * 1e6:
+            self.stop_requested = True
 
     def _internal_control(self) -> None:
         sim = self.sim
@@ -540,83 +532,77 @@ class SitlVehicle:
         elif t == "TIMESYNC" and msg.tc1 == 0:
             link.mav.timesync_send(self.t_us * 1000, msg.ts1)
 
-    # ------------------------------------------------------------------ clocks
-    def _send_marker(self) -> None:
-        if self.onboard is not None:
-            telemetry.send_vehicle_message(telemetry.MSG_SYSTEM_TIME, self.onboard.mav, self)
-        self._last_marker_wall = time.monotonic()
-
-    async def _lockstep_watchdog(self) -> None:
-        while True:
-            await asyncio.sleep(0.05)
-            now = time.monotonic()
-            if now - self._last_marker_wall >= MARKER_RESEND_S:
-                self._send_marker()
-            # While a client steps the simulation, HEARTBEATs come on simulated time only (a wall-clock one
-            # would show the client a state change at a wall-time-dependent moment: lockstep runs must repeat bit
-            # for bit). Only an idle vehicle (no step for 1 s) heartbeats on the wall clock, to be discovered.
-            if now - self._last_hb_wall >= 1.0 and now - self._last_step_wall >= 1.0:
-                self._last_hb_wall = now
-                for lk in self._links():
-                    telemetry.send_vehicle_message(M.MAVLINK_MSG_ID_HEARTBEAT, lk.mav, self)
-                for pm in self._payload_mavs:
-                    telemetry.send_payload_messages(pm, self, heartbeat=True)
-
-    async def _realtime_loop(self) -> None:
-        period = self.cfg.control_period_us * 1e-6
-        t0 = time.monotonic()
-        done = 0
-        while True:
-            due = int((time.monotonic() - t0) / period)
-            if due - done > 50:  # far behind (machine stalled): skip ahead instead of racing
-                log.warning("real-time loop %d periods behind; skipping ahead", due - done)
-                t0 += (due - done - 1) * period
-                due = done + 1
-            links = self._links()
-            for lk in links:
-                lk.begin_batch()
-            while done < due:
-                self.advance()
-                done += 1
-            for lk in links:
-                lk.flush()
-            await asyncio.sleep(max(0.0, t0 + (done + 1) * period - time.monotonic()))
-
-    async def run(self, ready_cb=None) -> int:
-        """Bind both links, fly until SIGINT/SIGTERM or ``duration_s``; returns 0."""
-        cfg = self.cfg
-        self._stop = asyncio.Event()
-        warm = self._new_sim(self.sim.params, 0.0)  # load the compiled kernels before the clock starts
+    # ------------------------------------------------------------------ links and clocks (shared by both runners)
+    def warm_up(self) -> None:
+        """Load the compiled physics kernels before the clock starts (a throw-away airframe, two steps)."""
+        warm = self._new_sim(self.sim.params, 0.0)
         warm.armed = True
         warm.step(2)
-        self.onboard = await open_link("onboard", cfg.onboard_bind, cfg.onboard_remote, cfg.sysid, cfg.compid,
-                                       self.counters, self.on_message, cfg.onboard_peer, link_id=0)
-        self.gcs = await open_link("gcs", cfg.gcs_bind, cfg.gcs_remote, cfg.sysid, cfg.compid,
-                                   self.counters, self.on_message, cfg.gcs_peer, link_id=1)
-        self.onboard.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us))
-        self.gcs.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us, "normal"))
+
+    def attach_links(self, onboard: MavUdpLink, gcs: MavUdpLink) -> None:
+        """Take the two bound links: per-link telemetry schedules (PX4's onboard and normal stream modes),
+        signing if configured, and the payload system's senders."""
+        cfg = self.cfg
+        self.onboard, self.gcs = onboard, gcs
+        onboard.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us))
+        gcs.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us, "normal"))
         if cfg.signing_key is not None:
             self._enable_signing(cfg.signing_key)
         self._payload_mavs = [lk.sender(cfg.payload_sysid, cfg.payload_compid) for lk in self._links()]
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            with contextlib.suppress(NotImplementedError, RuntimeError):  # not the main thread
-                loop.add_signal_handler(sig, self._stop.set)
-        if ready_cb is not None:
-            ready_cb(self)
+
+    def start(self) -> None:
+        """The first telemetry of time 0 (and, in lockstep, the first marker): call once the links are
+        attached and the runner is about to wait for input."""
         self._send_due_telemetry()
-        if cfg.lockstep:
+        if self.cfg.lockstep:
             self._send_marker()
-            task = asyncio.create_task(self._lockstep_watchdog())
-        else:
-            task = asyncio.create_task(self._realtime_loop())
-        try:
-            await self._stop.wait()
-        finally:
-            task.cancel()
+
+    def _lockstep_step(self) -> None:
+        """Lockstep: one control period, its telemetry and the end-of-step marker, as few datagrams."""
+        links = self._links()
+        for lk in links:
+            lk.begin_batch()
+        self.advance()
+        self._send_marker()
+        self._last_step_wall = self._last_marker_wall
+        for lk in links:
+            lk.flush()
+
+    def _send_marker(self) -> None:
+        if self.onboard is not None:
+            telemetry.send_marker(self.onboard.mav, self.t_us)
+        self._last_marker_wall = time.monotonic()
+
+    def wall_clock_duties(self, now: float) -> None:
+        """Lockstep, on the wall clock (``now`` = ``time.monotonic()``; call every ≲ 50 ms): re-send the marker
+        when no answer came for :data:`MARKER_RESEND_S` (the answer or the marker was lost), and HEARTBEAT
+        once a second while nobody steps the simulation."""
+        if now - self._last_marker_wall >= MARKER_RESEND_S:
+            self._send_marker()
+        # While a client steps the simulation, HEARTBEATs come on simulated time only (a wall-clock one
+        # would show the client a state change at a wall-time-dependent moment: lockstep runs must repeat bit
+        # for bit). Only an idle vehicle (no step for 1 s) heartbeats on the wall clock, to be discovered and
+        # to tell a client that comes back that it is alive.
+        if now - self._last_hb_wall >= 1.0 and now - self._last_step_wall >= 1.0:
+            self._last_hb_wall = now
             for lk in self._links():
-                if lk.transport is not None:
-                    lk.transport.close()
+                telemetry.send_vehicle_message(M.MAVLINK_MSG_ID_HEARTBEAT, lk.mav, self)
+            for pm in self._payload_mavs:
+                telemetry.send_payload_messages(pm, self, heartbeat=True)
+
+    def run(self, ready_cb=None) -> int:
+        """Bind both links, fly until SIGINT/SIGTERM or ``duration_s``; returns 0. ``ready_cb(vehicle)`` is
+        called once both ports are bound. Raises OSError when a port cannot be bound."""
+        if self.cfg.lockstep:
+            from sim_bridge.lockstep import run_lockstep
+
+            code = run_lockstep(self, ready_cb)
+        else:
+            import asyncio
+
+            from sim_bridge.realtime import run_realtime
+
+            code = asyncio.run(run_realtime(self, ready_cb))
         log.info("stopped at t = %.3f s sim after %d control periods; rejected %s", self.t_us * 1e-6,
                  self.steps, {k: v for k, v in self.counters.counts.items() if v})
-        return 0
+        return code
