@@ -8,6 +8,10 @@ same per-job results:
 * a Dask distributed cluster (``cluster="tcp://host:8786"``, or ``cluster="local"`` for a
   ``LocalCluster`` of ``workers`` processes on 127.0.0.1). Dask is imported only here and only then.
 
+Whatever kills this process, SIGKILL included, its workers die with it and their vehicles with them
+(:mod:`companion.proclife`; docs/companion.md, "Process lifetime"); a local Dask cluster's processes exit
+when the pipe from their parent closes (Dask's own watch).
+
 Ctrl-C (issue 14): the pool's workers ignore SIGINT and sit in their own process groups, so a terminal's
 Ctrl-C reaches this process only and this process decides. On the first SIGINT the pending jobs are cancelled,
 every process below this one is frozen (SIGSTOP, repeated until no new child appears, so nothing can fork
@@ -33,6 +37,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+from companion import proclife
 from lab.evaljob import run_eval_job
 from lab.runner import Job
 
@@ -77,10 +82,13 @@ class Progress:
         self.stream.flush()
 
 
-def _worker_init(level: int) -> None:
-    """Pool worker set-up: logging, and out of the terminal's reach (SIGINT ignored, own process group), so
-    that Ctrl-C is the parent's to handle. (A MAVLink flight still installs its own SIGINT handler while it
-    flies; the own process group is what keeps a terminal's Ctrl-C away from it.)"""
+def _worker_init(level: int, parent_pid: int) -> None:
+    """Pool worker set-up: tied to the pool's process ``parent_pid`` (it dies with it, SIGKILL included, and
+    so do the vehicles it started: :mod:`companion.proclife`), logging, and out of the terminal's reach
+    (SIGINT ignored, own process group), so that Ctrl-C is the parent's to handle. (A MAVLink flight still
+    installs its own SIGINT handler while it flies; the own process group is what keeps a terminal's Ctrl-C
+    away from it.)"""
+    proclife.die_with_parent(parent_pid)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger().setLevel(level)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -205,8 +213,9 @@ def _run_serial(jobs: list[Job], fn: Callable[[Job], dict[str, Any]], take: Call
 def _run_pool(jobs: list[Job], workers: int, log_level: int, fn: Callable[[Job], dict[str, Any]],
               take: Callable[[dict], None]) -> None:
     ctx = multiprocessing.get_context("spawn")
+    # the workers are started from this thread (submit, spawn context), which lives as long as the pool
     pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
-                                  initargs=(log_level,))
+                                  initargs=(log_level, os.getpid()))
     futs: list[cf.Future] = []
     try:
         futs = [pool.submit(fn, j) for j in jobs]

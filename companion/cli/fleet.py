@@ -3,8 +3,9 @@
 Starts a Zenoh router (in this process), then N ``slungpilot fly --sitl --realtime --instance i`` (vehicle id and
 MAVLink system id 1+i, each with its own bundled vehicle), every companion a Zenoh **client** of the router, and a
 subscriber that counts each vehicle's swing stream (sequence gaps = loss). Prints a line per vehicle when all
-have landed: outcome, tick p99, swing samples received and lost. Ctrl-C passes on to every companion (each holds
-and lands). ``slungpilot view --zenoh-connect ENDPOINT`` shows them all live.
+have landed: outcome, tick p99, swing samples received and lost. Ctrl-C or SIGTERM passes on to every companion
+(each holds and lands); killed outright, the fleet takes its companions and their vehicles with it
+(:mod:`companion.proclife`). ``slungpilot view --zenoh-connect ENDPOINT`` shows them all live.
 
 Why clients: with eclipse-zenoh 1.10 a router forwards between its clients, but two *peers* that only know the
 router do not get each other's samples (docs/zenoh.md); clients always go through the router.
@@ -26,6 +27,7 @@ from typing import Any
 
 import zenoh
 
+from companion import proclife
 from companion.zenoh_io.session import open_session, zenoh_config
 
 
@@ -122,8 +124,9 @@ def run_fleet(args: argparse.Namespace) -> int:
                 argv += ["--rate-hz", f"{args.rate_hz:g}"]
             if args.rt_priority and not args.lockstep:  # lockstep has no deadlines (and would run FIFO flat out)
                 argv += ["--rt-priority", str(args.rt_priority)]
-            procs.append(subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=(root / f"vehicle-{1 + i}.log")
-                                          .open("w"), start_new_session=True))
+            with (root / f"vehicle-{1 + i}.log").open("w") as err:
+                procs.append(subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True,
+                                              preexec_fn=proclife.preexec()))
 
         def forward(signum: int, _frame: Any) -> None:
             for p in procs:
@@ -131,10 +134,12 @@ def run_fleet(args: argparse.Namespace) -> int:
                     p.send_signal(signal.SIGINT)
 
         old = signal.signal(signal.SIGINT, forward)
+        old_term = signal.signal(signal.SIGTERM, forward)
         try:
             codes = [p.wait() for p in procs]
         finally:
             signal.signal(signal.SIGINT, old)
+            signal.signal(signal.SIGTERM, old_term)
         time.sleep(0.5)  # the last samples through the router
     ok = True
     per_vehicle: dict[str, Any] = {}

@@ -14,6 +14,7 @@ import socket
 import sys
 from pathlib import Path
 
+from companion import proclife
 from companion.core.mission import Mission
 from companion.errors import LinkError
 
@@ -104,10 +105,11 @@ class SitlProcess:
         log.info("starting the bundled vehicle: %s", " ".join(argv))
         self._stderr = self._stderr_path.open("wb")
         # its own session (process group): a terminal's Ctrl-C reaches the companion only, which then holds, lands
-        # and stops the vehicle last
+        # and stops the vehicle last; and tied to this process (started from the event loop's thread), so that it
+        # dies with the companion however the companion dies, SIGKILL included (docs/companion.md, Process lifetime)
         self.proc = await asyncio.create_subprocess_exec(
             *argv, stdout=asyncio.subprocess.PIPE, stderr=self._stderr, stdin=asyncio.subprocess.DEVNULL,
-            start_new_session=True,
+            start_new_session=True, preexec_fn=proclife.preexec(),
         )
         assert self.proc.stdout is not None
         try:

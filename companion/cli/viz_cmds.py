@@ -136,7 +136,7 @@ def recording_path(run_dir: Path) -> Path:
 
 
 def run_replay(args: argparse.Namespace) -> int:
-    """Open the recording; with the web viewer, serve until Ctrl-C."""
+    """Open the recording; with the web viewer, serve until Ctrl-C or SIGTERM (the viewer is stopped with us)."""
     from companion.viz.viewer import start_viewer
 
     path = recording_path(args.run_dir)
@@ -174,7 +174,9 @@ def add_view_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run_view(args: argparse.Namespace) -> int:
-    """Subscribe and draw until Ctrl-C or ``--duration``."""
+    """Subscribe and draw until Ctrl-C, SIGTERM or ``--duration`` (the web viewer is stopped either way)."""
+    from companion.proclife import sigterm_as_interrupt
     from companion.viz.fleet import run_fleet_view
 
-    return run_fleet_view(args, lambda line: print(line, flush=True))
+    with sigterm_as_interrupt():
+        return run_fleet_view(args, lambda line: print(line, flush=True))

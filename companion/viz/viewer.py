@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from companion import proclife
 from companion.errors import ConfigError, LinkError
 
 log = logging.getLogger(__name__)
@@ -126,9 +127,10 @@ class ViewerProcess:
             self.proc.wait(timeout_s)
 
     def wait(self) -> int:
-        """Until the viewer exits (or Ctrl-C): its exit code."""
+        """Until the viewer exits (or Ctrl-C, or SIGTERM: the viewer is stopped, 130): its exit code."""
         try:
-            return self.proc.wait()
+            with proclife.sigterm_as_interrupt():
+                return self.proc.wait()
         except KeyboardInterrupt:
             self.close()
             return 130
@@ -189,8 +191,10 @@ def _popen(cmd: list[str], log_file: Path | None, *, detach: bool) -> subprocess
     out = open(log_file, "ab") if log_file is not None else subprocess.DEVNULL  # noqa: SIM115
     try:
         log.info("starting the Rerun viewer: %s", " ".join(cmd))
-        # Its own process group: a Ctrl-C in the terminal reaches us first, and we stop it last.
-        return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=out, stderr=out, start_new_session=True)
+        # Its own process group: a Ctrl-C in the terminal reaches us first, and we stop it last. Unless it is a
+        # detached window (the user's to close), it dies with us, SIGKILL included (companion.proclife).
+        return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=out, stderr=out, start_new_session=True,
+                                preexec_fn=None if detach else proclife.preexec())
     finally:
         if log_file is not None:
             out.close()  # type: ignore[union-attr]
@@ -203,7 +207,8 @@ def optimize_recording(path: Path, timeout_s: float = 60.0) -> bool:
     tmp = path.with_suffix(".optimizing.rrd")
     try:
         res = subprocess.run([rerun_executable(), "rrd", "optimize", str(path), "-o", str(tmp)],
-                             stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout_s)
+                             stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout_s,
+                             preexec_fn=proclife.preexec())
         if res.returncode != 0 or not tmp.is_file() or tmp.stat().st_size == 0:
             log.warning("rerun rrd optimize failed (exit %s); keeping %s as written: %s", res.returncode, path,
                         res.stderr.strip()[-300:])

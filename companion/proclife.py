@@ -1,0 +1,106 @@
+"""Nothing we start outlives us: child processes that die with their parent, whatever kills the parent.
+
+A parent's clean stop (``finally``, ``__aexit__``) stops its children, but SIGKILL (or an OOM kill, or a
+crash in C) runs none of it, and a child in its own session or process group (so that a terminal's Ctrl-C
+reaches the parent only) is then reparented to init and lives on. On Linux the kernel can send the child a
+signal when its parent goes: ``prctl(PR_SET_PDEATHSIG, sig)``, set in the child. Two details:
+
+* the signal fires when the *thread* that forked the child exits, not the process: start children from a
+  thread that lives as long as they should (the main thread, or the asyncio event loop's thread);
+* a parent that died between the fork and the ``prctl`` call sends nothing, so right after setting it the
+  child checks that its parent is still the one that started it, and exits otherwise.
+
+Every launcher uses this module: :func:`preexec` as ``preexec_fn`` of ``subprocess.Popen``/``run`` or
+``asyncio.create_subprocess_exec`` (it runs in the child between fork and exec, and the setting survives the
+exec), :func:`die_with_parent` in a pool worker's initializer (``multiprocessing``/``concurrent.futures``),
+where the worker's parent pid is passed in; :func:`sigterm_as_interrupt` where a command must stop its
+children cleanly on SIGTERM as it does on Ctrl-C. Elsewhere than Linux both do nothing (the parent's clean stop
+is all there is).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import ctypes.util
+import logging
+import os
+import signal
+import sys
+from collections.abc import Callable, Iterator
+
+log = logging.getLogger(__name__)
+
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+
+
+def _prctl() -> Callable[..., int] | None:
+    """libc's ``prctl`` (Linux), else None."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        fn = libc.prctl
+    except (OSError, AttributeError):
+        return None
+    fn.argtypes = [ctypes.c_int, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong, ctypes.c_ulong]
+    fn.restype = ctypes.c_int
+    return fn
+
+
+_PRCTL = _prctl()
+
+
+def supported() -> bool:
+    """Whether children can be tied to their parent here (Linux)."""
+    return _PRCTL is not None
+
+
+def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL) -> None:
+    """In a child: receive ``sig`` when the parent thread that started us exits; exit at once (``os._exit``)
+    when ``parent_pid`` is already gone (we were reparented before the request was in place)."""
+    if _PRCTL is None:
+        return
+    if _PRCTL(PR_SET_PDEATHSIG, int(sig), 0, 0, 0) != 0:
+        log.warning("prctl(PR_SET_PDEATHSIG) failed (errno %d): this process may outlive its parent",
+                    ctypes.get_errno())
+        return
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+
+def preexec(sig: int = signal.SIGKILL) -> Callable[[], None] | None:
+    """A ``preexec_fn`` that ties the child to this process (see :func:`die_with_parent`), or None where that
+    is not supported. Call it in the thread that starts the child. The function runs between fork and exec:
+    it imports nothing, logs nothing and takes no lock (only the libc call resolved here and ``getppid``)."""
+    prctl = _PRCTL
+    if prctl is None:
+        return None
+    parent = os.getpid()
+    signum = int(sig)
+
+    def tie_to_parent() -> None:
+        prctl(PR_SET_PDEATHSIG, signum, 0, 0, 0)  # a failure cannot be reported from here: the child still runs
+        if os.getppid() != parent:
+            os._exit(1)
+
+    return tie_to_parent
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within: SIGTERM raises ``KeyboardInterrupt`` in the main thread, as Ctrl-C does, so that a command's
+    clean stop on Ctrl-C (which stops its children) runs for ``kill PID`` too; Python's default for SIGTERM
+    is to die at once and leave them. Does nothing outside the main thread."""
+    def interrupt(_signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt("terminated (SIGTERM)")
+
+    try:
+        old = signal.signal(signal.SIGTERM, interrupt)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
