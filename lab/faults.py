@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from companion import proclife
 from companion.core.mission import load_mission
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,7 +53,7 @@ class Proc:
     @classmethod
     def start(cls, argv: list[str], env: dict[str, str] | None = None, cwd: Path = ROOT) -> Proc:
         p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd,
-                             env={**os.environ, **(env or {})})
+                             env={**os.environ, **(env or {})}, preexec_fn=proclife.preexec())
         me = cls(p)
         threading.Thread(target=me._pump, daemon=True).start()
         return me
@@ -341,14 +342,16 @@ def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt
     hog = None
     if disk_hog:
         hog = subprocess.Popen([sys.executable, "-m", "lab.disk_hog", "--dir", str(workdir / "disk-hog")], cwd=ROOT,
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=proclife.preexec())
     fly = Proc.start(fly_argv(run_dir, "--sitl", "--realtime", "--zenoh-listen", ep, *extra))
     flood = None
     try:
         fly.wait_for("zenoh: publishing under")
         flood_argv = [sys.executable, "-m", "lab.faults", "flood", "--connect", ep, "--rate-hz", str(rate_hz),
                       "--trunks", str(trunks), *(["--vary"] if vary else [])]
-        flood = subprocess.Popen(flood_argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        flood = subprocess.Popen(flood_argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                 preexec_fn=proclife.preexec())
         code = fly.finish(180)
     finally:
         flood_said = _stop(flood)
@@ -499,7 +502,8 @@ def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, dr
                               f"127.0.0.1:{veh_port}" if vehicle == "bundled" else "first",
                               "--companion", f"127.0.0.1:{comp_port}", "--listen-vehicle-side", str(vside),
                               "--delay-ms", str(delay_ms), "--jitter-ms", str(jitter_ms), "--drop", str(drop)],
-                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                             preexec_fn=proclife.preexec())
     fly = None
     try:
         assert proxy.stdout is not None
@@ -537,7 +541,7 @@ def _start_vehicle(kind: str, comp_port: int, instance: int, workdir: Path,
                 "--onboard-remote", f"127.0.0.1:{comp_port}", "--gcs-port", str(free_udp_port()), "--gcs-remote",
                 f"127.0.0.1:{free_udp_port()}"]
         sim = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                               start_new_session=True)
+                               start_new_session=True, preexec_fn=proclife.preexec())
         assert sim.stdout is not None
         if not sim.stdout.readline().startswith("SITL READY"):
             sim.kill()

@@ -19,6 +19,8 @@ import shutil
 import subprocess
 from pathlib import Path
 
+from companion import proclife
+
 
 def find_px4() -> tuple[Path | None, str]:
     """(PX4's build folder, "") or (None, why it is not usable)."""
@@ -56,7 +58,7 @@ def start_px4_sih(workdir: Path, instance: int, *, speed_factor: float = 1.0) ->
     log = (run / "px4.log").open("w")
     return subprocess.Popen([str(build / "bin" / "px4"), "-d", "-i", str(instance), "-w", str(run),
                              str(build / "etc")], cwd=run, env=env, stdout=log, stderr=subprocess.STDOUT,
-                            stdin=subprocess.DEVNULL, start_new_session=True)
+                            stdin=subprocess.DEVNULL, start_new_session=True, preexec_fn=proclife.preexec())
 
 
 ARDUCOPTER_HOME = "-35.363261,149.165230,584,353"  # ArduPilot's CMAC default
@@ -85,4 +87,4 @@ def start_arducopter(workdir: Path, port: int, *, instance: int = 0, payload: bo
                              "-I", str(instance), "--wipe", "--home", home, "--defaults",
                              defaults, "--sysid", str(1 + instance), "--serial0", f"udpclient:127.0.0.1:{port}"],
                             cwd=run, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=proclife.preexec())

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import statistics
 import sys
 import time
@@ -23,6 +24,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from companion import proclife
 from companion.config import shipped_config
 from companion.core.mission import load_mission
 from companion.core.model import VehicleParams
@@ -43,6 +45,11 @@ from lab.swing_scenarios import (
 from lab.swing_sim import EstimatorDriver, ImuNoise, SensorConfig
 
 SECTIONS = ("error", "sih", "forests", "closed", "id", "sensitivity", "cost")
+
+
+def _pool(workers: int) -> ProcessPoolExecutor:
+    """A process pool whose workers die with this process, however it dies (companion.proclife)."""
+    return ProcessPoolExecutor(workers, initializer=proclife.die_with_parent, initargs=(os.getpid(),))
 
 
 def _forest():
@@ -84,7 +91,7 @@ def _p90(sorted_values: list[float]) -> float:
 
 def section_forests(n: int, workers: int) -> None:
     print(f"\n## Estimation error over {n} random forests (lab.forests seeds 0..{n - 1}, eq. 49 wind)\n")
-    with ProcessPoolExecutor(workers) as ex:
+    with _pool(workers) as ex:
         res = list(ex.map(_forest_job, range(n)))
     print("| path | RMS median | RMS p90 | RMS worst |")
     print("|---|---|---|---|")
@@ -120,7 +127,7 @@ def section_closed(workers: int) -> None:
     targets = {"imu+vel": "<= 0.27", "imu": "<= 0.27", "fixes+vel": "<= 0.26", "fixes": "<= 0.26",
                "fused": "<= 0.26"}
     jobs = [None, "imu+vel", "imu", "fixes+vel", "fixes", "fused", "none"]
-    with ProcessPoolExecutor(workers) as ex:
+    with _pool(workers) as ex:
         res = list(ex.map(_closed_job, jobs))
     for (name, r, rms), path in zip(res, jobs, strict=True):
         print(f"| {name} | {r['max_swing_rad']:.3f} rad | {r['time_to_goal_s']:.3f} s | {r['min_clearance_m']:.3f} m "
@@ -141,7 +148,7 @@ def section_closed_forests(n: int, workers: int, planner: str | None = None) -> 
     print(f"\n## Closed loop over {n} random forests (lab.forests seeds 0..{n - 1}, eq. 49, in-process, planner "
           f"{planner or 'safe, the missions own'})\n")
     jobs = [(seed, path, planner) for seed in range(n) for path in (None, *CLOSED_FOREST_PATHS)]
-    with ProcessPoolExecutor(workers) as ex:
+    with _pool(workers) as ex:
         res = {(seed, path): r for seed, path, r in ex.map(_closed_forest_job, jobs)}
     targets = {"imu": 0.27, "fixes+vel": 0.26, "fused": 0.26}
     print("| swing input | goal reached | max swing median / p90 / worst | over the sensor's, median / worst | "
@@ -192,7 +199,7 @@ def section_id(workers: int) -> None:
              (0.5, 0.1, 1.0, "gazebo", "hop"), (1.5, 0.5, 1.0, "gazebo", "hop"), (0.7, 0.4, 1.0, "gazebo", "hop"),
              (1.0, 0.25, 2.0, "gazebo", "hop"), (1.0, 0.25, 1.0, "sih", "hop"),
              (1.0, 0.25, 1.0, "gazebo", "forest")]
-    with ProcessPoolExecutor(workers) as ex:
+    with _pool(workers) as ex:
         res = list(ex.map(_id_job, cases))
     for l, m, wind, noise, flight, r, cpu in res:
         el = 100.0 * (r.cable_length_m / l - 1.0)

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from companion import proclife
 from companion.core.obstacles import Obstacle
 from companion.zenoh_io.session import add_zenoh_arguments, zenoh_config, zenoh_config_from_args
 from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry
@@ -163,7 +164,7 @@ def run_bench_zenoh(
            "--warmup", str(int(0.5 * rate_hz))]
     cost: list[float] = []
     with ZenohTelemetry(zenoh_config("companion", listen=[ep]), opts) as zt:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, preexec_fn=proclife.preexec())
         try:
             pub = zt._pubs["swing"]
             deadline = time.monotonic() + 15.0
