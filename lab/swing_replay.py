@@ -1,7 +1,7 @@
 """Replay a flown run's ``flight.tlog`` through the swing estimator, offline (issue 11).
 
 A flight against a real autopilot takes minutes of real time; its tlog keeps every datagram both ways. This feeds
-the recorded telemetry, in the order the companion received it, through the same :class:`VehicleState` and
+the recorded telemetry, in the order the companion received it, through the same decoding, :class:`VehicleState` and
 :class:`SwingFeed` the flight app uses, and at each setpoint the companion sent (one per tick) asks for the tick's
 estimate and hands the estimator the thrust that tick commanded (from the run's ``flight_log.npz``). So an
 estimator change can be scored on a recorded ArduCopter SIM_SLUP flight in seconds, with another
@@ -34,6 +34,7 @@ from companion.estimation.swing_feed import ESTIMATOR_INPUTS, SLACK_FRACTION, Sw
 from companion.estimation.swing_model import swing_from_offset
 from companion.estimation.vehicle_state import VehicleState
 from companion.mavlink_io.link import tlog_messages
+from companion.mavlink_io.telemetry import decode
 
 
 @dataclass
@@ -114,9 +115,12 @@ def replay(run_dir: Path, swing_input: str = "estimate_imu", settings: dict[str,
             continue
         if ours is not None and (msg.get_srcSystem(), msg.get_srcComponent()) == ours:
             continue  # our own commands and requests
-        mt = state.ingest(msg, wall)
+        ev = decode(msg)
+        if ev is None:
+            continue
+        mt = state.ingest(ev, wall)
         if mt != "REJECTED":
-            feed.ingest(mt, msg, state)
+            feed.ingest(ev, state)
             if mt == "GLOBAL_POSITION_INT":
                 for t_fix, off, _vel in feed.take_fresh_offsets():
                     if float(np.linalg.norm(off)) >= SLACK_FRACTION * feed.params.l:

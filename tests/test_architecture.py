@@ -19,7 +19,8 @@ PACKAGES = ("companion", "sim_bridge", "lab")
 #: Pure cores: no I/O frameworks, however indirectly.
 PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "companion.estimation",
                  "companion.autopilots", "companion.flight.core", "companion.flight.sequence",
-                 "companion.flight.health", "companion.flight.requests", "companion.report.metrics")
+                 "companion.flight.health", "companion.flight.requests", "companion.report.metrics",
+                 "companion.mavlink_io.telemetry")  # typed telemetry: estimation reads it
 IO_FRAMEWORKS = ("asyncio", "pymavlink", "zenoh", "socket")
 #: What the bundled vehicle may use of the companion: the shared model and MAVLink helpers.
 SIM_MAY_IMPORT = ("companion.core", "companion.mavlink_io.codec", "companion.mavlink_io.signing",

@@ -275,6 +275,7 @@ def test_companion_link_counts_bad_input_and_still_delivers_good_frames() -> Non
 
 def test_vehicle_state_takes_lite_messages_and_refuses_nonfinite_swing() -> None:
     from companion.estimation.vehicle_state import VehicleState
+    from companion.mavlink_io.telemetry import decode
 
     mav, _ = _pair(sysid=1, compid=1)
     mf.send_heartbeat(mav, M.MAV_TYPE_QUADROTOR, M.MAV_AUTOPILOT_PX4, 128 | 1, 6 << 16, M.MAV_STATE_ACTIVE)
@@ -284,12 +285,12 @@ def test_vehicle_state_takes_lite_messages_and_refuses_nonfinite_swing() -> None
     mf.send_debug_float_array5(mav, 2_004_000, b"SWING", 1, math.nan, 0.0, 0.0, 0.0, 1.0)
     st = VehicleState(cable_length_m=1.0)
     for frame in mav.file.frames:
-        st.ingest(mf.decode_lite(frame))
+        st.ingest(decode(mf.decode_lite(frame)))
     assert st.vehicle_sysid == 1 and st.armed and st.mode_name == "OFFBOARD"
     est = st.estimate()
     assert est is not None and est.swing_source == "cable_sensor"
     assert list(est.swing) == [_f32(0.05), _f32(-0.05), 0.0, _f32(0.1)]  # the NaN sample was refused
-    assert st.counts["SWING_nonfinite"] == 1 and st.swing_sensor_t_s == 2.0
+    assert st.rejected["nonfinite"] == 1 and st.swing_sensor_t_s == 2.0
     assert list(est.pos_ned_m) == [1.0, 2.0, -3.0] and est.t_s == 2.0
 
 

@@ -11,19 +11,20 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.core.model import VehicleParams
 from companion.estimation.swing_feed import SwingFeed
+from companion.mavlink_io.telemetry import decode
 
 LAT0, LON0, ALT0 = 47.397742, 8.545594, 488.0
 M_PER_DEG_LON = 111_320.0 * math.cos(math.radians(LAT0))
 
 
 def _gpi(sysid: int, compid: int, t_s: float, east_m: float, alt_m: float):
-    """A GLOBAL_POSITION_INT from ``sysid`` as it comes off the wire."""
+    """A GLOBAL_POSITION_INT from ``sysid`` as it comes off the wire, decoded."""
     tx = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
     msg = mavlink2.MAVLink_global_position_int_message(
         int(t_s * 1e3), int(LAT0 * 1e7), round((LON0 + east_m / M_PER_DEG_LON) * 1e7), int(alt_m * 1e3), 0,
         0, 500, 0, 0)
     rx = mavlink2.MAVLink(None)
-    return rx.parse_char(msg.pack(tx))
+    return decode(rx.parse_char(msg.pack(tx)))
 
 
 def test_a_payload_fix_is_paired_with_the_vehicle_position_at_its_own_time():
@@ -32,10 +33,10 @@ def test_a_payload_fix_is_paired_with_the_vehicle_position_at_its_own_time():
     false swing); paired with the vehicle's position interpolated at its time it is exact."""
     feed = SwingFeed(VehicleParams(), "estimate_fixes")
     state = SimpleNamespace(vehicle_sysid=1, payload_sysid=2)
-    feed.ingest("GLOBAL_POSITION_INT", _gpi(1, 1, 10.00, 0.0, ALT0), state)
-    feed.ingest("GLOBAL_POSITION_INT", _gpi(2, 35, 10.08, 5.0 * 0.08, ALT0 - 1.0), state)
+    feed.ingest(_gpi(1, 1, 10.00, 0.0, ALT0), state)
+    feed.ingest(_gpi(2, 35, 10.08, 5.0 * 0.08, ALT0 - 1.0), state)
     assert feed.take_fresh_offsets() == []  # not yet bracketed by a vehicle fix
-    feed.ingest("GLOBAL_POSITION_INT", _gpi(1, 1, 10.10, 5.0 * 0.10, ALT0), state)
+    feed.ingest(_gpi(1, 1, 10.10, 5.0 * 0.10, ALT0), state)
     (t, off, vel), = feed.take_fresh_offsets()
     assert t == 10.08
     np.testing.assert_allclose(off, [0.0, 0.0, 1.0], atol=0.02)
@@ -48,7 +49,7 @@ def test_unpaired_payload_fixes_are_dropped_and_counted():
     feed = SwingFeed(VehicleParams(), "estimate_fixes")
     state = SimpleNamespace(vehicle_sysid=1, payload_sysid=2)
     for k in range(20):  # the vehicle's own fixes never come
-        feed.ingest("GLOBAL_POSITION_INT", _gpi(2, 35, 1.0 + 0.1 * k, 0.0, ALT0 - 1.0), state)
+        feed.ingest(_gpi(2, 35, 1.0 + 0.1 * k, 0.0, ALT0 - 1.0), state)
     assert feed.counts["payload_fix_unpaired"] == 4 and feed.take_fresh_offsets() == []
 
 
@@ -100,10 +101,10 @@ def test_each_payload_fix_is_scored_against_the_estimate_of_its_own_time():
         feed.choose(Estimate(t_s=t, pos_ned_m=state.pos_ned_m, vel_ned_mps=v0, euler_rad=v0, rates_frd_rad_s=v0,
                              swing=None, swing_source="none"))
     at_fix = feed.estimator.estimate(5.2).swing[:2]
-    feed.ingest("GLOBAL_POSITION_INT", _gpi(1, 1, 5.1, 0.0, ALT0), state)
-    feed.ingest("GLOBAL_POSITION_INT", _gpi(2, 35, 5.2, 0.2, ALT0 - 0.98), state)
+    feed.ingest(_gpi(1, 1, 5.1, 0.0, ALT0), state)
+    feed.ingest(_gpi(2, 35, 5.2, 0.2, ALT0 - 0.98), state)
     assert feed.fix_errors_rad == []  # not paired yet
-    feed.ingest("GLOBAL_POSITION_INT", _gpi(1, 1, 5.3, 0.0, ALT0), state)
+    feed.ingest(_gpi(1, 1, 5.3, 0.0, ALT0), state)
     (err,) = feed.fix_errors_rad
     a, b = swing_from_offset(feed.payload_offset[1])
     assert b < -0.19

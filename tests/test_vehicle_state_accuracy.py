@@ -8,13 +8,15 @@ import time
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.estimation.vehicle_state import VehicleState
+from companion.mavlink_io.telemetry import decode
 
 M = mavlink2
 
 
 def _wire(msg, sysid: int = 1):
+    """The typed event of ``msg`` as it comes off the wire (packed and parsed by pymavlink)."""
     tx = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=1)
-    return mavlink2.MAVLink(None).parse_char(msg.pack(tx))
+    return decode(mavlink2.MAVLink(None).parse_char(msg.pack(tx)))
 
 
 def test_estimator_status_accuracy_reaches_the_estimate_and_nonsense_is_ignored():

@@ -1,5 +1,6 @@
 """The swing estimator in the flight: which autopilot messages feed it, when it starts, and which swing the
-flight core gets (pure: no I/O). The app hands every accepted message to :meth:`SwingFeed.ingest`, the commanded
+flight core gets (pure: no I/O). The app hands every accepted telemetry event
+(:mod:`companion.mavlink_io.telemetry`) to :meth:`SwingFeed.ingest`, the commanded
 thrust to :meth:`SwingFeed.commanded`, and asks :meth:`SwingFeed.choose` for the swing of each tick.
 
 ``--swing-input``:
@@ -34,8 +35,9 @@ from __future__ import annotations
 import bisect
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -45,10 +47,23 @@ from companion.estimation.estimate import Estimate
 from companion.estimation.swing_estimator import SwingEstimate, SwingEstimator, SwingEstimatorConfig
 from companion.estimation.swing_model import payload_offset_from_global, swing_from_offset
 from companion.estimation.two_model import TwoModelEstimator
+from companion.mavlink_io.telemetry import (
+    MG_TO_MPS2,  # noqa: F401  (re-exported: SCALED_IMU's unit, used to be defined here)
+    Attitude,
+    GlobalPositionInt,
+    HighresImu,
+    LocalPositionNed,
+    ScaledImu,
+    TelemetryEvent,
+)
+
+if TYPE_CHECKING:
+    from companion.estimation.vehicle_state import VehicleState
+
+Estimator = SwingEstimator | TwoModelEstimator
 
 log = logging.getLogger(__name__)
 
-MG_TO_MPS2 = 9.80665e-3
 SLACK_FRACTION = 0.95  # a payload fix nearer than this fraction of the cable: the payload lies on the ground
 START_SWING_SIGMA_RAD = 0.15  # 1σ of the swing when the estimator starts (just after the cable went taut)
 SLACK_MARGIN_M = 0.1  # the estimator starts this far above a cable's length over the ground it stood on
@@ -129,7 +144,7 @@ class SwingFeed:
         self.estimator = None
 
     # ------------------------------------------------------------------------------------------ start
-    def maybe_start(self, state: Any) -> None:
+    def maybe_start(self, state: VehicleState) -> None:
         """Start the estimator at lift-off (airborne and armed), if this swing input wants it and — for
         ``auto`` — the vehicle has no cable sensor; stop it once the payload is down again (the vehicle on the
         ground, or lower than a cable's length over where it took off: the cable is slack, there is no swing)."""
@@ -168,62 +183,77 @@ class SwingFeed:
             self.estimator.set_attitude_euler(state.t_s, state.euler_rad, state.rates_frd_rad_s)
 
     # ------------------------------------------------------------------------------------------ messages
-    def ingest(self, mtype: str, msg: Any, state: Any) -> None:
-        """One message ``state`` accepted (``mtype`` its type, not ``REJECTED``)."""
-        if mtype == "GLOBAL_POSITION_INT" and msg.get_srcSystem() == state.vehicle_sysid:
-            t = msg.time_boot_ms * 1e-3
-            if not self._vglobal_t or t > self._vglobal_t[-1]:
-                self._vglobal_t.append(t)
-                self._vglobal.append((msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3))
-                if len(self._vglobal_t) > _GLOBAL_HISTORY:
-                    del self._vglobal_t[0], self._vglobal[0]
-                self._complete_payload_fixes()
-            return
-        src = msg.get_srcSystem()
-        if src == state.payload_sysid and mtype == "GLOBAL_POSITION_INT":
-            self._payload_global(msg)
+    def ingest(self, ev: TelemetryEvent, state: VehicleState) -> None:
+        """One event ``state`` accepted (its ``ingest`` did not answer ``REJECTED``)."""
+        cls = ev.__class__
+        src = ev.src_system
+        if cls is GlobalPositionInt:
+            if src == state.vehicle_sysid:
+                self._vehicle_global(ev)
+            elif src == state.payload_sysid:
+                self._payload_global(ev)
             return
         est = self.estimator
         if est is None:
             return
+        if src == state.vehicle_sysid:
+            handler = _VEHICLE_INPUTS.get(cls)
+        elif src == state.payload_sysid and cls is LocalPositionNed:
+            handler = SwingFeed._payload_position
+        else:
+            return
+        if handler is None:
+            return
         try:
-            self._ingest_into(est, src, mtype, msg, state)
+            handler(self, est, ev, state)
         except _NUMERIC_FAILURES as exc:
             self._failed(exc)
 
-    def _ingest_into(self, est: SwingEstimator | TwoModelEstimator, src: int, mtype: str, msg: Any, state: Any) -> None:
-        if src == state.vehicle_sysid:
-            if mtype == "ATTITUDE":
-                est.set_attitude_euler(msg.time_boot_ms * 1e-3, state.euler_rad, state.rates_frd_rad_s)
-            elif mtype == "LOCAL_POSITION_NED":
-                est.update_velocity(msg.time_boot_ms * 1e-3, state.vel_ned_mps, state.pos_ned_m)
-            elif mtype == "HIGHRES_IMU" and self.use_imu:
-                a = (msg.xacc, msg.yacc, msg.zacc)
-                if all(math.isfinite(v) for v in a):
-                    est.update_imu(msg.time_usec * 1e-6, a)
-                    self._count("imu")
-            elif mtype == "SCALED_IMU" and self.use_imu:
-                est.update_imu(msg.time_boot_ms * 1e-3,
-                               (msg.xacc * MG_TO_MPS2, msg.yacc * MG_TO_MPS2, msg.zacc * MG_TO_MPS2))
-                self._count("imu")
-        elif src == state.payload_sysid and self.use_fixes and mtype == "LOCAL_POSITION_NED":
-            p = (msg.x, msg.y, msg.z)
-            if not all(math.isfinite(c) for c in p):
-                return
-            if state.pos_ned_m is not None and math.dist(p, state.pos_ned_m) < SLACK_FRACTION * self.params.l:
-                self._count("slack_fix")
-                return
-            if est.update_payload_position(msg.time_boot_ms * 1e-3, p):
-                self._count("payload_fix")
+    def _vehicle_global(self, ev: GlobalPositionInt) -> None:
+        """The vehicle's own GLOBAL_POSITION_INT: the history payload fixes are differenced against."""
+        t = ev.t_boot_s
+        if not self._vglobal_t or t > self._vglobal_t[-1]:
+            self._vglobal_t.append(t)
+            self._vglobal.append((ev.lat_deg, ev.lon_deg, ev.alt_amsl_m))
+            if len(self._vglobal_t) > _GLOBAL_HISTORY:
+                del self._vglobal_t[0], self._vglobal[0]
+            self._complete_payload_fixes()
 
-    def _payload_global(self, msg: Any) -> None:
+    def _attitude(self, est: Estimator, ev: Attitude, state: VehicleState) -> None:
+        est.set_attitude_euler(ev.t_boot_s, state.euler_rad, state.rates_frd_rad_s)
+
+    def _velocity(self, est: Estimator, ev: LocalPositionNed, state: VehicleState) -> None:
+        est.update_velocity(ev.t_boot_s, state.vel_ned_mps, state.pos_ned_m)
+
+    def _highres_imu(self, est: Estimator, ev: HighresImu, state: VehicleState) -> None:
+        if self.use_imu:
+            est.update_imu(ev.t_s, ev.accel_frd_mps2)
+            self._count("imu")
+
+    def _scaled_imu(self, est: Estimator, ev: ScaledImu, state: VehicleState) -> None:
+        if self.use_imu:
+            est.update_imu(ev.t_boot_s, ev.accel_frd_mps2)
+            self._count("imu")
+
+    def _payload_position(self, est: Estimator, ev: LocalPositionNed, state: VehicleState) -> None:
+        """The payload's own position stream (a fix), skipped while the cable is slack."""
+        if not self.use_fixes:
+            return
+        p = ev.pos_ned_m
+        if state.pos_ned_m is not None and math.dist(p, state.pos_ned_m) < SLACK_FRACTION * self.params.l:
+            self._count("slack_fix")
+            return
+        if est.update_payload_position(ev.t_boot_s, p):
+            self._count("payload_fix")
+
+    def _payload_global(self, ev: GlobalPositionInt) -> None:
         """A payload GLOBAL_POSITION_INT (ArduPilot's convention): kept until the vehicle's own GLOBAL_POSITION_INT
         brackets its time, then differenced against the vehicle's position interpolated there.
 
         Both arrive at 10 Hz from ArduCopter, the payload's ~80 ms after the vehicle's: differenced against the
         newest vehicle fix instead, the offset was off by the vehicle's travel in between (0.4 m at 5 m/s)."""
-        t = msg.time_boot_ms * 1e-3
-        fix = (t, (msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3), np.array([msg.vx, msg.vy, msg.vz]) * 1e-2)
+        t = ev.t_boot_s
+        fix = (t, (ev.lat_deg, ev.lon_deg, ev.alt_amsl_m), np.array(ev.vel_ned_mps))
         self._pending_fixes.append(fix)
         if len(self._pending_fixes) > _PENDING_FIXES:
             del self._pending_fixes[0]
@@ -340,3 +370,12 @@ class SwingFeed:
                 del self._used_t[:_USED_HISTORY // 2], self._used_ab[:_USED_HISTORY // 2]
         return replace(est, swing=se.swing, swing_source="estimate", swing_fade=se.fade,
                        swing_bound_rad=se.bound_rad)
+
+
+#: The vehicle's events the running estimator takes, and how.
+_VEHICLE_INPUTS: dict[type, Callable[[SwingFeed, Estimator, Any, VehicleState], None]] = {
+    Attitude: SwingFeed._attitude,
+    LocalPositionNed: SwingFeed._velocity,
+    HighresImu: SwingFeed._highres_imu,
+    ScaledImu: SwingFeed._scaled_imu,
+}

@@ -1,14 +1,15 @@
 """What the companion knows about the vehicle, folded from incoming MAVLink messages, and how much to trust it.
 
-``VehicleState.ingest(msg, wall_s)`` takes decoded pymavlink messages (any object with ``get_type()``,
-``get_srcSystem()`` and the message's fields) with the wall time they arrived; ``estimate()`` turns the
+``VehicleState.ingest(event, wall_s)`` takes typed telemetry events (:mod:`companion.mavlink_io.telemetry`:
+``decode(msg)`` of each received message) with the wall time they arrived; ``estimate()`` turns the
 latest ones into a :class:`~companion.estimation.estimate.Estimate`. Pure: no sockets, no clocks.
 
 Trust. The vehicle is the system of the first autopilot HEARTBEAT (``autopilot`` not INVALID); only its
 messages update the state (the link also drops datagrams from any other address). Every value is checked
 before it is believed, and what fails is counted in ``rejected`` by kind:
 
-* ``nonfinite``: NaN or ±inf in a position, velocity, attitude or swing field;
+* ``nonfinite``: NaN or ±inf in a field the companion uses (position, velocity, attitude, swing, IMU, home,
+  estimator accuracy, parameter value): refused while decoding (a :class:`Rejected` event), counted here;
 * ``time_backwards`` / ``time_jump``: a ``time_boot_ms`` more than 0.5 s behind the vehicle clock, or ahead
   of it by more than 1 s plus what the wall clock allows (``max_time_rate`` vehicle seconds per wall second:
   ~1 in real time, large in lockstep where the simulator runs ahead of the wall clock);
@@ -43,11 +44,27 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from math import isfinite
+from typing import Any
 
 import numpy as np
 
 from companion.estimation import SWING_INPUTS  # noqa: F401  (re-exported: the inputs this state chooses from)
 from companion.estimation.estimate import Estimate, swing_from_payload
+from companion.mavlink_io.telemetry import (
+    Attitude,
+    AutopilotVersion,
+    EstimatorStatus,
+    ExtendedSysState,
+    Heartbeat,
+    HomePosition,
+    LocalPositionNed,
+    Rejected,
+    StatusText,
+    SwingSensor,
+    SysStatus,
+    SystemTime,
+    TelemetryEvent,
+)
 
 log = logging.getLogger(__name__)
 
@@ -196,125 +213,136 @@ class VehicleState:
             self._clock_wall_s = wall_s
         return True
 
-    def ingest(self, msg, wall_s: float | None = None) -> str:
-        """Fold one message in (``wall_s``: monotonic arrival time); returns its type name, or ``"REJECTED"``
-        when a check refused it. Messages from systems other than the vehicle (and its payload) are ignored."""
-        mtype = msg.get_type()
-        src = msg.get_srcSystem()
-        self.counts[mtype] += 1
-        if mtype == "HEARTBEAT":
-            if msg.autopilot == MAV_AUTOPILOT_INVALID:  # a GCS, a companion or the payload system
-                return mtype
-            if self.vehicle_sysid is None:
-                self.vehicle_sysid = src
-                self.vehicle_compid = msg.get_srcComponent()
-                self.autopilot = int(msg.autopilot)
-                self.vehicle_type = int(msg.type)
-                log.info("vehicle found: system %d component %d", src, self.vehicle_compid)
-            if src == self.vehicle_sysid and msg.get_srcComponent() == self.vehicle_compid:
-                self.heartbeats += 1
-                self.heartbeat_wall_s = wall_s
-                self.base_mode = int(msg.base_mode)
-                self.armed = bool(msg.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
-                self.custom_mode = int(msg.custom_mode)
-                self.system_status = int(msg.system_status)
-            return mtype
-        if self.payload_sysid is not None and src == self.payload_sysid:
-            if mtype == "LOCAL_POSITION_NED":
-                p = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
-                if not all(isfinite(v) for v in p):
-                    return self._reject("nonfinite")
-                self.payload_pos_ned_m = np.array(p[:3])
-                self.payload_vel_ned_mps = np.array(p[3:])
-                self.payload_t_s = msg.time_boot_ms * 1e-3
-            return mtype
-        if self.vehicle_sysid is None or src != self.vehicle_sysid:
-            return mtype
-        if mtype == "ATTITUDE":
-            a = (msg.roll, msg.pitch, msg.yaw, msg.rollspeed, msg.pitchspeed, msg.yawspeed)
-            if not (isfinite(a[0]) and isfinite(a[1]) and isfinite(a[2]) and isfinite(a[3]) and isfinite(a[4])
-                    and isfinite(a[5])):
-                return self._reject("nonfinite")
-            if abs(a[0]) > math.pi + 1e-6 or abs(a[1]) > math.pi / 2 + 1e-6 or abs(a[2]) > math.pi + 1e-6:
-                return self._reject("attitude_range")
-            t = msg.time_boot_ms * 1e-3
-            if t < self.att_t_s:
-                return self._reject("out_of_order")
-            if not self._time_ok(t, wall_s):
-                return "REJECTED"
-            self.euler_rad = np.array(a[:3])
-            self.rates_frd_rad_s = np.array(a[3:])
-            self.att_t_s = t
-            self.att_wall_s = wall_s
-        elif mtype == "LOCAL_POSITION_NED":
-            p = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
-            if not (isfinite(p[0]) and isfinite(p[1]) and isfinite(p[2]) and isfinite(p[3]) and isfinite(p[4])
-                    and isfinite(p[5])):
-                return self._reject("nonfinite")
-            t = msg.time_boot_ms * 1e-3
-            if t < self.pos_t_s:
-                return self._reject("out_of_order")
-            if self.pos_ned_m is not None:
-                dt = abs(t - self.pos_t_s)
-                q = self.pos_ned_m
-                if math.dist((p[0], p[1], p[2]), (q[0], q[1], q[2])) > self.max_speed_mps * dt + 1.0:
-                    return self._reject("position_jump")
-            if not self._time_ok(t, wall_s):
-                return "REJECTED"
-            self.pos_ned_m = np.array(p[:3])
-            self.vel_ned_mps = np.array(p[3:])
-            self.pos_t_s = t
-            self.pos_wall_s = wall_s
-        elif mtype == "DEBUG_FLOAT_ARRAY":
-            name = msg.name.rstrip("\x00") if isinstance(msg.name, str) else msg.name
-            if name == "SWING" and len(msg.data) >= 4:
-                d0, d1, d2, d3 = (float(x) for x in msg.data[:4])
-                reach = float(msg.data[4]) if len(msg.data) >= 5 else self.cable_length_m
-                if msg.time_usec * 1e-6 < self.swing_sensor_t_s:
-                    return self._reject("out_of_order")
-                if isfinite(d0) and isfinite(d1) and isfinite(d2) and isfinite(d3):
-                    # data[4] shorter than the cable: the payload rests on the ground, the cable is slack
-                    slack = isfinite(reach) and reach < SLACK_FRACTION * self.cable_length_m
-                    self.swing_sensor = _ZERO4 if slack else np.array((d0, d1, d2, d3))
-                    self.swing_sensor_t_s = msg.time_usec * 1e-6
-                else:
-                    self.counts["SWING_nonfinite"] += 1
-                    self.rejected["nonfinite"] += 1
-        elif mtype == "EXTENDED_SYS_STATE":
-            self.landed_state = int(msg.landed_state)
-        elif mtype == "HOME_POSITION":
-            h = (msg.x, msg.y, msg.z)
-            if not (isfinite(h[0]) and isfinite(h[1]) and isfinite(h[2])):
-                return self._reject("nonfinite")
-            self.home_ned_m = np.array(h)
-        elif mtype == "AUTOPILOT_VERSION":
-            v = int(msg.flight_sw_version)
-            self.autopilot_version = {
-                "flight_sw_version": f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF}",
-                "release_type": v & 0xFF, "vendor_id": int(msg.vendor_id), "product_id": int(msg.product_id),
-                "capabilities": int(msg.capabilities),
-                "flight_custom_version": bytes(msg.flight_custom_version).hex()
-                if not isinstance(msg.flight_custom_version, str) else msg.flight_custom_version,
-            }
-        elif mtype == "ESTIMATOR_STATUS":  # PX4: the estimator's own horizontal position accuracy (1σ, m)
-            acc = float(msg.pos_horiz_accuracy)
-            if isfinite(acc) and 0.0 < acc < 100.0:
-                self.pos_accuracy_m = acc
-        elif mtype == "SYS_STATUS":
-            self.sys_status_seen = True
-            self.sensors_present = int(msg.onboard_control_sensors_present)
-            self.sensors_health = int(msg.onboard_control_sensors_health)
-        elif mtype == "SYSTEM_TIME":
-            if not self._time_ok(msg.time_boot_ms * 1e-3, wall_s):
-                return "REJECTED"
-            self.step_markers += 1
-        elif mtype == "STATUSTEXT":
-            text = msg.text.rstrip("\x00") if isinstance(msg.text, str) else str(msg.text)
-            self.statustext.append(text)
-            if len(self.statustext) > 200:
-                del self.statustext[:100]
-            log.info("vehicle says: %s", text)
-        return mtype
+    def ingest(self, ev: TelemetryEvent, wall_s: float | None = None) -> str:
+        """Fold one decoded message in (``wall_s``: monotonic arrival time); returns its message type name, or
+        ``"REJECTED"`` when a check refused it (also a :class:`Rejected` event from the vehicle or, for a
+        position, its payload). Events from systems other than the vehicle (and its payload) are ignored."""
+        name = ev.message
+        self.counts[name] += 1
+        cls = ev.__class__
+        if cls is Heartbeat:
+            return self._on_heartbeat(ev, wall_s)
+        src = ev.src_system
+        if src == self.payload_sysid:
+            return self._on_payload(ev)
+        if src != self.vehicle_sysid:  # also while the vehicle is not known yet
+            return name
+        handler = _VEHICLE_HANDLERS.get(cls)
+        return name if handler is None else handler(self, ev, wall_s)
+
+    def _on_heartbeat(self, ev: Heartbeat, wall_s: float | None) -> str:
+        if ev.autopilot == MAV_AUTOPILOT_INVALID:  # a GCS, a companion or the payload system
+            return ev.message
+        src = ev.src_system
+        if self.vehicle_sysid is None:
+            self.vehicle_sysid = src
+            self.vehicle_compid = ev.src_component
+            self.autopilot = ev.autopilot
+            self.vehicle_type = ev.mav_type
+            log.info("vehicle found: system %d component %d", src, self.vehicle_compid)
+        if src == self.vehicle_sysid and ev.src_component == self.vehicle_compid:
+            self.heartbeats += 1
+            self.heartbeat_wall_s = wall_s
+            self.base_mode = ev.base_mode
+            self.armed = bool(ev.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
+            self.custom_mode = ev.custom_mode
+            self.system_status = ev.system_status
+        return ev.message
+
+    def _on_payload(self, ev: TelemetryEvent) -> str:
+        """The payload system: only its position stream is read (a non-finite one is counted)."""
+        if ev.__class__ is LocalPositionNed:
+            self.payload_pos_ned_m = np.array(ev.pos_ned_m)
+            self.payload_vel_ned_mps = np.array(ev.vel_ned_mps)
+            self.payload_t_s = ev.t_boot_s
+        elif ev.__class__ is Rejected and ev.message == "LOCAL_POSITION_NED":
+            return self._reject(ev.kind)
+        return ev.message
+
+    def _on_rejected(self, ev: Rejected, wall_s: float | None) -> str:
+        return self._reject(ev.kind)
+
+    def _on_attitude(self, ev: Attitude, wall_s: float | None) -> str:
+        r, p, y = ev.euler_rad
+        if abs(r) > math.pi + 1e-6 or abs(p) > math.pi / 2 + 1e-6 or abs(y) > math.pi + 1e-6:
+            return self._reject("attitude_range")
+        t = ev.t_boot_s
+        if t < self.att_t_s:
+            return self._reject("out_of_order")
+        if not self._time_ok(t, wall_s):
+            return "REJECTED"
+        self.euler_rad = np.array(ev.euler_rad)
+        self.rates_frd_rad_s = np.array(ev.rates_frd_rad_s)
+        self.att_t_s = t
+        self.att_wall_s = wall_s
+        return ev.message
+
+    def _on_local_position(self, ev: LocalPositionNed, wall_s: float | None) -> str:
+        t = ev.t_boot_s
+        if t < self.pos_t_s:
+            return self._reject("out_of_order")
+        q = self.pos_ned_m
+        if q is not None and math.dist(ev.pos_ned_m, (q[0], q[1], q[2])) > \
+                self.max_speed_mps * abs(t - self.pos_t_s) + 1.0:
+            return self._reject("position_jump")
+        if not self._time_ok(t, wall_s):
+            return "REJECTED"
+        self.pos_ned_m = np.array(ev.pos_ned_m)
+        self.vel_ned_mps = np.array(ev.vel_ned_mps)
+        self.pos_t_s = t
+        self.pos_wall_s = wall_s
+        return ev.message
+
+    def _on_swing_sensor(self, ev: SwingSensor, wall_s: float | None) -> str:
+        if ev.t_s < self.swing_sensor_t_s:
+            return self._reject("out_of_order")
+        reach = ev.reach_m  # shorter than the cable: the payload rests on the ground, the cable is slack
+        slack = isfinite(reach) and reach < SLACK_FRACTION * self.cable_length_m
+        self.swing_sensor = _ZERO4 if slack else np.array(ev.swing)
+        self.swing_sensor_t_s = ev.t_s
+        return ev.message
+
+    def _on_system_time(self, ev: SystemTime, wall_s: float | None) -> str:
+        if not self._time_ok(ev.t_boot_ms * 1e-3, wall_s):
+            return "REJECTED"
+        self.step_markers += 1
+        return ev.message
+
+    def _on_ext_state(self, ev: ExtendedSysState, wall_s: float | None) -> str:
+        self.landed_state = ev.landed_state
+        return ev.message
+
+    def _on_home(self, ev: HomePosition, wall_s: float | None) -> str:
+        self.home_ned_m = np.array(ev.pos_ned_m)
+        return ev.message
+
+    def _on_sys_status(self, ev: SysStatus, wall_s: float | None) -> str:
+        self.sys_status_seen = True
+        self.sensors_present = ev.sensors_present
+        self.sensors_health = ev.sensors_health
+        return ev.message
+
+    def _on_estimator_status(self, ev: EstimatorStatus, wall_s: float | None) -> str:
+        """PX4: the estimator's own horizontal position accuracy (1σ, m), when plausible."""
+        if 0.0 < ev.pos_horiz_accuracy_m < 100.0:
+            self.pos_accuracy_m = ev.pos_horiz_accuracy_m
+        return ev.message
+
+    def _on_version(self, ev: AutopilotVersion, wall_s: float | None) -> str:
+        v = ev.flight_sw_version
+        self.autopilot_version = {
+            "flight_sw_version": f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF}",
+            "release_type": v & 0xFF, "vendor_id": ev.vendor_id, "product_id": ev.product_id,
+            "capabilities": ev.capabilities, "flight_custom_version": ev.flight_custom_version.hex(),
+        }
+        return ev.message
+
+    def _on_statustext(self, ev: StatusText, wall_s: float | None) -> str:
+        self.statustext.append(ev.text)
+        if len(self.statustext) > 200:
+            del self.statustext[:100]
+        log.info("vehicle says: %s", ev.text)
+        return ev.message
 
     def set_payload_fix(self, t_s: float, payload_pos_ned_m: np.ndarray, payload_vel_ned_mps: np.ndarray) -> None:
         """A payload position (local NED, m) and velocity (m/s) at ``t_s`` worked out elsewhere (ArduPilot's
@@ -385,3 +413,19 @@ class VehicleState:
             swing_source=source,
             pos_accuracy_m=self.pos_accuracy_m,
         )
+
+
+#: The vehicle's events and what folds each in (others are counted and otherwise ignored).
+_VEHICLE_HANDLERS: dict[type, Callable[[VehicleState, Any, float | None], str]] = {
+    Attitude: VehicleState._on_attitude,
+    LocalPositionNed: VehicleState._on_local_position,
+    SwingSensor: VehicleState._on_swing_sensor,
+    SystemTime: VehicleState._on_system_time,
+    ExtendedSysState: VehicleState._on_ext_state,
+    HomePosition: VehicleState._on_home,
+    SysStatus: VehicleState._on_sys_status,
+    EstimatorStatus: VehicleState._on_estimator_status,
+    AutopilotVersion: VehicleState._on_version,
+    StatusText: VehicleState._on_statustext,
+    Rejected: VehicleState._on_rejected,
+}

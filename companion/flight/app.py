@@ -63,6 +63,7 @@ from companion.flight.sequence import FlightSequence, Observation, SequenceConfi
 from companion.mavlink_io.codec import send_set_attitude_target
 from companion.mavlink_io.commands import RequestLink
 from companion.mavlink_io.link import MavlinkLink
+from companion.mavlink_io.telemetry import decode
 from companion.report.journal import Journal
 from companion.report.metrics import FlightLog
 
@@ -293,31 +294,36 @@ class FlightApp:
     # ------------------------------------------------------------------ input
     def _on_message(self, msg: Any) -> None:
         wall = time.monotonic()
+        ev = decode(msg)
+        if ev is None:  # a message nothing reads: still a frame of the vehicle's stream (sequence numbers)
+            if msg.get_srcSystem() == self.state.vehicle_sysid:
+                self.health.on_frame(msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq())
+            return
         known = self.state.vehicle_sysid is not None
-        mtype = self.state.ingest(msg, wall)
-        if mtype != "REJECTED":
-            self.swing_feed.ingest(mtype, msg, self.state)
-            if mtype == "GLOBAL_POSITION_INT":  # ArduPilot's payload: fixes relative to the airframe, once paired
+        kind = self.state.ingest(ev, wall)
+        if kind != "REJECTED":
+            self.swing_feed.ingest(ev, self.state)
+            if kind == "GLOBAL_POSITION_INT":  # ArduPilot's payload: fixes relative to the airframe, once paired
                 for t_fix, off, vel in self.swing_feed.take_fresh_offsets():
                     if self.state.pos_ned_m is not None:  # the angles come from ``off`` alone
                         self.state.set_payload_fix(t_fix, self.state.pos_ned_m + off, vel)
         if not known and self.state.vehicle_sysid is not None:
             self._vehicle_found()
-        src = msg.get_srcSystem()
+        src = ev.src_system
         if src == self.state.vehicle_sysid:
-            self.health.on_frame(src, msg.get_srcComponent(), msg.get_seq())
-            if mtype == "LOCAL_POSITION_NED":
+            self.health.on_frame(src, ev.src_component, ev.seq)
+            if kind == "LOCAL_POSITION_NED":
                 self.health.on_sample("position", self.state.pos_t_s)
-            elif mtype == "ATTITUDE":
+            elif kind == "ATTITUDE":
                 self.health.on_sample("attitude", self.state.att_t_s)
-            elif mtype == "SYSTEM_TIME" and (
-                    msg.time_boot_ms != self._last_marker_ms or wall - self._marker_seen_wall > 0.5):
+            elif kind == "SYSTEM_TIME" and (
+                    ev.t_boot_ms != self._last_marker_ms or wall - self._marker_seen_wall > 0.5):
                 # A repeated marker (same time) is the vehicle re-asking after a lost answer: answer again only if
                 # we have not answered for 0.5 s, so duplicates never double-step a lockstep simulation.
-                self._last_marker_ms = msg.time_boot_ms
+                self._last_marker_ms = ev.t_boot_ms
                 self._marker_seen_wall = wall
                 self._marker_pending = True
-        ans = self.requests.answer_of(msg)
+        ans = self.requests.answer_of(ev)
         if ans is not None:
             key, value = ans
             if key.startswith("param:"):  # a PARAM_VALUE: ours only if it answers a read or a write we asked for

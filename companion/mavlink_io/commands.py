@@ -1,5 +1,6 @@
 """The flight sequence's requests (:class:`companion.flight.requests.Request`) as MAVLink, and the autopilot's
-answers back as (request key, result) pairs. Sending never waits: the sequence tracks answers and retries.
+answers back (typed telemetry events, :mod:`companion.mavlink_io.telemetry`) as (request key, result) pairs.
+Sending never waits: the sequence tracks answers and retries.
 
 =========================  ==========================================  ==============================
 request key                sent as                                     answered by
@@ -31,6 +32,7 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.flight.requests import Request
+from companion.mavlink_io.telemetry import CommandAck, ParamValue, TelemetryEvent
 
 log = logging.getLogger(__name__)
 M = mavlink2
@@ -95,20 +97,17 @@ class RequestLink:
         self._by_command[command] = req.key
         self.mav.command_long_send(sysid or 1, compid, command, req.attempt - 1, *p)
 
-    def answer_of(self, msg: Any) -> tuple[str, int | float] | None:
-        """The (request key, result) a COMMAND_ACK or PARAM_VALUE from the target answers, else None."""
-        mtype = msg.get_type()
-        if mtype == "COMMAND_ACK":
-            if msg.get_srcSystem() != self.target()[0]:
+    def answer_of(self, ev: TelemetryEvent) -> tuple[str, int | float] | None:
+        """The (request key, result) a COMMAND_ACK or PARAM_VALUE event from the target answers, else None (a
+        PARAM_VALUE's non-finite value never reaches here: decoding refused it)."""
+        cls = ev.__class__
+        if cls is CommandAck:
+            if ev.src_system != self.target()[0]:
                 return None
-            key = self._by_command.get(int(msg.command))
-            return None if key is None else (key, int(msg.result))
-        if mtype == "PARAM_VALUE":
-            if msg.get_srcSystem() != self.target()[0]:
+            key = self._by_command.get(ev.command)
+            return None if key is None else (key, ev.result)
+        if cls is ParamValue:
+            if ev.src_system != self.target()[0]:
                 return None
-            pid = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else str(msg.param_id)
-            value = float(msg.param_value)
-            if not math.isfinite(value):
-                return None
-            return (f"param:{pid}", value)
+            return (f"param:{ev.param_id}", ev.value)
         return None
