@@ -16,8 +16,18 @@ import time
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.mavlink_io.codec import decode_fields, send_set_attitude_target
+from companion.autopilots import px4_modes
+from companion.mavlink_io.codec import (
+    CRC_SET_ATTITUDE_TARGET,
+    ID_SET_ATTITUDE_TARGET,
+    P_SET_ATTITUDE_TARGET,
+    decode_fields,
+    frame_v2,
+    send_set_attitude_target,
+)
+from sim_bridge.link import MavUdpLink
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
+from sim_bridge.vehicle import SitlConfig, SitlVehicle
 
 M = mavlink2
 _ID_SYSTEM_TIME = M.MAVLINK_MSG_ID_SYSTEM_TIME
@@ -103,6 +113,56 @@ def _fast_loop(c: MavClient, seconds: float) -> dict[str, float]:
         "final_altitude_m": -z,
         "client_cpu_us_per_step": cpu / max(steps, 1) * 1e6,
     }
+
+
+class _Discard:
+    """A transport that drops what the links send (the in-process step cost leaves the kernel's UDP out)."""
+
+    def __init__(self) -> None:
+        self.datagrams = 0
+
+    def sendto(self, buf: bytes, addr: tuple[str, int]) -> None:
+        self.datagrams += 1
+
+    def close(self) -> None:
+        pass
+
+
+def run_bench_step_inprocess(steps: int = 5000) -> dict[str, float]:
+    """The vehicle's own CPU per lockstep control step, in this process and without sockets: a hover client's
+    SET_ATTITUDE_TARGET frames go straight into the onboard link's ``datagram_received`` and what the vehicle
+    sends is dropped. Physics, mode logic, telemetry packing and framing, as in ``--lockstep``; the UDP system
+    calls (and the wake-ups they cause) are what the subprocess bench adds on top."""
+    v = SitlVehicle(SitlConfig(lockstep=True))
+    v.warm_up()
+    sink = _Discard()
+    links = [MavUdpLink(name, ("127.0.0.1", 9), 1, 1, v.counters, v.on_message, None, link_id=k)
+             for k, name in enumerate(("onboard", "gcs"))]
+    for lk in links:
+        lk.transport = sink
+    v.attach_links(*links)
+    v.start()
+    addr = ("127.0.0.1", 40000)
+    handle = links[0].datagram_received
+
+    def answer(k: int, thrust: float) -> bytes:
+        payload = P_SET_ATTITUDE_TARGET.pack(v.t_us // 1000, *_LEVEL, 0.0, 0.0, 0.0, thrust, 1, 1, 7)
+        return frame_v2(k & 0xFF, 255, 190, ID_SET_ATTITUDE_TARGET, CRC_SET_ATTITUDE_TARGET, payload)
+
+    handle(answer(0, 0.0), addr)
+    v.set_mode(px4_modes.OFFBOARD)
+    v.arm()
+    x = v.sim.x
+    cpu0 = time.process_time()
+    for k in range(steps):
+        handle(answer(k, _hover_thrust(float(x[2]), float(x[10]))), addr)
+    cpu = time.process_time() - cpu0
+    cpu0 = time.process_time()
+    for k in range(steps):  # what the client's side of that loop cost, to take off
+        answer(k, _hover_thrust(float(x[2]), float(x[10])))
+    cpu -= time.process_time() - cpu0
+    return {"control_steps": float(steps), "vehicle_cpu_us_per_step": cpu / steps * 1e6,
+            "datagrams_per_step": sink.datagrams / (steps + 1), "final_altitude_m": -float(v.sim.x[2])}
 
 
 def _proc_cpu_s(pid: int) -> float:

@@ -80,33 +80,42 @@ def parse_position_target(msg: Any, yaw_now_rad: float) -> tuple[str | None, tup
     return None, (pos, vel, acc, yaw, yaw_rate)
 
 
-def parse_attitude_target(msg: Any) -> tuple[str | None, np.ndarray | None, np.ndarray | None, float | None]:
+def parse_attitude_target(msg: Any) -> tuple[str | None, Any, np.ndarray | None, float | None]:
     """Check a SET_ATTITUDE_TARGET; returns (rejection kind or None, q, body rates, normalized thrust).
 
     Ignored fields (type_mask) are returned as None and not checked (they may be NaN, as some senders do).
     Rejection kinds: ``nonfinite``, ``bad_quaternion`` (|‖q‖ − 1| > 1e-3), ``thrust_range`` (outside 0..1).
     """
-    mask = int(msg.type_mask)
+    q = msg.q
+    return parse_attitude_fields(int(msg.type_mask), q[0], q[1], q[2], q[3], msg.body_roll_rate,
+                                 msg.body_pitch_rate, msg.body_yaw_rate, msg.thrust)
+
+
+def parse_attitude_fields(mask: int, c0: float, c1: float, c2: float, c3: float, roll_rate: float,
+                          pitch_rate: float, yaw_rate: float, thrust_n1: float,
+                          ) -> tuple[str | None, tuple[float, float, float, float] | None, np.ndarray | None,
+                                     float | None]:
+    """:func:`parse_attitude_target` on the message's fields (the lockstep hot path decodes no message
+    object): q [w x y z] as a tuple of floats, body rates (rad/s) as an array, normalized thrust."""
     q = None
     rates = None
     thrust = None
     isfinite = math.isfinite
     if not mask & ATTITUDE_IGNORE:
-        c0, c1, c2, c3 = msg.q
         q0, q1, q2, q3 = float(c0), float(c1), float(c2), float(c3)
         if not (isfinite(q0) and isfinite(q1) and isfinite(q2) and isfinite(q3)):
             return "nonfinite", None, None, None
         if abs(math.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3) - 1.0) > 1e-3:
             return "bad_quaternion", None, None, None
-        q = np.array((q0, q1, q2, q3))
+        q = (q0, q1, q2, q3)
     if (mask & 7) != 7:
         r = [0.0 if mask & b else float(x) for b, x in
-             zip(RATE_IGNORE_BITS, (msg.body_roll_rate, msg.body_pitch_rate, msg.body_yaw_rate), strict=True)]
+             zip(RATE_IGNORE_BITS, (roll_rate, pitch_rate, yaw_rate), strict=True)]
         if not (isfinite(r[0]) and isfinite(r[1]) and isfinite(r[2])):
             return "nonfinite", None, None, None
         rates = np.array(r)
     if not mask & THRUST_IGNORE:
-        thrust = float(msg.thrust)
+        thrust = float(thrust_n1)
         if not isfinite(thrust):
             return "nonfinite", None, None, None
         if not 0.0 <= thrust <= 1.0:

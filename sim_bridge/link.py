@@ -27,7 +27,16 @@ from typing import Any
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.mavlink_io import signing
-from companion.mavlink_io.codec import FrameError, crc_extra_of, decode_lite, frame_msgid
+from companion.mavlink_io.codec import (
+    CRC_SET_ATTITUDE_TARGET,
+    ID_SET_ATTITUDE_TARGET,
+    P_SET_ATTITUDE_TARGET,
+    FrameError,
+    crc_extra_of,
+    crc_mcrf4xx,
+    decode_lite,
+    frame_msgid,
+)
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +66,10 @@ UNSIGNED_OK = frozenset({mavlink2.MAVLINK_MSG_ID_RADIO_STATUS, mavlink2.MAVLINK_
 BATCH_MAX_BYTES = 1400  # stay below a typical Ethernet MTU
 _V2_HEADER = 10
 _V1_HEADER = 6
+_SAT_SIZE = P_SET_ATTITUDE_TARGET.size  # SET_ATTITUDE_TARGET without its extension (thrust_body)
+_SAT_UNPACK = P_SET_ATTITUDE_TARGET.unpack
+_SAT_CRC_EXTRA = bytes((CRC_SET_ATTITUDE_TARGET,))
+_PAD = [bytes(k) for k in range(_SAT_SIZE + 1)]
 
 
 class RejectCounters:
@@ -111,6 +124,9 @@ class MavUdpLink(asyncio.DatagramProtocol):
         self.rx_messages = 0
         self._batch: bytearray | None = None
         self.scheduler: Any = None  # the vehicle's per-link telemetry schedule (rates are per link, as PX4)
+        # hot path: a datagram that is exactly one unsigned SET_ATTITUDE_TARGET from the locked peer goes here as
+        # its unpacked fields (codec.P_SET_ATTITUDE_TARGET), with no message object; None: the general path
+        self.on_attitude_fields: Callable[[MavUdpLink, tuple], None] | None = None
         self.tx_errors = 0
 
     def sender(self, sysid: int, compid: int) -> mavlink2.MAVLink:
@@ -131,6 +147,17 @@ class MavUdpLink(asyncio.DatagramProtocol):
         self.signer = None if verifier is None else signing.LinkSigner(verifier.key, self.link_id)
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        n = len(data)
+        if (n > 12 and data[7] == ID_SET_ATTITUDE_TARGET and data[0] == 0xFD and data[2] == 0 and data[8] == 0
+                and data[9] == 0 and n == data[1] + 12 and n <= _SAT_SIZE + 12 and self.locked
+                and self.verifier is None and addr == self.remote and self.on_attitude_fields is not None
+                and crc_mcrf4xx(data[1:-2] + _SAT_CRC_EXTRA) == data[-2] | (data[-1] << 8)):
+            self.rx_messages += 1
+            try:
+                self.on_attitude_fields(self, _SAT_UNPACK(data[10:-2] + _PAD[_SAT_SIZE + 12 - n]))
+            except Exception:  # a handler bug must not kill the vehicle; say it loudly
+                log.exception("error while handling SET_ATTITUDE_TARGET")
+            return
         addr = (addr[0], addr[1])
         foreign = self.locked and addr != self.remote
         if foreign and self.verifier is None:

@@ -316,9 +316,9 @@ class VehicleSim:
     def _kernel_constants(self) -> tuple:
         """Packed gains, mixer matrices and rotor limit, rebuilt only when ``gains``/``rotor`` are replaced
         (the parameter protocol swaps the frozen dataclasses at run time)."""
-        key = (self.gains, self.rotor)
-        if self._consts_key != key:
-            self._consts_key = key
+        key = self._consts_key
+        if key is None or key[0] is not self.gains or key[1] is not self.rotor:  # identity: cheap every step
+            self._consts_key = (self.gains, self.rotor)
             self._consts = (gains_packed(self.gains), mixer_matrix(self.rotor), mixer_inverse(self.rotor),
                             max_rotor_thrust_n(self.rotor, self.params))
         return self._consts

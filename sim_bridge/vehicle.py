@@ -362,7 +362,23 @@ class SitlVehicle:
         return q, t, rates
 
     def on_attitude_target(self, link: MavUdpLink, msg) -> None:
-        kind, q, rates, thrust = commands.parse_attitude_target(msg)
+        """SET_ATTITUDE_TARGET (a message object, already checked for its target)."""
+        self._attitude_target(link, *commands.parse_attitude_target(msg))
+
+    def on_attitude_fields(self, link: MavUdpLink, f: tuple) -> None:
+        """SET_ATTITUDE_TARGET as the link's hot path unpacks it (``codec.P_SET_ATTITUDE_TARGET``'s fields:
+        time_boot_ms, q[4], body rates[3], thrust, target_system, target_component, type_mask): the same
+        target checks as :meth:`on_message`, then as :meth:`on_attitude_target`."""
+        if f[9] not in (0, self.sysid):
+            self.counters.reject("other_target", f"SET_ATTITUDE_TARGET for system {f[9]}")
+            return
+        if f[10] not in (0, self.cfg.compid):
+            self.counters.reject("other_target", f"SET_ATTITUDE_TARGET for component {f[10]}")
+            return
+        self._attitude_target(link, *commands.parse_attitude_fields(f[11], f[1], f[2], f[3], f[4], f[5], f[6],
+                                                                    f[7], f[8]))
+
+    def _attitude_target(self, link: MavUdpLink, kind: str | None, q, rates, thrust) -> None:
         if kind is not None:
             self.counters.reject(kind, "SET_ATTITUDE_TARGET")
             return
@@ -544,6 +560,7 @@ class SitlVehicle:
         signing if configured, and the payload system's senders."""
         cfg = self.cfg
         self.onboard, self.gcs = onboard, gcs
+        onboard.on_attitude_fields = gcs.on_attitude_fields = self.on_attitude_fields
         onboard.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us))
         gcs.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us, "normal"))
         if cfg.signing_key is not None:
