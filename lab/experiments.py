@@ -15,6 +15,9 @@ the sensorless estimate) with a short hold and no landing and skips the per-run 
 Output (``--out``, default ``runs/experiments-<UTC time>``): ``report.md`` (one table per group, ours next to
 the paper's figures, generated sentences where they disagree), ``experiments.json`` (all numbers),
 comparison figures ``group1_*.png`` / ``group2_*.png`` and one run folder per flight under ``runs/``.
+
+Every number is the flight's own report (``report.json``): clearance and collisions are scored once, by
+:mod:`companion.report.scoring`, as for ``fly`` and ``evaluate``.
 """
 
 from __future__ import annotations
