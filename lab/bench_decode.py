@@ -5,10 +5,12 @@ cable-angle DEBUG_FLOAT_ARRAY, HIGHRES_IMU, SYSTEM_TIME; every fifth tick also G
 ATTITUDE_QUATERNION, ATTITUDE_TARGET and the payload's LOCAL_POSITION_NED and GLOBAL_POSITION_INT), packed
 as real frames. Timed per message, as the flight app handles it:
 
-* ``lite+ingest``: ``codec.decode_lite`` (what the link does), then the app's estimation input (``decode`` to a
-  typed event where the code has it, ``VehicleState.ingest``, ``SwingFeed.ingest``, ``RequestLink.answer_of``);
+* ``lite``: ``codec.decode_lite`` alone (what the link does before the app sees a message);
+* ``lite+ingest``: that, then what ``FlightApp._on_message`` does with the message (``decode`` to a typed event
+  where the code has it, ``VehicleState.ingest``, ``SwingFeed.ingest``, the link health's frame and sample
+  bookkeeping, the lockstep marker check, ``RequestLink.answer_of``);
 * ``frame+ingest`` (typed code only): ``codec.check_crc`` + ``telemetry.decode_frame`` straight from the frame's
-  bytes (no message object), then the same ingest;
+  bytes (no message object, as a loop reading frames itself could), then the same;
 * ``decode``: ``telemetry.decode`` alone, from the LiteMessage.
 
     python -m lab.bench_decode [--ticks 2000] [--rounds 7] [--compare /work/base]
@@ -68,18 +70,71 @@ def stream(ticks: int) -> list[bytes]:
     return veh.file.frames
 
 
-def _consumers() -> tuple[Any, Any, Any]:
+def _consumers() -> tuple[Any, Any, Any, Any]:
     from pymavlink.dialects.v20 import common as M
 
     from companion.core.model import VehicleParams
     from companion.estimation.swing_feed import SwingFeed
     from companion.estimation.vehicle_state import VehicleState
+    from companion.flight.health import LinkHealth
     from companion.mavlink_io.commands import RequestLink
 
     state = VehicleState(cable_length_m=1.0, payload_sysid=2, max_time_rate=1e6)
     feed = SwingFeed(VehicleParams(), "auto")
     req = RequestLink(M.MAVLink(_Sink()), lambda: (state.vehicle_sysid, state.vehicle_compid), lambda w: [0.0])
-    return state, feed, req
+    return state, feed, req, LinkHealth(period_s=0.004)
+
+
+def _untyped(msgs: list[Any]) -> float:
+    """Seconds for what ``FlightApp._on_message`` did per message before typed telemetry (less the answers)."""
+    state, feed, req, health = _consumers()
+    marker = -1
+    t0 = time.perf_counter()
+    for msg in msgs:
+        wall = time.monotonic()
+        mtype = state.ingest(msg, wall)
+        if mtype != "REJECTED":
+            feed.ingest(mtype, msg, state)
+        src = msg.get_srcSystem()
+        if src == state.vehicle_sysid:
+            health.on_frame(src, msg.get_srcComponent(), msg.get_seq())
+            if mtype == "LOCAL_POSITION_NED":
+                health.on_sample("position", state.pos_t_s)
+            elif mtype == "ATTITUDE":
+                health.on_sample("attitude", state.att_t_s)
+            elif mtype == "SYSTEM_TIME" and msg.time_boot_ms != marker:
+                marker = msg.time_boot_ms
+        req.answer_of(msg)
+    return time.perf_counter() - t0
+
+
+def _typed(msgs: list[Any], decode: Any, source: Any) -> float:
+    """Seconds for what ``FlightApp._on_message`` does per message with typed telemetry (less the answers)."""
+    state, feed, req, health = _consumers()
+    marker = -1
+    t0 = time.perf_counter()
+    for msg in msgs:
+        wall = time.monotonic()
+        ev = decode(msg)
+        if ev is None:
+            src, comp, seq = source(msg)
+            if src == state.vehicle_sysid:
+                health.on_frame(src, comp, seq)
+            continue
+        kind = state.ingest(ev, wall)
+        if kind != "REJECTED":
+            feed.ingest(ev, state)
+        src = ev.src_system
+        if src == state.vehicle_sysid:
+            health.on_frame(src, ev.src_component, ev.seq)
+            if kind == "LOCAL_POSITION_NED":
+                health.on_sample("position", state.pos_t_s)
+            elif kind == "ATTITUDE":
+                health.on_sample("attitude", state.att_t_s)
+            elif kind == "SYSTEM_TIME" and ev.t_boot_ms != marker:
+                marker = ev.t_boot_ms
+        req.answer_of(ev)
+    return time.perf_counter() - t0
 
 
 def measure(ticks: int) -> dict[str, float]:
@@ -93,42 +148,25 @@ def measure(ticks: int) -> dict[str, float]:
     frames = stream(ticks)
     n = len(frames)
     out: dict[str, float] = {}
-    state, feed, req = _consumers()
-    wall = time.monotonic()
     t0 = time.perf_counter()
+    lites = [codec.decode_lite(f) for f in frames]
+    lite_s = time.perf_counter() - t0
+    out["lite"] = lite_s / n * 1e6
     if telemetry is None:
-        for f in frames:
-            msg = codec.decode_lite(f)
-            kind = state.ingest(msg, wall)
-            if kind != "REJECTED":
-                feed.ingest(kind, msg, state)
-            req.answer_of(msg)
-    else:
-        decode = telemetry.decode
-        for f in frames:
-            ev = decode(codec.decode_lite(f))
-            if ev is not None:
-                if state.ingest(ev, wall) != "REJECTED":
-                    feed.ingest(ev, state)
-                req.answer_of(ev)
-    out["lite+ingest"] = (time.perf_counter() - t0) / n * 1e6
-    if telemetry is not None:
-        state, feed, req = _consumers()
-        check, decode_frame = codec.check_crc, telemetry.decode_frame
-        t0 = time.perf_counter()
-        for f in frames:
-            if check(f, f[7] | (f[8] << 8) | (f[9] << 16)):
-                ev = decode_frame(f)
-                if ev is not None:
-                    if state.ingest(ev, wall) != "REJECTED":
-                        feed.ingest(ev, state)
-                    req.answer_of(ev)
-        out["frame+ingest"] = (time.perf_counter() - t0) / n * 1e6
-        lites = [codec.decode_lite(f) for f in frames]
-        t0 = time.perf_counter()
-        for m in lites:
-            telemetry.decode(m)
-        out["decode"] = (time.perf_counter() - t0) / n * 1e6
+        out["lite+ingest"] = (lite_s + _untyped(lites)) / n * 1e6
+        return out
+    typed_s = _typed(lites, telemetry.decode, lambda m: (m.get_srcSystem(), m.get_srcComponent(), m.get_seq()))
+    out["lite+ingest"] = (lite_s + typed_s) / n * 1e6
+    # the frames straight to events, as a loop without message objects can read them (CRC checked first)
+    check, decode_frame = codec.check_crc, telemetry.decode_frame
+    t0 = time.perf_counter()
+    good = [f for f in frames if check(f, f[7] | (f[8] << 8) | (f[9] << 16))]
+    check_s = time.perf_counter() - t0
+    out["frame+ingest"] = (check_s + _typed(good, decode_frame, lambda f: (f[5], f[6], f[4]))) / n * 1e6
+    t0 = time.perf_counter()
+    for m in lites:
+        telemetry.decode(m)
+    out["decode"] = (time.perf_counter() - t0) / n * 1e6
     return out
 
 

@@ -30,6 +30,7 @@ from typing import Any, ClassVar
 
 MG_TO_MPS2 = 9.80665e-3  # SCALED_IMU's milli-g in m/s²
 SWING_ARRAY_NAME = "SWING"  # DEBUG_FLOAT_ARRAY name of the cable-angle sensor
+_SWING_RAW = SWING_ARRAY_NAME.encode().ljust(10, b"\x00")  # ... as char[10] on the wire
 
 
 # ------------------------------------------------------------------------------------------------ events
@@ -338,7 +339,7 @@ def _d_param(t: tuple, s: int, c: int, q: int) -> ParamValue | Rejected:
 
 def _d_debug_array(t: tuple, s: int, c: int, q: int) -> SwingSensor | Rejected | None:
     us, _array_id, name, a, b, da, db, reach = t
-    if _text(name) != SWING_ARRAY_NAME:
+    if name != _SWING_RAW and _text(name) != SWING_ARRAY_NAME:  # the wire's bytes, else as text
         return None
     if a * 0.0 + b * 0.0 + da * 0.0 + db * 0.0 != 0.0:
         return _rejected(s, c, q, "DEBUG_FLOAT_ARRAY", "nonfinite")
@@ -406,7 +407,13 @@ def decode(msg: Any) -> TelemetryEvent | None:
         frame = msg._frame
     except AttributeError:
         return _decode_object(msg)
-    return decode_frame(frame)
+    lay = _LAYOUTS.get(frame[7] | (frame[8] << 8) | (frame[9] << 16))  # as decode_frame, inlined: the hot path
+    if lay is None:
+        return None
+    n = frame[1]
+    size = lay.size
+    t = lay.unpack_from(frame, 10) if n >= size else lay.unpack_from(frame[10:10 + n] + _ZEROS[: size - n])
+    return lay.build(t, frame[5], frame[6], frame[4])
 
 
 def _decode_object(msg: Any) -> TelemetryEvent | None:
