@@ -70,6 +70,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m lab``: same exit codes as ``slungpilot`` (2 for configuration errors)."""
-    from companion.cli.dispatch import dispatch
+    from companion.launch.dispatch import dispatch
 
     return dispatch(build_parser().parse_args(argv))

@@ -61,8 +61,7 @@ def _report_facts(run_dir: str | None, moving: bool) -> dict[str, Any]:
 def _fly_inprocess(job: Job) -> dict[str, Any]:
     """The in-process flight of :func:`lab.runner.run_job`, plus the flight's ``no_route`` outcome (from the
     flight core's phases, which the report does not keep)."""
-    from companion.cli.fly import load_gains
-    from companion.cli.fly_args import DEFAULT_GAINS
+    from companion.launch.fly import DEFAULT_GAINS, load_gains
     from companion.report.run_folder import write_run
     from lab.inprocess import fly_inprocess
 

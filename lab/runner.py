@@ -10,8 +10,6 @@ The functions here are top-level so that ``concurrent.futures`` spawn workers ca
 
 from __future__ import annotations
 
-import argparse
-import asyncio
 import logging
 import math
 import os
@@ -20,7 +18,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from companion.autopilots.profile import profile_by_name
 from companion.core.mission import Mission, mission_to_toml
+from companion.launch.spec import FlySpec
 
 log = logging.getLogger(__name__)
 
@@ -32,27 +32,18 @@ REPORT_KEYS = (
 )
 
 
-def fly_args(run_dir: Path, plots: bool, gains: Path | None = None,
-             swing_input: str | None = None) -> argparse.Namespace:
-    """The parsed arguments of ``slungpilot fly --sitl --no-zenoh --no-recording --run-dir RUN_DIR [--no-plots]
-    [--gains FILE] [--swing-input S]`` (lockstep, no narration).
+def fly_spec(run_dir: Path, plots: bool, gains: Path | None = None, swing_input: str | None = None) -> FlySpec:
+    """What ``slungpilot fly --sitl --no-zenoh --no-recording -q --run-dir RUN_DIR [--no-plots] [--gains FILE]
+    [--swing-input S]`` flies (lockstep, no narration), built in code.
 
     No Zenoh: batch flights run side by side and would all want the default listen port. No 3-D recording: it costs
     ~1 s of import and its CPU per flight, and a batch has its own figures."""
-    from companion.cli.fly_args import add_fly_arguments
+    from companion.flight.setup import FlightSetup
+    from companion.launch.fly import DEFAULT_GAINS, load_gains
 
-    p = argparse.ArgumentParser()
-    add_fly_arguments(p)
-    argv = ["--sitl", "--no-zenoh", "--no-recording", "--run-dir", str(run_dir)]
-    if not plots:
-        argv.append("--no-plots")
-    if gains is not None:
-        argv += ["--gains", str(gains)]
-    if swing_input is not None:
-        argv += ["--swing-input", swing_input]
-    args = p.parse_args(argv)
-    args.quiet = True  # the global -q: no narration from batch workers
-    return args
+    setup = FlightSetup(lockstep=True, gains=load_gains(gains or DEFAULT_GAINS),
+                        swing_input=swing_input or "auto", profile=profile_by_name("bundled"))
+    return FlySpec(setup=setup, sitl=True, run_dir=run_dir, plots=plots, narrate=False)
 
 
 LOST_CONTROL_SWING_RAD = math.pi / 2  # the model's own bound on the swing angles (eq. 1)
@@ -90,18 +81,16 @@ class Job:
 
 
 def _fly_mavlink(job: Job) -> dict[str, Any]:
-    from companion.cli.fly import fly_async
+    from companion.launch.fly import fly_mission_sync
 
-    args = fly_args(job.run_dir, job.plots, job.gains, job.swing_input)
-    result = asyncio.run(fly_async(args, job.mission))
+    result = fly_mission_sync(fly_spec(job.run_dir, job.plots, job.gains, job.swing_input), job.mission)
     rep = dict(result.report)
     rep["outcome"] = result.outcome
     return rep
 
 
 def _fly_inprocess(job: Job) -> dict[str, Any]:
-    from companion.cli.fly import load_gains
-    from companion.cli.fly_args import DEFAULT_GAINS
+    from companion.launch.fly import DEFAULT_GAINS, load_gains
     from companion.report.run_folder import write_run
     from lab.inprocess import fly_inprocess
 

@@ -20,12 +20,16 @@ PACKAGES = ("companion", "sim_bridge", "lab")
 PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "companion.estimation",
                  "companion.autopilots", "companion.flight.core", "companion.flight.sequence",
                  "companion.flight.health", "companion.flight.requests", "companion.report.metrics",
-                 "companion.mavlink_io.telemetry")  # typed telemetry: estimation reads it
+                 "companion.mavlink_io.telemetry",  # typed telemetry: estimation reads it
+                 # the pilot and everything it decides with (the runners around it are not pure)
+                 "companion.flight.pilot", "companion.flight.phase", "companion.flight.failsafes",
+                 "companion.flight.mode_goal", "companion.flight.setup", "companion.flight.mission_frame",
+                 "companion.flight.obstacle_view", "companion.flight.flight_record", "companion.flight.facts",
+                 "companion.flight.loop_stats", "companion.report.scoring")
 IO_FRAMEWORKS = ("asyncio", "pymavlink", "zenoh", "socket")
 #: What the bundled vehicle may use of the companion: the shared model and MAVLink helpers.
 SIM_MAY_IMPORT = ("companion.core", "companion.mavlink_io.codec", "companion.mavlink_io.signing",
-                  "companion.autopilots", "companion.errors", "companion.config", "companion",
-                  "companion.flight.scheduling")  # real-time priority for the vehicle's loop (`--rt-priority`)
+                  "companion.autopilots", "companion.errors", "companion.config", "companion")
 
 
 def _module_name(path: Path) -> str:

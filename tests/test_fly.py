@@ -252,7 +252,7 @@ def test_ctrl_c_in_the_terminal_reaches_the_companion_only_which_lands_the_vehic
 def test_the_provisional_loop_timings_cover_a_window_and_the_final_ones_everything():
     """The journal's provisional report is made on the loop every second: its percentiles must not grow with the
     flight (a 30 min flight made them cost 150 ms); the final report's cover every tick."""
-    from companion.flight.app import LoopStats
+    from companion.flight.loop_stats import LoopStats
 
     s = LoopStats()
     s.ticks = 6

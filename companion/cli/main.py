@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from companion import __version__
-from companion.cli.dispatch import dispatch
+from companion.launch.dispatch import dispatch
 from companion.errors import ConfigError, SlungpilotError
 
 log = logging.getLogger(__name__)

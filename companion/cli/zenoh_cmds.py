@@ -323,7 +323,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m companion.cli.zenoh_cmds``: the same tools and exit codes as ``slungpilot``."""
-    from companion.cli.dispatch import dispatch
+    from companion.launch.dispatch import dispatch
 
     return dispatch(build_parser().parse_args(argv))
 

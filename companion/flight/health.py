@@ -156,3 +156,39 @@ class DeafSpells:
     def summary(self) -> dict[str, float | int]:
         """How many deaf spells and the longest (s)."""
         return {"deaf_spells": self.count, "deaf_s_max": self.longest_s}
+
+
+class RealtimeClock:
+    """The sequence's clock in real time: ``now_s`` is the wall clock, and silence while the companion's own loop
+    stalled (:class:`DeafSpells`, filled by the real-time runner) is not the vehicle's."""
+
+    lockstep = False
+
+    def __init__(self) -> None:
+        self.deaf = DeafSpells()
+
+    def times(self, heartbeat_wall_s: float | None, telemetry_wall_s: float | None, vehicle_t_s: float,
+              pos_t_s: float, att_t_s: float, wall_s: float) -> tuple[float, float | None, float | None]:
+        """(now_s, heartbeat wall time, telemetry wall time) as the sequence should see them."""
+        return wall_s, self.deaf.heard_at(heartbeat_wall_s, wall_s), self.deaf.heard_at(telemetry_wall_s, wall_s)
+
+
+class LockstepClock:
+    """The sequence's clock in lockstep: ``now_s`` is the vehicle's time (a flight repeats bit for bit); telemetry
+    ages as :func:`lockstep_telemetry_wall_s` says; any datagram from the vehicle shows it alive (its HEARTBEAT runs on
+    simulated time, which may run slower than the wall clock on a loaded machine). The lockstep runner sets
+    ``last_answer_wall_s`` (when it last answered a step) and ``last_rx_wall_s`` (when the vehicle last sent)."""
+
+    lockstep = True
+
+    def __init__(self) -> None:
+        self.last_answer_wall_s = 0.0
+        self.last_rx_wall_s = 0.0
+
+    def times(self, heartbeat_wall_s: float | None, telemetry_wall_s: float | None, vehicle_t_s: float,
+              pos_t_s: float, att_t_s: float, wall_s: float) -> tuple[float, float | None, float | None]:
+        """(now_s, heartbeat wall time, telemetry wall time) as the sequence should see them."""
+        tel = lockstep_telemetry_wall_s(wall_s, telemetry_wall_s, self.last_answer_wall_s, vehicle_t_s, pos_t_s,
+                                        att_t_s)
+        hb = None if heartbeat_wall_s is None else max(heartbeat_wall_s, self.last_rx_wall_s)
+        return vehicle_t_s, hb, tel

@@ -26,6 +26,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import select
 import socket
 import struct
 import time
@@ -196,6 +197,7 @@ class MavlinkLink:
         self.sent = 0
         self._last_log: dict[str, float] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._open = False
         self._remote: tuple[str, int] | None = None if self.url.mode == "udpin" else (self.url.host, self.url.port)
         self._locked: tuple[str, int] | None = None
         self.last_sender: tuple[str, int] | None = None  # address of the datagram being handled
@@ -203,13 +205,9 @@ class MavlinkLink:
         self._tlog = TlogWriter(tlog) if tlog else None
         self.on_datagram_done: Callable[[], None] | None = None  # called after each datagram's messages
 
-    async def open(self) -> None:
-        """Bind the socket (udpin) or create the sending socket (udpout), and read it on the running loop.
-
-        The socket is read with ``loop.add_reader``, draining up to :data:`DRAIN_MAX` datagrams per wake-up:
-        asyncio's datagram transport reads one datagram per loop iteration, and under a flood into our port the
-        kernel buffer then overflows and drops the vehicle's own datagrams along with the attacker's.
-        """
+    def _bind(self) -> socket.socket:
+        """The link's socket: bound to the URL's port (udpin), an ephemeral local one (udpout), or the one given;
+        non-blocking, with a large receive buffer."""
         sock = self._sock
         try:
             if sock is None:
@@ -226,16 +224,44 @@ class MavlinkLink:
                 sock.close()
             raise LinkError(f"cannot open {self.url.mode}://{self.url.host}:{self.url.port}: {exc}") from None
         self._sock = sock
+        self._open = True
+        return sock
+
+    async def open(self) -> None:
+        """Bind the socket (udpin) or create the sending socket (udpout), and read it on the running loop.
+
+        The socket is read with ``loop.add_reader``, draining up to :data:`DRAIN_MAX` datagrams per wake-up:
+        asyncio's datagram transport reads one datagram per loop iteration, and under a flood into our port the
+        kernel buffer then overflows and drops the vehicle's own datagrams along with the attacker's.
+        """
+        sock = self._bind()
         self._loop = asyncio.get_running_loop()
         self._loop.add_reader(sock.fileno(), self._drain)
 
+    def open_blocking(self) -> None:
+        """Bind the socket for a caller without an event loop, which reads it with :meth:`poll`."""
+        self._bind()
+
+    def poll(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` (s) for datagrams and handle what the socket holds; False if none came."""
+        sock = self._sock
+        if sock is None:
+            return False
+        ready, _, _ = select.select((sock,), (), (), timeout_s)
+        if not ready:
+            return False
+        self._drain()
+        return True
+
     def close(self) -> None:
         """Close the socket and the tlog."""
-        if self._sock is not None and self._loop is not None:
-            with contextlib.suppress(Exception):
-                self._loop.remove_reader(self._sock.fileno())
+        if self._sock is not None and self._open:
+            if self._loop is not None:
+                with contextlib.suppress(Exception):
+                    self._loop.remove_reader(self._sock.fileno())
             self._sock.close()
             self._loop = None
+            self._open = False
         if self._tlog is not None:
             self._tlog.close()
 
@@ -283,7 +309,7 @@ class MavlinkLink:
     def write(self, frame: bytes) -> None:
         """File-like hook for pymavlink: send one frame to the remote (dropped before we know it); signed when
         signing is on."""
-        if self._loop is None or self._remote is None:
+        if not self._open or self._remote is None:
             return
         frame = bytes(frame)
         if self.signer is not None and frame[:1] == b"\xfd":

@@ -320,6 +320,9 @@ class FlightView:
         self._current: tuple[Obstacle, ...] | None = None
         self.ticks = 0
 
+    def on_transition(self, t: Any, app: Any) -> None:
+        """Nothing: the event log shows the flight's phases as the ticks carry them."""
+
     def on_tick(self, est: Any, cmd: Any, app: Any) -> None:
         """One row: times, position, attitude, swing, command (or NaN), raw payload position, phases."""
         if self.t0_s is None:

@@ -488,6 +488,9 @@ class ZenohTelemetrySink:
         self.cable_l_m = cable_l_m
         self.status_fn = status_fn
 
+    def on_transition(self, t: Any, app: Any) -> None:
+        """Nothing: the sequence's state reaches subscribers in the 1 Hz status sample."""
+
     def on_tick(self, est: Any, cmd: Any, app: Any) -> None:
         """Publish this tick's samples (decimation happens inside :class:`ZenohTelemetry`)."""
         zt, t = self.zt, float(est.t_s)

@@ -1,6 +1,6 @@
 """The terminal narration of a flight: one line per phase, and progress while cruising.
 
-A telemetry sink of the flight app (``on_transition`` for the flight sequence's state changes, ``on_tick``
+A telemetry sink of the flight runner (``on_transition`` for the flight sequence's state changes, ``on_tick``
 for the flight core's phases and progress). In lockstep on a terminal the progress is one line rewritten in
 place; in real time a progress line every 2 s of flight. ``slungpilot -q fly`` leaves it out.
 """
@@ -38,9 +38,9 @@ class Narrator:
         to = t.to_state
         if to == "configure":
             self._say(f"connected: system {st.vehicle_sysid}, {app.profile.autopilot} autopilot "
-                      f"(profile {app.profile.name}), mode {st.mode_name}, via {app.opts.connect}")
+                      f"(profile {app.profile.name}), mode {st.mode_name}, via {app.setup.connect}")
         elif to == "wait_ready":
-            self._say(f"set up: telemetry at {app.opts.rate_hz:g} Hz asked, hover thrust "
+            self._say(f"set up: telemetry at {app.setup.rate_hz:g} Hz asked, hover thrust "
                       f"{app.profile.hover_thrust_norm:.2f}; waiting until the autopilot is ready to arm")
         elif to == "prestream":
             self._say("ready: streaming setpoints before arming")
@@ -55,11 +55,11 @@ class Narrator:
             verb = {"hold": "holding", "land": "landing", "descend": "descending on our own setpoints"}[to]
             self._say(f"{verb}: {t.reason}")
         elif to == "done":
-            what = app.seq.final_phase
-            self._say(f"{what}: outcome {app.outcome} ({app.seq.detail})")
+            what = app.pilot.seq.final_phase
+            self._say(f"{what}: outcome {app.outcome} ({app.pilot.seq.detail})")
 
     def on_tick(self, est: Any, cmd: Any, app: Any) -> None:
-        phase = app.core.phase if app.seq.state.value == "mission" else ""
+        phase = app.pilot.core.phase if app.pilot.seq.state.value == "mission" else ""
         if phase != self._phase:
             self._phase_changed(phase, est, app)
         if phase != "cruise":

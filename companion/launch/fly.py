@@ -1,0 +1,243 @@
+"""Fly one :class:`~companion.launch.spec.FlySpec`: start the bundled vehicle when asked, open Zenoh and the
+recording, run the pilot under the lockstep or the real-time runner, and always write the run folder (even after
+Ctrl-C or an error: then the error is raised after the folder is written)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import signal
+import time
+from dataclasses import dataclass, replace
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from companion.config import shipped_config
+from companion.control.params import ControllerConfig, load_controller_config
+from companion.core.mission import Mission
+from companion.errors import ConfigError
+from companion.flight.health import LockstepClock, RealtimeClock
+from companion.flight.lockstep import LockstepRunner
+from companion.flight.pilot import Pilot
+from companion.flight.realtime import RealtimeRunner
+from companion.flight.runner import Runner, Wiring
+from companion.launch.narrate import Narrator
+from companion.launch.spec import DEFAULT_GAINS_NAME, FlySpec
+from companion.report.run_folder import write_run
+
+log = logging.getLogger(__name__)
+
+DEFAULT_GAINS = shipped_config(DEFAULT_GAINS_NAME)
+
+
+@dataclass
+class FlyResult:
+    """What a flight produced."""
+
+    outcome: str
+    report: dict[str, Any]
+    run_dir: Path
+
+
+def load_gains(path: Path | None) -> ControllerConfig:
+    """Controller/planner gains from TOML (defaults when the file is absent and was not asked for)."""
+    if path is None or (path == DEFAULT_GAINS and not path.exists()):
+        return ControllerConfig()
+    return load_controller_config(path)
+
+
+def new_run_dir(mission: Mission, root: Path = Path("runs")) -> Path:
+    """A fresh run folder ``runs/<UTC time to the ms>-<mission>-<planner>-<controller>[-k]``: created here,
+    exclusively, so two flights started at the same moment never share one."""
+    stamp = datetime.now(UTC).strftime("%Y%m%d-%H%M%S-%f")[:-3]
+    base = f"{stamp}-{mission.name}-{mission.planner}-{mission.controller}"
+    root.mkdir(parents=True, exist_ok=True)
+    for k in range(1000):
+        d = root / (base if k == 0 else f"{base}-{k + 1}")
+        try:
+            d.mkdir()
+            return d
+        except FileExistsError:
+            continue
+    raise ConfigError(f"{root}: cannot create a new run folder for {base}")
+
+
+def fly_mission_sync(spec: FlySpec, mission: Mission) -> FlyResult:
+    """:func:`fly_mission` for callers without an event loop (``lab``'s workers)."""
+    return asyncio.run(fly_mission(spec, mission))
+
+
+async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
+    """Fly ``mission`` as ``spec`` says; always writes the run folder, even after Ctrl-C."""
+    spec.setup.validate()
+    run_dir = spec.run_dir or new_run_dir(mission)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    setup = replace(spec.setup, tlog_path=run_dir / "flight.tlog", run_dir=run_dir)
+    wall0 = time.monotonic()
+    zt_holder: list[Any] = []
+    runner: Runner | None = None
+    error: BaseException | None = None
+    view = spec.view(mission, run_dir) if spec.view is not None else None
+    with contextlib.ExitStack() as sync_stack:
+        async with contextlib.AsyncExitStack() as stack:
+            wiring = Wiring(provisional=lambda r: run_options(r, spec, run_dir, zt_holder))
+            if view is not None:
+                sync_stack.enter_context(view)
+                wiring.sinks.append(view.sink)
+            if spec.zenoh is not None:
+                wiring.on_connected = _zenoh_hook(spec, mission, sync_stack, zt_holder, view)
+            if spec.sitl:
+                setup = await _start_sitl(spec, setup, mission, run_dir, stack)
+            if spec.narrate:
+                wiring.sinks.append(Narrator(lockstep=setup.lockstep))
+            pilot = Pilot(mission, setup, LockstepClock() if setup.lockstep else RealtimeClock())
+            try:
+                if setup.lockstep:
+                    runner = LockstepRunner(pilot, wiring)
+                    _run_blocking(runner)
+                else:
+                    runner = RealtimeRunner(pilot, wiring)
+                    await _run_async(runner)
+            except Exception as exc:  # still write what we have, then re-raise
+                error = exc
+    assert runner is not None
+    report = _write_report(runner, spec, mission, run_dir, zt_holder, view, time.monotonic() - wall0, error)
+    if error is not None:
+        raise error
+    return FlyResult(runner.outcome, report, run_dir)
+
+
+async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path,
+                      stack: contextlib.AsyncExitStack) -> Any:
+    """Start the bundled vehicle on free local ports; the set-up with its link."""
+    from companion.cli.sitl_launcher import SitlProcess
+
+    extra = ["--control-period-ms", str(round(1000.0 / setup.rate_hz)), *spec.sitl_args]
+    if setup.rt_priority and not setup.lockstep:  # the simulated autopilot at the same priority, as PX4's
+        extra += ["--rt-priority", str(setup.rt_priority)]
+    sitl = await stack.enter_async_context(SitlProcess(mission, run_dir, lockstep=setup.lockstep, extra_args=extra))
+    return replace(setup, connect=sitl.companion_url, sock=sitl.companion_sock)
+
+
+def _run_blocking(runner: LockstepRunner) -> None:
+    """The lockstep runner on this thread; Ctrl-C and SIGTERM abort the mission (hold, land) meanwhile."""
+    def on_signal(signum: int, _frame: Any) -> None:
+        runner.request_abort("terminated (SIGTERM)" if signum == signal.SIGTERM else "operator abort (Ctrl-C)")
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        runner.run()
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+async def _run_async(runner: RealtimeRunner) -> None:
+    loop = asyncio.get_running_loop()
+    with contextlib.suppress(NotImplementedError, RuntimeError):
+        loop.add_signal_handler(signal.SIGINT, runner.request_abort)
+        loop.add_signal_handler(signal.SIGTERM, runner.request_abort, "terminated (SIGTERM)")
+    try:
+        await runner.run()
+    finally:
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.remove_signal_handler(signal.SIGINT)
+            loop.remove_signal_handler(signal.SIGTERM)
+
+
+def _zenoh_hook(spec: FlySpec, mission: Mission, stack: contextlib.ExitStack, zt_holder: list[Any],
+                view: Any) -> Any:
+    """``on_connected``: open the Zenoh streams under the vehicle id (default: the autopilot's system id)."""
+    from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry, ZenohTelemetrySink
+
+    z = spec.zenoh
+    assert z is not None
+
+    def connect(run: Runner) -> None:
+        vid = z.vehicle_id or str(run.pilot.state.vehicle_sysid)
+        zt = ZenohTelemetry(z.config, TelemetryOptions(prefix=z.prefix, vehicle_id=vid, **z.rates))
+        stack.enter_context(zt)
+        zt_holder.append(zt)
+        if spec.config_facts is not None:
+            zt.set_config_provider(lambda: spec.config_facts(run))
+        run.sinks.append(ZenohTelemetrySink(zt, mission.vehicle.l, status_fn=status_of))
+        if view is not None:
+            view.sink.current_obstacles = lambda: zt.last_obstacles
+        run.use_obstacle_input(zt.obstacle_source(mission.obstacles), zt.ingest)
+
+    return connect
+
+
+def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path, zt_holder: list[Any], view: Any,
+                  wall: float, error: BaseException | None) -> dict[str, Any]:
+    extra = runner.run_facts()
+    if error is not None:
+        extra["outcome"] = "error"
+        extra["outcome_detail"] = str(error)
+    extra.update(run_options(runner, spec, run_dir, zt_holder))
+    extra["wall_time_s"] = wall
+    flog = runner.pilot.record.log
+    flog.wall_time_s = wall
+    seen = runner.obstacles_seen
+    if seen:
+        flog.obstacles = seen  # live obstacles count for clearance and collisions too
+    if view is not None:
+        extra["recording"] = view.stats()
+    return write_run(flog, mission, extra, run_dir, spec.report, plots=spec.plots)
+
+
+def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any]) -> dict[str, Any]:
+    """The run's settings for the report (and the journal's provisional report)."""
+    s, m, profile = run.setup, run.pilot.mission, run.pilot.profile
+    out: dict[str, Any] = {
+        "swing_input": s.swing_input,
+        "profile": profile.name,
+        "hover_thrust_norm": profile.hover_thrust_norm,
+        "lockstep": s.lockstep,
+        "connect": s.connect,
+        "run_dir": str(run_dir),
+        "tlog": str(run_dir / "flight.tlog"),
+        "vehicle": m.vehicle.as_dict(),
+    }
+    if profile.name == "bundled":  # the mission's wind is the bundled vehicle's simulation; a real one has its own
+        out["wind"] = {"model": m.wind.model, "scale": m.wind.scale}
+    if zt_holder:
+        zt = zt_holder[0]
+        prefix = spec.zenoh.prefix if spec.zenoh is not None else "slungpilot"
+        out["zenoh"] = {"keys_prefix": f"{prefix}/{zt.options.vehicle_id}", "published": dict(zt.seq),
+                        "obstacles_in_accepted": zt.store.accepted_count,
+                        "obstacles_in_rejected": zt.store.rejected_count,
+                        "obstacles_in_unchanged": zt.unchanged, "obstacles_in_superseded": zt.superseded,
+                        "obstacles_in_ring_full": zt.ring_full}
+    return out
+
+
+def status_of(run: Runner) -> dict[str, Any]:
+    """The 1 Hz status sample: mode, armed, link health, mission progress, rejected-input counters."""
+    from companion.flight.facts import status_facts
+
+    out = status_facts(run.pilot)
+    out["link"] = {"heartbeats": run.pilot.state.heartbeats, "received": run.link.received, "sent": run.link.sent,
+                   "vehicle_time_s": run.pilot.state.t_s}
+    out["rejected_input"] = {"mavlink": dict(run.link.rejected)}
+    out["ticks"] = run.stats.ticks
+    return out
+
+
+def effective_config(run: Runner) -> dict[str, Any]:
+    """What the ``config`` queryable answers: the effective mission, vehicle and controller parameters."""
+    m, s = run.pilot.mission, run.setup
+    return {
+        "mission": {"name": m.name, "start_ned_m": list(map(float, m.start_ned_m)),
+                    "goal_ned_m": list(map(float, m.goal_ned_m)), "planner": m.planner, "controller": m.controller,
+                    "timeout_s": m.timeout_s, "hold_s": m.hold_s, "land": m.land, "source": m.source_path,
+                    "wind": {"model": m.wind.model, "scale": m.wind.scale},
+                    "obstacles": [o.as_dict() for o in m.obstacles]},
+        "vehicle": m.vehicle.as_dict(),
+        "controller": dataclasses.asdict(run.pilot.core.cfg),
+        "profile": {"name": run.pilot.profile.name, "hover_thrust_norm": run.pilot.profile.hover_thrust_norm},
+        "rate_hz": s.rate_hz, "lockstep": s.lockstep, "connect": s.connect, "swing_input": s.swing_input,
+    }
