@@ -263,3 +263,42 @@ def test_the_provisional_loop_timings_cover_a_window_and_the_final_ones_everythi
     assert w["ingest_ms_p99"] == pytest.approx(1.0)
     full = s.summary()
     assert full["window_ticks"] is None and full["tick_ms_max"] == 9000.0 and full["ticks"] == 6
+
+
+CROSSING = """[mission]
+name = "crossing"
+start_ned_m = [0.0, 0.0, -2.0]
+goal_ned_m = [10.0, 0.0, -2.0]
+planner = "shaped"
+controller = "smc_ff"
+timeout_s = 40.0
+hold_s = 1.0
+land = true
+
+[vehicle]
+m = 0.25
+l = 1.0
+
+[[obstacles]]
+x_m = 5.0
+y_m = 0.0
+radius_m = 0.3
+vx_mps = 0.0
+vy_mps = 1.5
+"""
+
+
+@pytest.mark.slow
+def test_fly_scores_a_moving_trunk_where_it_was(tmp_path):
+    """A trunk that stands on the path at the mission's start and crosses away at 1.5 m/s: the vehicle flies
+    through its file position long after it left. The report scores it where it was at each time (issue 25: it
+    used to say `collisions 1, min_clearance_m -0.546` for this flight)."""
+    mission = tmp_path / "crossing.toml"
+    mission.write_text(CROSSING)
+    proc = _slungpilot("-q", "fly", "--sitl", "--no-zenoh", "--no-plots", "--no-recording", "--mission", str(mission),
+                       "--run-dir", str(tmp_path / "run"))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rep = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert rep["obstacle_clock_t0_s"] is not None  # the mission clock's zero, from the flight core
+    assert rep["collisions"] == 0 and rep["collisions_moving"] == 0
+    assert rep["min_clearance_m"] > 1.0

@@ -329,6 +329,9 @@ class Pilot:
         if est is None:
             return
         self.health.on_tick(est.t_s, wall_s - (self.state.telemetry_wall_s or wall_s))
+        flog = self.record.log
+        if flog.obstacle_clock_t0_s is None and self.core.t0_s is not None:
+            flog.obstacle_clock_t0_s = self.core.t0_s  # the report places moving mission trunks from here
         if self.seq.streaming_ours or out.cmd is not None:
             self.record.append(est, out.cmd, self.frame.origin_ned_m)
 
