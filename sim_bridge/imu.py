@@ -54,42 +54,53 @@ class ImuModel:
         self.noise = noise
         self.scale = noise.scale
         self._rng = np.random.Generator(np.random.PCG64(noise.seed))
-        self.accel_bias = np.zeros(3)
-        self.gyro_bias = np.zeros(3)
+        self.accel_bias = [0.0, 0.0, 0.0]  # m/s², FRD
+        self.gyro_bias = [0.0, 0.0, 0.0]  # rad/s, FRD
         self._t_us: int | None = None
-        self._last: tuple[np.ndarray, np.ndarray] | None = None
-        self._normals = np.empty((0, 6))  # standard normal draws, taken from the generator in blocks
+        self._last: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
+        self._normals: list[list[float]] = []  # standard normal draws, taken from the generator in blocks
         self._next = 0
 
-    def _draw6(self) -> np.ndarray:
+    def _draw6(self) -> list[float]:
         """Six standard normal numbers (drawn 256 rows at a time: the same sequence, far fewer calls)."""
         if self._next >= len(self._normals):
-            self._normals = self._rng.standard_normal((256, 6))
+            self._normals = self._rng.standard_normal((256, 6)).tolist()
             self._next = 0
         row = self._normals[self._next]
         self._next += 1
         return row
 
-    def sample(self, t_us: int, specific_force_frd_mps2: np.ndarray,
-               rates_frd_rad_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Measured specific force (m/s², FRD) and body rates (rad/s, FRD) at simulated time ``t_us``; the
-        same pair for repeated calls at one instant."""
+    def sample(self, t_us: int, specific_force_frd_mps2, rates_frd_rad_s,
+               ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """Measured specific force (m/s², FRD) and body rates (rad/s, FRD) at simulated time ``t_us``, as
+        tuples of floats; the same pair for repeated calls at one instant.
+
+        Plain float arithmetic per axis, in the order numpy's element-wise operations would take (the same
+        bits: the vehicle samples 50 times a simulated second, and 3-vectors cost more in numpy than in floats).
+        """
         if self._t_us == t_us and self._last is not None:
             return self._last
         n = self.noise
         k = self.scale
+        f0, f1, f2 = (float(a) for a in specific_force_frd_mps2)
+        r0, r1, r2 = (float(w) for w in rates_frd_rad_s)
         if k > 0.0:
+            ab, gb = self.accel_bias, self.gyro_bias
             if self._t_us is not None and t_us > self._t_us:
-                dt = (t_us - self._t_us) * 1e-6
-                walk = self._draw6() * math.sqrt(dt)
-                self.accel_bias += k * n.accel_bias_random_walk * walk[:3]
-                self.gyro_bias += k * n.gyro_bias_random_walk * walk[3:]
-            white = self._draw6() / math.sqrt(n.sample_dt_s)
-            acc = specific_force_frd_mps2 + self.accel_bias + k * n.accel_noise_density * white[:3]
-            gyro = rates_frd_rad_s + self.gyro_bias + k * n.gyro_noise_density * white[3:]
+                s = math.sqrt((t_us - self._t_us) * 1e-6)
+                w = self._draw6()
+                ka, kg = k * n.accel_bias_random_walk, k * n.gyro_bias_random_walk
+                for i in range(3):
+                    ab[i] = ab[i] + ka * (w[i] * s)
+                    gb[i] = gb[i] + kg * (w[3 + i] * s)
+            s = math.sqrt(n.sample_dt_s)
+            w = self._draw6()
+            ka, kg = k * n.accel_noise_density, k * n.gyro_noise_density
+            acc = (f0 + ab[0] + ka * (w[0] / s), f1 + ab[1] + ka * (w[1] / s), f2 + ab[2] + ka * (w[2] / s))
+            gyro = (r0 + gb[0] + kg * (w[3] / s), r1 + gb[1] + kg * (w[4] / s), r2 + gb[2] + kg * (w[5] / s))
         else:
-            acc = np.array(specific_force_frd_mps2, dtype=float)
-            gyro = np.array(rates_frd_rad_s, dtype=float)
+            acc = (f0, f1, f2)
+            gyro = (r0, r1, r2)
         self._t_us = t_us
         self._last = (acc, gyro)
         return self._last

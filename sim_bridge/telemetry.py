@@ -199,7 +199,7 @@ class Snapshot:
         self.t_us = v.t_us
         self.t_ms = v.t_us // 1000
         self._rates: tuple[float, float, float] | None = None
-        self._quat: np.ndarray | None = None
+        self._quat: tuple[float, float, float, float] | None = None
         self.payloads: dict[int, tuple[int, bytes]] = {}  # msgid → (CRC extra, payload) packed at this instant
 
     @property
@@ -215,13 +215,23 @@ class Snapshot:
         return r
 
     @property
-    def quat(self) -> np.ndarray:
+    def quat(self) -> tuple[float, float, float, float]:
         """Attitude quaternion [w x y z], as ``VehicleSim.quat_wxyz``."""
         q = self._quat
         if q is None:
             x = self.x
-            q = self._quat = quat_from_euler(x[3], x[4], x[5])
+            q = self._quat = quat_tuple(x[3], x[4], x[5])
         return q
+
+
+def quat_tuple(phi: float, theta: float, psi: float) -> tuple[float, float, float, float]:
+    """:func:`companion.core.rotations.quat_from_euler` as a tuple of floats (the same operations in the same
+    order, so the same bits; no array for a quaternion that is only packed)."""
+    cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)
+    cp, sp = math.cos(0.5 * theta), math.sin(0.5 * theta)
+    cy, sy = math.cos(0.5 * psi), math.sin(0.5 * psi)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy)
 
 
 def hot_payload(msgid: int, v: Any, snap: Snapshot | None = None) -> tuple[int, bytes] | None:
@@ -258,12 +268,13 @@ def hot_payload(msgid: int, v: Any, snap: Snapshot | None = None) -> tuple[int, 
                                                            v.home_local_ned_m[2])
     sim = s.sim
     if msgid == MSG_ATTITUDE_TARGET:
-        q = quat_from_euler(*sim.target_euler_rad)
+        e = sim.target_euler_rad
+        q = quat_tuple(float(e[0]), float(e[1]), float(e[2]))
         r = sim.target_rates_frd_rad_s if sim.target_rates_frd_rad_s is not None else _ZERO3
         return mf.CRC_ATTITUDE_TARGET, mf.P_ATTITUDE_TARGET.pack(
             t_ms, q[0], q[1], q[2], q[3], r[0], r[1], r[2], v.normalized_thrust(sim.target_thrust_n), 0)
     if msgid == MSG_HIGHRES_IMU:
-        acc, gyro, mag, press_hpa, alt_m, temp_c = v.imu_sample()
+        acc, gyro, mag, press_hpa, alt_m, temp_c = v.imu_sample(s.rates)
         return CRC_HIGHRES_IMU, P_HIGHRES_IMU.pack(
             s.t_us, acc[0], acc[1], acc[2], gyro[0], gyro[1], gyro[2], mag[0], mag[1], mag[2], press_hpa, 0.0,
             alt_m, temp_c, HIGHRES_FIELDS, 0)

@@ -165,6 +165,18 @@ class SitlVehicle:
 
     # ------------------------------------------------------------------ small views
     @property
+    def mode(self) -> px4_modes.Px4Mode:
+        """The flight mode (PX4's main/sub mode)."""
+        return self._mode
+
+    @mode.setter
+    def mode(self, mode: px4_modes.Px4Mode) -> None:
+        self._mode = mode
+        # asked every control period: kept as flags (a frozen dataclass's == compares field by field)
+        self._offboard = mode == px4_modes.OFFBOARD
+        self._takeoff = mode == px4_modes.AUTO_TAKEOFF
+
+    @property
     def armed(self) -> bool:
         return bool(self.sim.armed)
 
@@ -203,15 +215,18 @@ class SitlVehicle:
         p = self.sim.params
         return p.M if self.sim.payload_on_ground else p.M + p.m
 
-    def imu_sample(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float, float]:
+    def imu_sample(self, rates_frd_rad_s=None) -> tuple[tuple, tuple, np.ndarray, float, float, float]:
         """(accelerometer m/s² FRD, gyro rad/s FRD, magnetometer gauss FRD, pressure hPa, pressure altitude m,
-        temperature °C) at the current simulated time."""
+        temperature °C) at the current simulated time. ``rates_frd_rad_s``: the true body rates if the caller
+        has them (``telemetry.Snapshot.rates``, the same numbers as ``VehicleSim.body_rates_frd_rad_s``)."""
         sim = self.sim
         self.imu.scale = self.params.value("SIM_IMU_NSCALE")
         r_t = rotation_body_to_ned(*sim.x[3:6]).T  # NED → body, once for accelerometer and magnetometer
         a = sim.accel_ned_mps2
         a[2] -= sim.params.g
-        acc, gyro = self.imu.sample(self.t_us, r_t @ a, sim.body_rates_frd_rad_s)  # = specific_force_frd_mps2
+        if rates_frd_rad_s is None:
+            rates_frd_rad_s = sim.body_rates_frd_rad_s
+        acc, gyro = self.imu.sample(self.t_us, (r_t @ a).tolist(), rates_frd_rad_s)  # = specific_force_frd_mps2
         mag = r_t @ telemetry.EARTH_FIELD_NED_GAUSS
         alt = self.origin[2] - float(sim.x[2])
         return acc, gyro, mag, telemetry.isa_pressure_hpa(alt), alt, 15.0 - 0.0065 * alt
@@ -386,7 +401,7 @@ class SitlVehicle:
             self._sp_time_us = self.t_us
             self._sp_kind = "attitude"
             self._last_sp = (q, thrust, rates)
-            if self.mode == px4_modes.OFFBOARD:
+            if self._offboard:
                 self.sim.set_attitude_target(*self._sp_newtons(self._last_sp))
         if self.cfg.lockstep and link is self.onboard:
             self._lockstep_step()
@@ -430,7 +445,7 @@ class SitlVehicle:
         """Fly one control period: internal controller, physics, mode logic, due telemetry."""
         sim = self.sim
         if sim.armed:
-            if self.mode != px4_modes.OFFBOARD:
+            if not self._offboard:
                 self._internal_control()
             elif self._sp_kind == "position":
                 self._offboard_position_control()
@@ -485,7 +500,7 @@ class SitlVehicle:
 
     def _after_step(self) -> None:
         sim = self.sim
-        if self.mode == px4_modes.OFFBOARD and not self._stream_ok():
+        if self._offboard and not self._stream_ok():
             act = round(self.params.value("COM_OBL_RC_ACT"))
             hold = px4_modes.POSCTL if act <= 2 else px4_modes.AUTO_LOITER
             self._hold_here()
@@ -501,7 +516,7 @@ class SitlVehicle:
                 self._hold_here()
                 self.mode = px4_modes.AUTO_LAND
                 self.statustext(M.MAV_SEVERITY_CRITICAL, "Failsafe: offboard setpoints lost, landing")
-        if self.mode == px4_modes.AUTO_TAKEOFF and sim.armed and abs(
+        if self._takeoff and sim.armed and abs(
             sim.pos_ned_m[2] - self.hold_pos_ned_m[2]) < TAKEOFF_DONE_M:
             self.mode = px4_modes.AUTO_LOITER
             self.statustext(M.MAV_SEVERITY_INFO, "Takeoff done: AUTO.LOITER")
