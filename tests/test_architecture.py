@@ -25,7 +25,8 @@ PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "c
                  "companion.flight.pilot", "companion.flight.phase", "companion.flight.failsafes",
                  "companion.flight.mode_goal", "companion.flight.setup", "companion.flight.mission_frame",
                  "companion.flight.obstacle_view", "companion.flight.flight_record", "companion.flight.facts",
-                 "companion.flight.loop_stats", "companion.report.scoring")
+                 "companion.flight.loop_stats", "companion.flight.arrival", "companion.flight.command",
+                 "companion.report.scoring")
 IO_FRAMEWORKS = ("asyncio", "pymavlink", "zenoh", "socket")
 #: What the bundled vehicle may use of the companion: the shared model and MAVLink helpers.
 SIM_MAY_IMPORT = ("companion.core", "companion.mavlink_io.codec", "companion.mavlink_io.signing",

@@ -1,0 +1,93 @@
+"""What the flight core hands out each tick (:class:`Command`), where its climb ends, and its record of the loop
+lag over a flight (:class:`LagStats`, for the report). Pure data."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.flight.phase import CorePhase
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """One attitude setpoint plus what led to it (for SET_ATTITUDE_TARGET, the report and telemetry).
+
+    q_ned_frd_wxyz: attitude quaternion [w, x, y, z] body FRD → NED; thrust_n (N) and thrust_norm (0..1,
+    via the vehicle profile); euler_cmd_rad [φ, θ, ψ]; reference position/velocity/acceleration (NED, SI);
+    force_att_n / force_rep_n: the planner's attractive and repulsive parts (2,) (velocity units for the
+    APF-as-gradient-flow, see :mod:`companion.planning.apf`); r_max_m: envelope radius used;
+    envelope_mode: ``"swing"`` or ``"full_cable"``; phase; ff_accel (3,) m/s² anti-swing feed-forward;
+    plan_mode: ``"track"`` or ``"escape"`` (safe planner's trap escape), ``"brake"`` / ``"no_route"`` (shaped
+    planner stopping); no_route: the planner found no route to the goal (the mission ends ``no_route``).
+    """
+
+    t_s: float
+    q_ned_frd_wxyz: np.ndarray
+    thrust_n: float
+    thrust_norm: float
+    euler_cmd_rad: np.ndarray
+    ref_pos_ned_m: np.ndarray
+    ref_vel_ned_mps: np.ndarray
+    ref_acc_ned_mps2: np.ndarray
+    force_att_n: np.ndarray
+    force_rep_n: np.ndarray
+    r_max_m: float
+    envelope_mode: str
+    phase: CorePhase
+    ff_accel: np.ndarray
+    plan_mode: str = "track"
+    no_route: bool = False
+
+
+LIFT_MARGIN_M = 0.3  # a payload lifted off the ground hangs this far clear of it before the vehicle moves sideways
+
+
+def climb_altitude_ned_m(z0_ned_m: float, start_z_ned_m: float, cable_m: float) -> float:
+    """Where the vertical climb ends (NED z, m): the mission's start altitude, but a vehicle taking off with its
+    payload on the ground (less than a cable's length up) first lifts it straight up, to a cable's length plus
+    LIFT_MARGIN_M, before it moves sideways.
+
+    Moving off diagonally drags the payload: the cable snaps taut at an angle and the payload swings from there
+    (Group 1, origin to 5 m above (3, 4), took off at 45°: 0.55 rad at lift-off, against 0.2 rad in flight)."""
+    lift_z = -(cable_m + LIFT_MARGIN_M)
+    if z0_ned_m > -cable_m and start_z_ned_m > lift_z:
+        return lift_z
+    return start_z_ned_m
+
+
+class LagStats:
+    """The loop lag over a flight, for the report: range of the measured lag, least trust, time faded."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self.lag_min_s: float | None = None
+        self.lag_max_s: float | None = None
+        self.last_lag_s: float | None = None
+        self.trust_min = 1.0
+        self.faded_ticks = 0
+        self.gain_scale_min = 1.0
+        self.softened_ticks = 0
+
+    def add(self, lag_s: float | None, trust: float, gain_scale: float = 1.0) -> None:
+        if lag_s is not None:
+            self.last_lag_s = lag_s
+            self.lag_min_s = lag_s if self.lag_min_s is None else min(self.lag_min_s, lag_s)
+            self.lag_max_s = lag_s if self.lag_max_s is None else max(self.lag_max_s, lag_s)
+        if trust < 1.0:
+            self.faded_ticks += 1
+            self.trust_min = min(self.trust_min, trust)
+        if gain_scale < 1.0:
+            self.softened_ticks += 1
+            self.gain_scale_min = min(self.gain_scale_min, gain_scale)
+
+    def facts(self, nominal_s: float) -> dict[str, float | None]:
+        """Loop lag (ms): min, max, last, the profile's nominal; least feed-forward trust and seconds faded; least
+        position-gain scale and seconds softened."""
+        def ms(v: float | None) -> float | None:
+            return None if v is None else round(v * 1e3, 1)
+        return {"lag_ms_min": ms(self.lag_min_s), "lag_ms_max": ms(self.lag_max_s), "lag_ms_last": ms(self.last_lag_s),
+                "nominal_ms": ms(nominal_s), "ff_trust_min": round(self.trust_min, 3),
+                "faded_s": round(self.faded_ticks * self.period_s, 2), "gain_scale_min": round(self.gain_scale_min, 3),
+                "softened_s": round(self.softened_ticks * self.period_s, 2)}
