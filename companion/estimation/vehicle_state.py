@@ -9,7 +9,8 @@ messages update the state (the link also drops datagrams from any other address)
 before it is believed, and what fails is counted in ``rejected`` by kind:
 
 * ``nonfinite``: NaN or ±inf in a field the companion uses (position, velocity, attitude, swing, IMU, home,
-  estimator accuracy, parameter value): refused while decoding (a :class:`Rejected` event), counted here;
+  estimator accuracy, parameter value): refused while decoding
+  (:class:`~companion.mavlink_io.telemetry.Rejected`), counted here;
 * ``time_backwards`` / ``time_jump``: a ``time_boot_ms`` more than 0.5 s behind the vehicle clock, or ahead
   of it by more than 1 s plus what the wall clock allows (``max_time_rate`` vehicle seconds per wall second:
   ~1 in real time, large in lockstep where the simulator runs ahead of the wall clock);
@@ -50,21 +51,7 @@ import numpy as np
 
 from companion.estimation import SWING_INPUTS  # noqa: F401  (re-exported: the inputs this state chooses from)
 from companion.estimation.estimate import Estimate, swing_from_payload
-from companion.mavlink_io.telemetry import (
-    Attitude,
-    AutopilotVersion,
-    EstimatorStatus,
-    ExtendedSysState,
-    Heartbeat,
-    HomePosition,
-    LocalPositionNed,
-    Rejected,
-    StatusText,
-    SwingSensor,
-    SysStatus,
-    SystemTime,
-    TelemetryEvent,
-)
+from companion.mavlink_io import telemetry as tm
 
 log = logging.getLogger(__name__)
 
@@ -213,14 +200,14 @@ class VehicleState:
             self._clock_wall_s = wall_s
         return True
 
-    def ingest(self, ev: TelemetryEvent, wall_s: float | None = None) -> str:
+    def ingest(self, ev: tm.TelemetryEvent, wall_s: float | None = None) -> str:
         """Fold one decoded message in (``wall_s``: monotonic arrival time); returns its message type name, or
-        ``"REJECTED"`` when a check refused it (also a :class:`Rejected` event from the vehicle or, for a
+        ``"REJECTED"`` when a check refused it (also a ``Rejected`` event from the vehicle or, for a
         position, its payload). Events from systems other than the vehicle (and its payload) are ignored."""
         name = ev.message
         self.counts[name] += 1
         cls = ev.__class__
-        if cls is Heartbeat:
+        if cls is tm.Heartbeat:
             return self._on_heartbeat(ev, wall_s)
         src = ev.src_system
         if src == self.payload_sysid:
@@ -230,7 +217,7 @@ class VehicleState:
         handler = _VEHICLE_HANDLERS.get(cls)
         return name if handler is None else handler(self, ev, wall_s)
 
-    def _on_heartbeat(self, ev: Heartbeat, wall_s: float | None) -> str:
+    def _on_heartbeat(self, ev: tm.Heartbeat, wall_s: float | None) -> str:
         if ev.autopilot == MAV_AUTOPILOT_INVALID:  # a GCS, a companion or the payload system
             return ev.message
         src = ev.src_system
@@ -249,20 +236,20 @@ class VehicleState:
             self.system_status = ev.system_status
         return ev.message
 
-    def _on_payload(self, ev: TelemetryEvent) -> str:
+    def _on_payload(self, ev: tm.TelemetryEvent) -> str:
         """The payload system: only its position stream is read (a non-finite one is counted)."""
-        if ev.__class__ is LocalPositionNed:
+        if ev.__class__ is tm.LocalPositionNed:
             self.payload_pos_ned_m = np.array(ev.pos_ned_m)
             self.payload_vel_ned_mps = np.array(ev.vel_ned_mps)
             self.payload_t_s = ev.t_boot_s
-        elif ev.__class__ is Rejected and ev.message == "LOCAL_POSITION_NED":
+        elif ev.__class__ is tm.Rejected and ev.message == "LOCAL_POSITION_NED":
             return self._reject(ev.kind)
         return ev.message
 
-    def _on_rejected(self, ev: Rejected, wall_s: float | None) -> str:
+    def _on_rejected(self, ev: tm.Rejected, wall_s: float | None) -> str:
         return self._reject(ev.kind)
 
-    def _on_attitude(self, ev: Attitude, wall_s: float | None) -> str:
+    def _on_attitude(self, ev: tm.Attitude, wall_s: float | None) -> str:
         r, p, y = ev.euler_rad
         if abs(r) > math.pi + 1e-6 or abs(p) > math.pi / 2 + 1e-6 or abs(y) > math.pi + 1e-6:
             return self._reject("attitude_range")
@@ -277,7 +264,7 @@ class VehicleState:
         self.att_wall_s = wall_s
         return ev.message
 
-    def _on_local_position(self, ev: LocalPositionNed, wall_s: float | None) -> str:
+    def _on_local_position(self, ev: tm.LocalPositionNed, wall_s: float | None) -> str:
         t = ev.t_boot_s
         if t < self.pos_t_s:
             return self._reject("out_of_order")
@@ -293,7 +280,7 @@ class VehicleState:
         self.pos_wall_s = wall_s
         return ev.message
 
-    def _on_swing_sensor(self, ev: SwingSensor, wall_s: float | None) -> str:
+    def _on_swing_sensor(self, ev: tm.SwingSensor, wall_s: float | None) -> str:
         if ev.t_s < self.swing_sensor_t_s:
             return self._reject("out_of_order")
         reach = ev.reach_m  # shorter than the cable: the payload rests on the ground, the cable is slack
@@ -302,33 +289,33 @@ class VehicleState:
         self.swing_sensor_t_s = ev.t_s
         return ev.message
 
-    def _on_system_time(self, ev: SystemTime, wall_s: float | None) -> str:
+    def _on_system_time(self, ev: tm.SystemTime, wall_s: float | None) -> str:
         if not self._time_ok(ev.t_boot_ms * 1e-3, wall_s):
             return "REJECTED"
         self.step_markers += 1
         return ev.message
 
-    def _on_ext_state(self, ev: ExtendedSysState, wall_s: float | None) -> str:
+    def _on_ext_state(self, ev: tm.ExtendedSysState, wall_s: float | None) -> str:
         self.landed_state = ev.landed_state
         return ev.message
 
-    def _on_home(self, ev: HomePosition, wall_s: float | None) -> str:
+    def _on_home(self, ev: tm.HomePosition, wall_s: float | None) -> str:
         self.home_ned_m = np.array(ev.pos_ned_m)
         return ev.message
 
-    def _on_sys_status(self, ev: SysStatus, wall_s: float | None) -> str:
+    def _on_sys_status(self, ev: tm.SysStatus, wall_s: float | None) -> str:
         self.sys_status_seen = True
         self.sensors_present = ev.sensors_present
         self.sensors_health = ev.sensors_health
         return ev.message
 
-    def _on_estimator_status(self, ev: EstimatorStatus, wall_s: float | None) -> str:
+    def _on_estimator_status(self, ev: tm.EstimatorStatus, wall_s: float | None) -> str:
         """PX4: the estimator's own horizontal position accuracy (1σ, m), when plausible."""
         if 0.0 < ev.pos_horiz_accuracy_m < 100.0:
             self.pos_accuracy_m = ev.pos_horiz_accuracy_m
         return ev.message
 
-    def _on_version(self, ev: AutopilotVersion, wall_s: float | None) -> str:
+    def _on_version(self, ev: tm.AutopilotVersion, wall_s: float | None) -> str:
         v = ev.flight_sw_version
         self.autopilot_version = {
             "flight_sw_version": f"{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF}",
@@ -337,7 +324,7 @@ class VehicleState:
         }
         return ev.message
 
-    def _on_statustext(self, ev: StatusText, wall_s: float | None) -> str:
+    def _on_statustext(self, ev: tm.StatusText, wall_s: float | None) -> str:
         self.statustext.append(ev.text)
         if len(self.statustext) > 200:
             del self.statustext[:100]
@@ -417,15 +404,15 @@ class VehicleState:
 
 #: The vehicle's events and what folds each in (others are counted and otherwise ignored).
 _VEHICLE_HANDLERS: dict[type, Callable[[VehicleState, Any, float | None], str]] = {
-    Attitude: VehicleState._on_attitude,
-    LocalPositionNed: VehicleState._on_local_position,
-    SwingSensor: VehicleState._on_swing_sensor,
-    SystemTime: VehicleState._on_system_time,
-    ExtendedSysState: VehicleState._on_ext_state,
-    HomePosition: VehicleState._on_home,
-    SysStatus: VehicleState._on_sys_status,
-    EstimatorStatus: VehicleState._on_estimator_status,
-    AutopilotVersion: VehicleState._on_version,
-    StatusText: VehicleState._on_statustext,
-    Rejected: VehicleState._on_rejected,
+    tm.Attitude: VehicleState._on_attitude,
+    tm.LocalPositionNed: VehicleState._on_local_position,
+    tm.SwingSensor: VehicleState._on_swing_sensor,
+    tm.SystemTime: VehicleState._on_system_time,
+    tm.ExtendedSysState: VehicleState._on_ext_state,
+    tm.HomePosition: VehicleState._on_home,
+    tm.SysStatus: VehicleState._on_sys_status,
+    tm.EstimatorStatus: VehicleState._on_estimator_status,
+    tm.AutopilotVersion: VehicleState._on_version,
+    tm.StatusText: VehicleState._on_statustext,
+    tm.Rejected: VehicleState._on_rejected,
 }

@@ -230,23 +230,10 @@ def _constructor(cls: type) -> Any:
     return env["make"]
 
 
-_heartbeat = _constructor(Heartbeat)
-_sys_status = _constructor(SysStatus)
-_attitude = _constructor(Attitude)
-_local_position = _constructor(LocalPositionNed)
-_global_position = _constructor(GlobalPositionInt)
-_home = _constructor(HomePosition)
-_ext_state = _constructor(ExtendedSysState)
-_system_time = _constructor(SystemTime)
-_highres = _constructor(HighresImu)
-_scaled = _constructor(ScaledImu)
-_est_status = _constructor(EstimatorStatus)
-_statustext = _constructor(StatusText)
-_ack = _constructor(CommandAck)
-_param = _constructor(ParamValue)
-_swing = _constructor(SwingSensor)
-_version = _constructor(AutopilotVersion)
-_rejected = _constructor(Rejected)
+for _cls in (Heartbeat, SysStatus, Attitude, LocalPositionNed, GlobalPositionInt, HomePosition, ExtendedSysState,
+             SystemTime, HighresImu, ScaledImu, EstimatorStatus, StatusText, CommandAck, ParamValue, SwingSensor,
+             AutopilotVersion, Rejected):
+    _cls._make = _constructor(_cls)  # type: ignore[attr-defined]  # the decoders' constructor
 
 
 # ------------------------------------------------------------------------------------------------ decoders
@@ -262,79 +249,79 @@ def _text(raw: bytes | str) -> str:
 
 def _d_heartbeat(t: tuple, s: int, c: int, q: int) -> Heartbeat:
     custom_mode, mav_type, autopilot, base_mode, system_status = t
-    return _heartbeat(s, c, q, mav_type, autopilot, base_mode, custom_mode, system_status)
+    return Heartbeat._make(s, c, q, mav_type, autopilot, base_mode, custom_mode, system_status)
 
 
 def _d_sys_status(t: tuple, s: int, c: int, q: int) -> SysStatus:
-    return _sys_status(s, c, q, t[0], t[2])
+    return SysStatus._make(s, c, q, t[0], t[2])
 
 
 def _d_attitude(t: tuple, s: int, c: int, q: int) -> Attitude | Rejected:
     ms, r, p, y, rr, pr, yr = t
     if r * 0.0 + p * 0.0 + y * 0.0 + rr * 0.0 + pr * 0.0 + yr * 0.0 != 0.0:
-        return _rejected(s, c, q, "ATTITUDE", "nonfinite")
-    return _attitude(s, c, q, ms * 1e-3, (r, p, y), (rr, pr, yr))
+        return Rejected._make(s, c, q, "ATTITUDE", "nonfinite")
+    return Attitude._make(s, c, q, ms * 1e-3, (r, p, y), (rr, pr, yr))
 
 
 def _d_local_position(t: tuple, s: int, c: int, q: int) -> LocalPositionNed | Rejected:
     ms, x, y, z, vx, vy, vz = t
     if x * 0.0 + y * 0.0 + z * 0.0 + vx * 0.0 + vy * 0.0 + vz * 0.0 != 0.0:
-        return _rejected(s, c, q, "LOCAL_POSITION_NED", "nonfinite")
-    return _local_position(s, c, q, ms * 1e-3, (x, y, z), (vx, vy, vz))
+        return Rejected._make(s, c, q, "LOCAL_POSITION_NED", "nonfinite")
+    return LocalPositionNed._make(s, c, q, ms * 1e-3, (x, y, z), (vx, vy, vz))
 
 
 def _d_global_position(t: tuple, s: int, c: int, q: int) -> GlobalPositionInt:
     ms, lat, lon, alt, _rel, vx, vy, vz = t
-    return _global_position(s, c, q, ms * 1e-3, lat * 1e-7, lon * 1e-7, alt * 1e-3,
+    return GlobalPositionInt._make(s, c, q, ms * 1e-3, lat * 1e-7, lon * 1e-7, alt * 1e-3,
                             (vx * 1e-2, vy * 1e-2, vz * 1e-2))
 
 
 def _d_home(t: tuple, s: int, c: int, q: int) -> HomePosition | Rejected:
     x, y, z = t[3], t[4], t[5]
     if x * 0.0 + y * 0.0 + z * 0.0 != 0.0:
-        return _rejected(s, c, q, "HOME_POSITION", "nonfinite")
-    return _home(s, c, q, (x, y, z))
+        return Rejected._make(s, c, q, "HOME_POSITION", "nonfinite")
+    return HomePosition._make(s, c, q, (x, y, z))
 
 
 def _d_ext_state(t: tuple, s: int, c: int, q: int) -> ExtendedSysState:
-    return _ext_state(s, c, q, t[1])
+    return ExtendedSysState._make(s, c, q, t[1])
 
 
 def _d_system_time(t: tuple, s: int, c: int, q: int) -> SystemTime:
-    return _system_time(s, c, q, t[1])
+    return SystemTime._make(s, c, q, t[1])
 
 
 def _d_highres(t: tuple, s: int, c: int, q: int) -> HighresImu | Rejected:
     us, ax, ay, az = t
     if ax * 0.0 + ay * 0.0 + az * 0.0 != 0.0:
-        return _rejected(s, c, q, "HIGHRES_IMU", "nonfinite")
-    return _highres(s, c, q, us * 1e-6, (ax, ay, az))
+        return Rejected._make(s, c, q, "HIGHRES_IMU", "nonfinite")
+    return HighresImu._make(s, c, q, us * 1e-6, (ax, ay, az))
 
 
 def _d_scaled(t: tuple, s: int, c: int, q: int) -> ScaledImu:
     ms, ax, ay, az = t
-    return _scaled(s, c, q, ms * 1e-3, (ax * MG_TO_MPS2, ay * MG_TO_MPS2, az * MG_TO_MPS2))
+    return ScaledImu._make(s, c, q, ms * 1e-3, (ax * MG_TO_MPS2, ay * MG_TO_MPS2, az * MG_TO_MPS2))
 
 
 def _d_est_status(t: tuple, s: int, c: int, q: int) -> EstimatorStatus | Rejected:
     acc = t[7]
     if not isfinite(acc):
-        return _rejected(s, c, q, "ESTIMATOR_STATUS", "nonfinite")
-    return _est_status(s, c, q, acc)
+        return Rejected._make(s, c, q, "ESTIMATOR_STATUS", "nonfinite")
+    return EstimatorStatus._make(s, c, q, acc)
 
 
 def _d_statustext(t: tuple, s: int, c: int, q: int) -> StatusText:
-    return _statustext(s, c, q, t[0], _text(t[1]))
+    return StatusText._make(s, c, q, t[0], _text(t[1]))
 
 
 def _d_ack(t: tuple, s: int, c: int, q: int) -> CommandAck:
-    return _ack(s, c, q, t[0], t[1])
+    return CommandAck._make(s, c, q, t[0], t[1])
 
 
 def _d_param(t: tuple, s: int, c: int, q: int) -> ParamValue | Rejected:
     if not isfinite(t[0]):
-        return _rejected(s, c, q, "PARAM_VALUE", "nonfinite")
-    return _param(s, c, q, _text(t[3]), t[0])
+        return Rejected._make(s, c, q, "PARAM_VALUE", "nonfinite")
+    return ParamValue._make(s, c, q, _text(t[3]), t[0])
 
 
 def _d_debug_array(t: tuple, s: int, c: int, q: int) -> SwingSensor | Rejected | None:
@@ -342,12 +329,12 @@ def _d_debug_array(t: tuple, s: int, c: int, q: int) -> SwingSensor | Rejected |
     if name != _SWING_RAW and _text(name) != SWING_ARRAY_NAME:  # the wire's bytes, else as text
         return None
     if a * 0.0 + b * 0.0 + da * 0.0 + db * 0.0 != 0.0:
-        return _rejected(s, c, q, "DEBUG_FLOAT_ARRAY", "nonfinite")
-    return _swing(s, c, q, us * 1e-6, (a, b, da, db), reach)
+        return Rejected._make(s, c, q, "DEBUG_FLOAT_ARRAY", "nonfinite")
+    return SwingSensor._make(s, c, q, us * 1e-6, (a, b, da, db), reach)
 
 
 def _d_version(t: tuple, s: int, c: int, q: int) -> AutopilotVersion:
-    return _version(s, c, q, t[0], t[2], t[6], t[7], bytes(t[8:16]))
+    return AutopilotVersion._make(s, c, q, t[0], t[2], t[6], t[7], bytes(t[8:16]))
 
 
 class _Layout:
