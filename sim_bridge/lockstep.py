@@ -4,7 +4,8 @@ Simulated time advances only when the onboard client answers a marker (docs/sitl
 → handle its frames (a SET_ATTITUDE_TARGET from the onboard link flies one control period and sends that
 period's telemetry and the SYSTEM_TIME marker, see :meth:`SitlVehicle._lockstep_step`) → receive the next.
 The onboard socket blocks in the kernel with a short receive timeout (``SO_RCVTIMEO``, one system call per
-datagram); the GCS socket is non-blocking and drained whenever ``poll`` says it has input. On the wall clock,
+datagram); the GCS socket is non-blocking and drained whenever ``poll`` (asked at most once a millisecond)
+says it has input. On the wall clock,
 at least every :data:`DUTY_PERIOD_S`, the vehicle re-sends a marker nobody answered and heartbeats while
 idle (:meth:`SitlVehicle.wall_clock_duties`). SIGINT/SIGTERM end the loop within one receive timeout.
 """
@@ -26,6 +27,7 @@ log = logging.getLogger(__name__)
 
 RECV_TIMEOUT_S = 0.01  # longest the loop blocks before it looks at the GCS link, the clock and the stop flag
 DUTY_PERIOD_S = 0.05  # wall-clock duties at least this often (also while datagrams keep coming)
+GCS_POLL_S = 0.001  # the GCS socket is looked at once per this much wall time (and after every receive timeout)
 _RECV_MAX = 65536
 
 
@@ -96,7 +98,7 @@ def _loop(v: Any, onboard_sock: socket.socket, onboard: MavUdpLink, gcs_sock: so
     gcs_poll.register(gcs_sock, select.POLLIN)
     gcs_waiting = gcs_poll.poll
     monotonic = time.monotonic
-    next_duty = 0.0
+    next_duty = next_gcs = 0.0
     while not v.stop_requested:
         try:
             data, addr = recv(_RECV_MAX)
@@ -106,9 +108,11 @@ def _loop(v: Any, onboard_sock: socket.socket, onboard: MavUdpLink, gcs_sock: so
             pass
         else:
             on_onboard(data, addr)
-        if gcs_waiting(0):
-            _drain(gcs_sock, gcs)
         now = monotonic()
+        if now >= next_gcs:  # a system call saved on most steps: the GCS waits at most GCS_POLL_S more
+            next_gcs = now + GCS_POLL_S
+            if gcs_waiting(0):
+                _drain(gcs_sock, gcs)
         if now >= next_duty:
             next_duty = now + DUTY_PERIOD_S
             v.wall_clock_duties(now)

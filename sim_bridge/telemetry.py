@@ -274,7 +274,7 @@ def hot_payload(msgid: int, v: Any, snap: Snapshot | None = None) -> tuple[int, 
         return mf.CRC_ATTITUDE_TARGET, mf.P_ATTITUDE_TARGET.pack(
             t_ms, q[0], q[1], q[2], q[3], r[0], r[1], r[2], v.normalized_thrust(sim.target_thrust_n), 0)
     if msgid == MSG_HIGHRES_IMU:
-        acc, gyro, mag, press_hpa, alt_m, temp_c = v.imu_sample(s.rates)
+        acc, gyro, mag, press_hpa, alt_m, temp_c = v.imu_sample(s)
         return CRC_HIGHRES_IMU, P_HIGHRES_IMU.pack(
             s.t_us, acc[0], acc[1], acc[2], gyro[0], gyro[1], gyro[2], mag[0], mag[1], mag[2], press_hpa, 0.0,
             alt_m, temp_c, HIGHRES_FIELDS, 0)
@@ -287,6 +287,22 @@ def hot_payload(msgid: int, v: Any, snap: Snapshot | None = None) -> tuple[int, 
 def send_marker(mav: mavlink2.MAVLink, t_us: int) -> None:
     """The lockstep end-of-step marker: SYSTEM_TIME with time_boot_ms = simulated ms, time_unix_usec 0."""
     mf.send_system_time(mav, 0, (t_us // 1000) & 0xFFFFFFFF)
+
+
+def send_due(due: list[int], mav: mavlink2.MAVLink, v: Any, snap: Snapshot) -> None:
+    """Send the messages ``due`` on one link at the instant of ``snap`` (:func:`send_vehicle_message` for each,
+    with the hot messages' payloads packed once per instant for all links)."""
+    payloads = snap.payloads
+    send = mf.send_payload
+    for msgid in due:
+        hot = payloads.get(msgid)
+        if hot is None:
+            hot = hot_payload(msgid, v, snap)
+            if hot is None:
+                send_vehicle_message(msgid, mav, v, snap)
+                continue
+            payloads[msgid] = hot
+        send(mav, msgid, hot[0], hot[1])
 
 
 def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any, snap: Snapshot | None = None) -> bool:

@@ -136,6 +136,7 @@ class SitlVehicle:
         self._statustext_id = 0
         self.onboard: MavUdpLink | None = None
         self.gcs: MavUdpLink | None = None
+        self._link_list: list[MavUdpLink] = []  # the attached links: onboard, GCS
         self._payload_mavs: list = []
         self.stop_requested = False  # set by SIGINT/SIGTERM or --duration; the runner then returns
         self._last_marker_wall = 0.0
@@ -215,20 +216,22 @@ class SitlVehicle:
         p = self.sim.params
         return p.M if self.sim.payload_on_ground else p.M + p.m
 
-    def imu_sample(self, rates_frd_rad_s=None) -> tuple[tuple, tuple, np.ndarray, float, float, float]:
+    def imu_sample(self, snap: telemetry.Snapshot | None = None) -> tuple[tuple, tuple, np.ndarray, float, float,
+                                                                           float]:
         """(accelerometer m/s² FRD, gyro rad/s FRD, magnetometer gauss FRD, pressure hPa, pressure altitude m,
-        temperature °C) at the current simulated time. ``rates_frd_rad_s``: the true body rates if the caller
-        has them (``telemetry.Snapshot.rates``, the same numbers as ``VehicleSim.body_rates_frd_rad_s``)."""
+        temperature °C) at the current simulated time. ``snap``: this instant's :class:`telemetry.Snapshot`
+        if the caller has one (its floats and body rates are the same numbers as the simulation's)."""
         sim = self.sim
         self.imu.scale = self.params.value("SIM_IMU_NSCALE")
-        r_t = rotation_body_to_ned(*sim.x[3:6]).T  # NED → body, once for accelerometer and magnetometer
+        if snap is None:
+            snap = telemetry.Snapshot(self)
+        x = snap.x
+        r_t = rotation_body_to_ned(x[3], x[4], x[5]).T  # NED → body, once for accelerometer and magnetometer
         a = sim.accel_ned_mps2
         a[2] -= sim.params.g
-        if rates_frd_rad_s is None:
-            rates_frd_rad_s = sim.body_rates_frd_rad_s
-        acc, gyro = self.imu.sample(self.t_us, (r_t @ a).tolist(), rates_frd_rad_s)  # = specific_force_frd_mps2
+        acc, gyro = self.imu.sample(self.t_us, (r_t @ a).tolist(), snap.rates)  # = specific_force_frd_mps2
         mag = r_t @ telemetry.EARTH_FIELD_NED_GAUSS
-        alt = self.origin[2] - float(sim.x[2])
+        alt = self.origin[2] - x[2]
         return acc, gyro, mag, telemetry.isa_pressure_hpa(alt), alt, 15.0 - 0.0065 * alt
 
     def normalized_thrust(self, thrust_n: float) -> float:
@@ -236,7 +239,7 @@ class SitlVehicle:
         return thrust_n * self.params.value("MPC_THR_HOVER") / self.hover_thrust_n
 
     def _links(self) -> list[MavUdpLink]:
-        return [lk for lk in (self.onboard, self.gcs) if lk is not None]
+        return self._link_list
 
     # ------------------------------------------------------------------ messages out
     def statustext(self, severity: int, text: str) -> None:
@@ -268,8 +271,7 @@ class SitlVehicle:
                 continue
             if snap is None:
                 snap = telemetry.Snapshot(self)
-            for msgid in due:
-                telemetry.send_vehicle_message(msgid, lk.mav, self, snap)
+            telemetry.send_due(due, lk.mav, self, snap)
             hb = hb or M.MAVLINK_MSG_ID_HEARTBEAT in due
         if self.t_us >= self._next_payload_us:
             self._next_payload_us += self.cfg.payload_interval_us
@@ -575,6 +577,7 @@ class SitlVehicle:
         signing if configured, and the payload system's senders."""
         cfg = self.cfg
         self.onboard, self.gcs = onboard, gcs
+        self._link_list = [onboard, gcs]
         onboard.on_attitude_fields = gcs.on_attitude_fields = self.on_attitude_fields
         onboard.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us))
         gcs.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us, "normal"))
