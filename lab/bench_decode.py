@@ -6,9 +6,10 @@ ATTITUDE_QUATERNION, ATTITUDE_TARGET and the payload's LOCAL_POSITION_NED and GL
 as real frames. Timed per message, as the flight app handles it:
 
 * ``lite``: ``codec.decode_lite`` alone (what the link does before the app sees a message);
-* ``lite+ingest``: that, then what ``FlightApp._on_message`` does with the message (``decode`` to a typed event
-  where the code has it, ``VehicleState.ingest``, ``SwingFeed.ingest``, the link health's frame and sample
-  bookkeeping, the lockstep marker check, ``RequestLink.answer_of``);
+* ``lite+ingest``: that, then what the flight does with the message (``Runner._on_message`` and
+  ``Pilot.on_telemetry``; before typed telemetry ``FlightApp._on_message``): ``decode`` to a typed event where the
+  code has it, ``VehicleState.ingest``, ``SwingFeed.ingest``, the link health's frame and sample bookkeeping, the
+  lockstep marker check, ``RequestLink.answer_of``;
 * ``frame+ingest`` (typed code only): ``codec.check_crc`` + ``telemetry.decode_frame`` straight from the frame's
   bytes (no message object, as a loop reading frames itself could), then the same;
 * ``decode``: ``telemetry.decode`` alone, from the LiteMessage.
@@ -109,7 +110,7 @@ def _untyped(msgs: list[Any]) -> float:
 
 
 def _typed(msgs: list[Any], decode: Any, source: Any) -> float:
-    """Seconds for what ``FlightApp._on_message`` does per message with typed telemetry (less the answers)."""
+    """Seconds for what ``Runner._on_message`` + ``Pilot.on_telemetry`` do per message (less the answers)."""
     state, feed, req, health = _consumers()
     marker = -1
     t0 = time.process_time()
