@@ -137,16 +137,23 @@ def recording_path(run_dir: Path) -> Path:
 
 def run_replay(args: argparse.Namespace) -> int:
     """Open the recording; with the web viewer, serve until Ctrl-C or SIGTERM (the viewer is stopped with us)."""
+    from companion.proclife import sigterm_as_interrupt
     from companion.viz.viewer import start_viewer
 
     path = recording_path(args.run_dir)
     mode = "web" if args.web else "native" if args.native else "auto"
-    viewer = start_viewer(mode, web_port=args.port, files=[path.resolve()])
-    if viewer.web_url:
-        print(f"replay of {path}: {viewer.web_url}  (Ctrl-C to stop)", flush=True)
-        return 0 if viewer.wait() in (0, 130, -15) else 1
-    print(f"replay of {path} in the Rerun viewer window", flush=True)
-    return 0
+    with sigterm_as_interrupt():  # from before the viewer starts: a SIGTERM at any moment stops it cleanly
+        viewer = start_viewer(mode, web_port=args.port, files=[path.resolve()])
+        if not viewer.web_url:
+            print(f"replay of {path} in the Rerun viewer window", flush=True)
+            return 0
+        try:
+            print(f"replay of {path}: {viewer.web_url}  (Ctrl-C to stop)", flush=True)
+            code = viewer.wait()
+        except KeyboardInterrupt:  # between the start and the wait
+            viewer.close()
+            code = 130
+    return 0 if code in (0, 130, -15) else 1
 
 
 # -- view: every vehicle on the Zenoh network --------------------------------------------------------------
