@@ -140,8 +140,9 @@ def test_fly_sitl_killed_takes_its_vehicle_with_it(tmp_path):
 # ------------------------------------------------------------------------------------------------ evaluate
 @pytest.mark.slow
 def test_evaluate_killed_takes_its_workers_and_their_vehicles_with_it(tmp_path):
-    """``evaluate`` (MAVLink mode, 2 workers) SIGKILLed while both workers fly: workers and vehicles go."""
-    proc = _start("evaluate", "--n", "2", "--planners", "safe", "--workers", "2", "--mode", "mavlink",
+    """``evaluate`` (MAVLink mode, 2 workers, 4 missions so that both always fly) SIGKILLed while both workers
+    fly: workers and vehicles go."""
+    proc = _start("evaluate", "--n", "4", "--planners", "safe", "--workers", "2", "--mode", "mavlink",
                   "--timeout", "30", "--no-progress", "--out", str(tmp_path / "eval"), stderr=tmp_path / "stderr.txt")
     kids: list[psutil.Process] = []
     try:
