@@ -1,4 +1,4 @@
-"""``slungpilot bench sitl``: lockstep real-time factor of the bundled vehicle.
+"""``slungpilot bench sitl`` and ``python -m sim_bridge.bench``: lockstep speed of the bundled vehicle.
 
 Starts the vehicle (``python -m sim_bridge --lockstep``, 1 kHz physics, 4 ms control period) as a
 subprocess and drives it from this process over real UDP with a minimal 250 Hz hover client: it decodes
@@ -6,11 +6,15 @@ only the SYSTEM_TIME marker and the vehicle's LOCAL_POSITION_NED (other frames a
 ``companion.mavlink_io.codec.decode_fields``, CRC checked) and answers
 each marker with a level-attitude SET_ATTITUDE_TARGET whose thrust holds 2 m. Prints and returns simulated
 seconds per wall second and the CPU time per control step of either side (less sensitive than the
-real-time factor to other processes competing for the cores). Nothing is asserted.
+real-time factor to other processes competing for the cores), the kernel's share of it, and the CPU the
+vehicle spends starting (to ``SITL READY``). ``--against DIR`` runs another checkout's vehicle round by round
+with this one (same client, same moment: the fair comparison on a shared machine);
+:func:`run_bench_step_inprocess` gives the vehicle's own per-step cost without sockets. Nothing is asserted.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
 
@@ -42,10 +46,25 @@ def _hover_thrust(z: float, vz: float, z_sp: float = -2.0) -> float:
     return min(0.9, max(0.05, 0.4 + 0.12 * (z - z_sp) + 0.12 * vz))
 
 
-def run_bench_sitl(seconds: float = 3.0) -> dict[str, float]:
-    """Fly a lockstep hover for ``seconds`` of wall time; returns real-time factor and step timings."""
-    proc, port, _ = spawn_vehicle("--lockstep", "--control-period-ms", "4")
+FLIGHT_STREAMS = (M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, M.MAVLINK_MSG_ID_HIGHRES_IMU,
+                  M.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY)  # what the companion asks for every control period
+
+
+def run_bench_sitl(seconds: float = 3.0, vehicle_root: str | None = None, flight_rates: bool = False,
+                   ) -> dict[str, float]:
+    """Fly a lockstep hover for ``seconds`` of wall time; returns real-time factor and step timings.
+
+    ``vehicle_root``: run the vehicle of another checkout (its directory goes first on the child's PYTHONPATH),
+    e.g. to compare with an older version on the same machine at the same time. ``flight_rates``: ask for
+    ATTITUDE, LOCAL_POSITION_NED, HIGHRES_IMU and the swing every control period, as the companion does in a
+    flight (default: the vehicle's own onboard rates)."""
+    env = None
+    if vehicle_root is not None:
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (vehicle_root, os.environ.get("PYTHONPATH"))
+                                                          if p))
+    proc, port, _ = spawn_vehicle("--lockstep", "--control-period-ms", "4", env=env, cwd=vehicle_root)
     try:
+        start_cpu = sum(_proc_cpu_s(proc.pid))
         with MavClient(port) as c:
             c.heartbeat()
             c.wait_marker(10.0)
@@ -53,12 +72,15 @@ def run_bench_sitl(seconds: float = 3.0) -> dict[str, float]:
                 c.step(thrust=0.0)
             if c.set_mode(6) != M.MAV_RESULT_ACCEPTED or c.arm() != M.MAV_RESULT_ACCEPTED:
                 raise RuntimeError("bench: vehicle refused OFFBOARD or arming")
+            for msgid in FLIGHT_STREAMS if flight_rates else ():
+                c.command(M.MAV_CMD_SET_MESSAGE_INTERVAL, msgid, 4000)
             user0, sys0 = _proc_cpu_s(proc.pid)
             res = _fast_loop(c, seconds)
             steps = max(res["control_steps"], 1.0)
             user1, sys1 = _proc_cpu_s(proc.pid)
             res["vehicle_cpu_us_per_step"] = (user1 + sys1 - user0 - sys0) / steps * 1e6
             res["vehicle_sys_us_per_step"] = (sys1 - sys0) / steps * 1e6
+            res["vehicle_start_cpu_s"] = start_cpu
     finally:
         stop_vehicle(proc)
     return res
@@ -178,20 +200,44 @@ def _proc_cpu_s(pid: int) -> tuple[float, float]:
         return float("nan"), float("nan")
 
 
-def main(seconds: float = 3.0) -> int:
-    """Print the benchmark (CLI helper for ``slungpilot bench sitl``)."""
-    print("slungpilot bench sitl: lockstep vehicle subprocess, 1 kHz physics, 250 Hz hover client over UDP")
-    res = run_bench_sitl(seconds)
-    print(f"  real-time factor (sim s / wall s): {res['realtime_factor']:8.1f}x")
-    print(f"  control steps: {res['control_steps']:.0f} in {res['wall_s']:.2f} s wall "
-          f"({res['us_per_control_step']:.0f} µs each), {res['sim_s']:.2f} s simulated")
-    print(f"  CPU per control step: vehicle {res['vehicle_cpu_us_per_step']:.0f} µs "
-          f"(in the kernel {res['vehicle_sys_us_per_step']:.0f} µs), client {res['client_cpu_us_per_step']:.0f} µs")
-    print(f"  hover altitude at the end: {res['final_altitude_m']:.2f} m")
+def _median(rows: list[dict[str, float]], key: str) -> float:
+    vals = sorted(r[key] for r in rows)
+    return vals[len(vals) // 2]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the benchmark (``python -m sim_bridge.bench [SECONDS] [--against DIR] [--rounds N]``)."""
+    ap = argparse.ArgumentParser(prog="python -m sim_bridge.bench", description=__doc__.split("\n")[0])
+    ap.add_argument("seconds", nargs="?", type=float, default=3.0, help="wall seconds per measured hover")
+    ap.add_argument("--against", metavar="DIR", help="also run the vehicle of this checkout (e.g. an older "
+                    "one), interleaved round by round with this one; medians are printed side by side")
+    ap.add_argument("--rounds", type=int, default=3, help="hovers per vehicle (default 3)")
+    ap.add_argument("--default-rates", action="store_true",
+                    help="the vehicle's own onboard rates instead of the flight's (ATTITUDE, LOCAL_POSITION_NED, "
+                         "HIGHRES_IMU and the swing every control period)")
+    args = ap.parse_args(argv)
+    rates = "default onboard rates" if args.default_rates else "flight rates"
+    print(f"slungpilot bench sitl: lockstep vehicle subprocess, 1 kHz physics, 250 Hz hover client over UDP, {rates}")
+    variants = [("this checkout", None)] + ([(args.against, args.against)] if args.against else [])
+    rows: dict[str, list[dict[str, float]]] = {name: [] for name, _ in variants}
+    for _ in range(args.rounds):
+        for name, root in variants:
+            rows[name].append(run_bench_sitl(args.seconds, root, flight_rates=not args.default_rates))
+    lines = [("real-time factor (sim s / wall s)", "realtime_factor", "{:.1f}x"),
+             ("vehicle CPU per control step, µs", "vehicle_cpu_us_per_step", "{:.0f}"),
+             ("  of which in the kernel, µs", "vehicle_sys_us_per_step", "{:.0f}"),
+             ("client CPU per control step, µs", "client_cpu_us_per_step", "{:.0f}"),
+             ("vehicle start-up CPU (to READY), s", "vehicle_start_cpu_s", "{:.2f}")]
+    print(f"  medians of {args.rounds} rounds of {args.seconds:g} s" + "".join(f" | {n:>16.16s}" for n, _ in variants))
+    for label, key, fmt in lines:
+        print(f"  {label:38s}" + "".join(f" | {fmt.format(_median(rows[n], key)):>16s}" for n, _ in variants))
+    inproc = min((run_bench_step_inprocess(3000) for _ in range(3)), key=lambda r: r["vehicle_cpu_us_per_step"])
+    print(f"  this checkout's step in-process, no sockets (best of 3): {inproc['vehicle_cpu_us_per_step']:.1f} µs "
+          f"(default rates)")
     return 0
 
 
 if __name__ == "__main__":
     import sys
 
-    sys.exit(main(float(sys.argv[1]) if len(sys.argv) > 1 else 3.0))
+    sys.exit(main())

@@ -142,8 +142,11 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def spawn_vehicle(*extra_args: str, ready_timeout_s: float = 30.0) -> tuple[subprocess.Popen, int, int]:
-    """Start ``python -m sim_bridge`` on free ports (GCS telemetry to a free port nobody reads).
+def spawn_vehicle(*extra_args: str, ready_timeout_s: float = 30.0,
+                  env: dict[str, str] | None = None, cwd: str | None = None) -> tuple[subprocess.Popen, int, int]:
+    """Start ``python -m sim_bridge`` on free ports (GCS telemetry to a free port nobody reads); ``env`` and
+    ``cwd``: the child's environment and directory (default this process's; another checkout's directory as
+    both ``cwd`` and first on PYTHONPATH runs that checkout's vehicle).
 
     Returns (process, onboard port, gcs port) once it printed ``SITL READY``; the caller terminates it.
     """
@@ -152,7 +155,7 @@ def spawn_vehicle(*extra_args: str, ready_timeout_s: float = 30.0) -> tuple[subp
            "--gcs-remote", f"127.0.0.1:{sink}", "--onboard-remote", f"127.0.0.1:{sink}", *extra_args]
     # a file, not a pipe: a chatty vehicle must never block; closed with the process object
     errlog = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errlog, text=True)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errlog, text=True, env=env, cwd=cwd)
     proc.errlog = errlog  # type: ignore[attr-defined]
     end = time.monotonic() + ready_timeout_s
     line = ""
