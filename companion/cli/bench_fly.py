@@ -1,42 +1,71 @@
-"""`slungpilot bench fly`: the forest mission end to end in lockstep — real-time factor and tick times."""
+"""`slungpilot bench fly`: the forest mission end to end in lockstep — real-time factors, tick times, CPU.
+
+Each flight is a real ``slungpilot fly --sitl`` command (its own processes, as a user runs it). With ``--against
+DIR`` the same flight is also flown by another checkout of the project (``PYTHONPATH=DIR``), interleaved run by
+run, so both trees see the same machine: the numbers compare code, not the VM's mood of the minute.
+"""
 
 from __future__ import annotations
 
-import argparse
-import asyncio
+import json
+import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
-from companion.cli.fly import fly_async, mission_from_args
-from companion.cli.fly_args import DEFAULT_MISSION, add_fly_arguments
+from companion.config import shipped_config
+
+DEFAULT_MISSION = shipped_config("missions/forest.toml")
 
 
-def run(mission_path: Path = DEFAULT_MISSION, repeats: int = 1) -> list[dict[str, float]]:
-    """Fly the mission ``repeats`` times against the bundled vehicle (lockstep); one dict of numbers per run."""
+def fly_once(tree: Path | None, mission: Path = DEFAULT_MISSION, planner: str | None = None) -> dict[str, Any]:
+    """One lockstep forest flight by the code in ``tree`` (None: this one); its numbers."""
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree)
+    with tempfile.TemporaryDirectory(prefix="slungpilot-bench-fly-") as tmp:
+        run_dir = Path(tmp) / "run"
+        argv = [sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--no-zenoh", "--no-plots",
+                "--no-recording", "--mission", str(mission), "--run-dir", str(run_dir)]
+        if planner:
+            argv += ["--planner", planner]
+        t0 = time.monotonic()
+        proc = subprocess.run(argv, env=env, cwd=tree or Path.cwd(), capture_output=True, text=True, timeout=600)
+        wall = time.monotonic() - t0
+        if proc.returncode != 0 or not (run_dir / "report.json").exists():
+            return {"error": proc.stderr[-500:], "returncode": proc.returncode}
+        rep = json.loads((run_dir / "report.json").read_text())
+    loop = rep["loop"]
+    sim = float(rep["sim_time_s"])
+    return {"sim_time_s": sim, "command_wall_s": wall, "end_to_end_x": sim / wall,
+            "in_flight_x": loop["realtime_factor"], "ticks": loop["ticks"], "tick_ms_p50": loop["tick_ms_p50"],
+            "tick_ms_p99": loop["tick_ms_p99"], "tick_cpu_ms_p50": loop["tick_cpu_ms_p50"],
+            "reached_goal": bool(rep["reached_goal"])}
+
+
+def run(repeats: int = 3, against: Path | None = None, planner: str | None = None) -> list[tuple[str, dict]]:
+    """``repeats`` flights of this tree, interleaved with as many of ``against`` when given."""
     out = []
     for _ in range(repeats):
-        with tempfile.TemporaryDirectory() as tmp:
-            p = argparse.ArgumentParser()
-            add_fly_arguments(p)
-            args = p.parse_args(["--sitl", "--no-zenoh", "--mission", str(mission_path), "--run-dir", tmp,
-                                 "--no-plots"])
-            mission = mission_from_args(args)
-            t0 = time.monotonic()
-            res = asyncio.run(fly_async(args, mission))
-            wall_total = time.monotonic() - t0
-            rep = res.report
-            loop = rep["loop"]
-            sim = float(rep["sim_time_s"])  # the mission the companion flew (climb, cruise, hold)
-            out.append({
-                "sim_time_s": sim,
-                "wall_time_s": wall_total,
-                "realtime_factor": sim / wall_total,
-                "flight_realtime_factor": loop["realtime_factor"],
-                "ticks": loop["ticks"],
-                "tick_ms_p50": loop["tick_ms_p50"],
-                "tick_ms_p99": loop["tick_ms_p99"],
-                "tick_ms_max": loop["tick_ms_max"],
-                "reached_goal": bool(rep["reached_goal"]),
-            })
+        out.append(("this", fly_once(None, planner=planner)))
+        if against is not None:
+            out.append((str(against), fly_once(against, planner=planner)))
     return out
+
+
+def print_bench(repeats: int, against: Path | None, planner: str | None) -> int:
+    print("slungpilot bench fly: forest mission (Table 2, eq. 49 wind) against the bundled vehicle, lockstep, each")
+    print("  flight a real `slungpilot fly --sitl` command; end to end = mission sim time / wall time of the whole")
+    print("  command (start-up, vehicle, connect, landing, report); in flight = vehicle time / wall time between the")
+    print("  first and last tick; tick = the companion's work per tick (wall and CPU), telemetry in to setpoint")
+    for who, r in run(repeats, against, planner):
+        if "error" in r:
+            print(f"  {who}: failed ({r['returncode']}): {r['error']}")
+            continue
+        print(f"  {who}: end to end {r['end_to_end_x']:.1f}x (sim {r['sim_time_s']:.1f} s in {r['command_wall_s']:.2f} "
+              f"s), in flight {r['in_flight_x']:.1f}x; {r['ticks']} ticks, tick p50 {r['tick_ms_p50']:.3f} ms "
+              f"(CPU {r['tick_cpu_ms_p50']:.3f} ms), p99 {r['tick_ms_p99']:.3f} ms; goal: {r['reached_goal']}")
+    return 0

@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from companion import __version__
-from companion.launch.dispatch import dispatch
 from companion.errors import ConfigError, SlungpilotError
+from companion.launch.dispatch import dispatch
 
 log = logging.getLogger(__name__)
 
@@ -33,16 +33,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.target == "fly":
         from companion.cli import bench_fly
 
-        print("slungpilot bench fly: forest mission (Table 2, eq. 49 wind) against the bundled vehicle, lockstep,")
-        print("  end to end = mission sim time / wall time of the whole command (vehicle start-up, connect, landing);")
-        print("  in flight  = vehicle time / wall time between the first and last tick (the lockstep loop itself);")
-        print("  tick       = the companion's work per tick, telemetry in to setpoint packed (send timed apart)")
-        for i, r in enumerate(bench_fly.run(repeats=args.repeats)):
-            print(f"  run {i + 1}: end to end {r['realtime_factor']:.1f}x (sim {r['sim_time_s']:.1f} s in "
-                  f"{r['wall_time_s']:.2f} s), in flight {r['flight_realtime_factor']:.1f}x; {r['ticks']} ticks, "
-                  f"tick p50 {r['tick_ms_p50']:.3f} ms, p99 {r['tick_ms_p99']:.3f} ms, max {r['tick_ms_max']:.2f} ms; "
-                  f"goal reached: {r['reached_goal']}")
-        return 0
+        return bench_fly.print_bench(args.repeats, args.against, args.planner)
     if args.target == "sitl":
         from sim_bridge.bench import run_bench_sitl
 
@@ -240,6 +231,9 @@ def _add_bench(sub: Any) -> None:
     bench.add_argument("--only", default="", help="faults: comma-separated scenario names (default: all)")
     bench.add_argument("--seconds", type=float, default=3.0, help="measuring time per benchmark (s)")
     bench.add_argument("--repeats", type=int, default=2, help="fly: how many flights")
+    bench.add_argument("--against", type=Path, default=None, metavar="DIR",
+                       help="fly: also fly another checkout of slungpilot (PYTHONPATH=DIR), interleaved run by run")
+    bench.add_argument("--planner", default=None, help="fly: override the forest mission's planner")
     bench.set_defaults(func=_cmd_bench)
 
 

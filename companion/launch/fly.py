@@ -9,6 +9,7 @@ import contextlib
 import dataclasses
 import logging
 import signal
+import threading
 import time
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
@@ -127,6 +128,9 @@ def _run_blocking(runner: LockstepRunner) -> None:
     def on_signal(signum: int, _frame: Any) -> None:
         runner.request_abort("terminated (SIGTERM)" if signum == signal.SIGTERM else "operator abort (Ctrl-C)")
 
+    if threading.current_thread() is not threading.main_thread():  # a worker thread (Dask): its owner stops it
+        runner.run()
+        return
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         runner.run()
