@@ -434,8 +434,8 @@ class ZenohTelemetry:
                     break
 
     def obstacle_source(self, mission_obstacles: Sequence[Obstacle]) -> Callable[[float], tuple[Obstacle, ...]]:
-        """``t_s -> obstacles`` for ``FlyOptions.obstacle_source`` (no parsing: pair it with :meth:`ingest` as
-        ``FlyOptions.obstacle_ingest``)."""
+        """``t_s -> obstacles`` for a runner's obstacle source (no parsing: pair it with :meth:`ingest` as its
+        obstacle ingest, ``Runner.use_obstacle_input``)."""
         return lambda t_s: self.obstacles_current(t_s, mission_obstacles)
 
     # -- config queryable ------------------------------------------------------------------------------
