@@ -154,7 +154,7 @@ def test_flies_without_the_cable_sensor(tmp_path, swing_input, envelope):
 def test_flies_an_autopilot_it_did_not_start_reading_its_hover_thrust(tmp_path):
     """The path a real PX4 takes: vehicle started separately, companion listens (udpin), picks the PX4 profile
     from the HEARTBEAT and reads MPC_THR_HOVER instead of assuming it."""
-    from companion.cli.sitl_launcher import free_udp_port
+    from companion.launch.sitl import free_udp_port
 
     comp_port, veh_port, gcs_port = free_udp_port(), free_udp_port(), free_udp_port()
     veh = subprocess.Popen(
@@ -176,7 +176,7 @@ def test_flies_an_autopilot_it_did_not_start_reading_its_hover_thrust(tmp_path):
 
 
 def test_no_autopilot_fails_clearly_in_bounded_time(tmp_path):
-    from companion.cli.sitl_launcher import free_udp_port
+    from companion.launch.sitl import free_udp_port
 
     proc = _slungpilot("fly", "--connect", f"udpin://127.0.0.1:{free_udp_port()}", "--heartbeat-timeout", "1.5",
                        "--no-zenoh", "--run-dir", str(tmp_path), timeout=30)

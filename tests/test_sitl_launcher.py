@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.cli.sitl_launcher import SitlProcess
 from companion.core.mission import load_mission
+from companion.launch.sitl import SitlProcess
 
 FOREST = Path(__file__).resolve().parents[1] / "config" / "missions" / "forest.toml"
 
@@ -45,7 +45,7 @@ def test_vehicle_port_taken_meanwhile_is_retried_and_companion_port_is_reserved(
 _HOLDER = """
 import asyncio, sys
 from pathlib import Path
-from companion.cli.sitl_launcher import SitlProcess
+from companion.launch.sitl import SitlProcess
 from companion.core.mission import load_mission
 
 async def main():

@@ -114,7 +114,7 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
 async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path,
                       stack: contextlib.AsyncExitStack) -> Any:
     """Start the bundled vehicle on free local ports; the set-up with its link."""
-    from companion.cli.sitl_launcher import SitlProcess
+    from companion.launch.sitl import SitlProcess
 
     extra = ["--control-period-ms", str(round(1000.0 / setup.rate_hz)), *spec.sitl_args]
     if setup.rt_priority and not setup.lockstep:  # the simulated autopilot at the same priority, as PX4's
