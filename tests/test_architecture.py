@@ -152,6 +152,20 @@ def test_companion_never_imports_the_simulator_or_the_lab_except_from_the_entry_
     assert {m: d for m, d in offenders.items() if d} == {}
 
 
+def test_the_lab_flies_through_the_launch_api_not_the_command_line():
+    """lab builds its flights in code (companion.launch.FlySpec), never from the CLI's argument objects."""
+    offenders = {m: sorted(d for d in deps if d.startswith("companion.cli"))
+                 for m, deps in GRAPH.items() if m.startswith("lab")}
+    assert {m: d for m, d in offenders.items() if d} == {}
+
+
+def test_the_flight_runners_are_thin_and_the_pilot_is_pure_of_the_clock():
+    """The pilot and the sequence read no clock of their own: time comes in as arguments."""
+    for module in ("companion.flight.pilot", "companion.flight.sequence", "companion.flight.core"):
+        src = MODULES[module].read_text()
+        assert "time.monotonic" not in src and "time.perf_counter" not in src, module
+
+
 def test_the_simulator_uses_only_the_shared_model_and_mavlink_helpers():
     used = {d for m, deps in GRAPH.items() if m.startswith("sim_bridge") for d in deps if d.startswith("companion")}
     bad = sorted(d for d in used if not (d in SIM_MAY_IMPORT or d.startswith(tuple(p + "." for p in SIM_MAY_IMPORT
