@@ -9,6 +9,7 @@ from the onboard link, then the due telemetry, then SYSTEM_TIME as end-of-step m
 from __future__ import annotations
 
 import dataclasses
+import gc
 import logging
 import math
 import time
@@ -571,6 +572,9 @@ class SitlVehicle:
         warm = self._new_sim(self.sim.params, 0.0)
         warm.armed = True
         warm.step(2)
+        # what start-up made (modules, numba's and pymavlink's tables) lives as long as the process: out of the
+        # garbage collector's sight, so a full collection during a flight walks only the flight's objects
+        gc.freeze()
 
     def attach_links(self, onboard: MavUdpLink, gcs: MavUdpLink) -> None:
         """Take the two bound links: per-link telemetry schedules (PX4's onboard and normal stream modes),
