@@ -138,6 +138,7 @@ def test_tlog_records_reach_the_file_in_order(tmp_path):
     assert raw.read() == b""
 
 
+@pytest.mark.slow
 def test_a_flight_goes_on_while_its_journal_cannot_write(tmp_path):
     """The journal's first write blocks (a FIFO with no reader where the provisional report is written): the
     companion still connects, arms, climbs and takes over; the journal catches up once the disk answers."""

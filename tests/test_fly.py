@@ -92,6 +92,7 @@ def test_bad_mission_file_refused_before_takeoff_with_exit_2(tmp_path, edit, mat
     assert not (tmp_path / "run" / "flight.tlog").exists(), "nothing was flown"
 
 
+@pytest.mark.slow
 def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
     run_dir = tmp_path / "abort"
     proc = subprocess.Popen(
@@ -130,6 +131,7 @@ def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
     assert n > 100
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("swing_input", "envelope"), [("none", "full_cable"), ("payload_position", "swing")])
 def test_flies_without_the_cable_sensor(tmp_path, swing_input, envelope):
     """No cable-angle sensor: fall back to the payload's position stream, or to nothing (full-cable envelope)."""
@@ -151,6 +153,7 @@ def test_flies_without_the_cable_sensor(tmp_path, swing_input, envelope):
         assert "no swing input" in proc.stderr
 
 
+@pytest.mark.slow
 def test_flies_an_autopilot_it_did_not_start_reading_its_hover_thrust(tmp_path):
     """The path a real PX4 takes: vehicle started separately, companion listens (udpin), picks the PX4 profile
     from the HEARTBEAT and reads MPC_THR_HOVER instead of assuming it."""
@@ -185,6 +188,7 @@ def test_no_autopilot_fails_clearly_in_bounded_time(tmp_path):
     assert json.loads((tmp_path / "report.json").read_text())["reached_goal"] is False
 
 
+@pytest.mark.slow
 def test_lockstep_flight_is_repeatable_bit_for_bit(forest_run, tmp_path):
     """The same mission flown twice in lockstep gives the identical per-tick log: commands land at the same
     simulated time, never at a wall-clock-dependent one."""
@@ -200,6 +204,7 @@ def test_lockstep_flight_is_repeatable_bit_for_bit(forest_run, tmp_path):
         assert np.array_equal(a[k], b[k], equal_nan=True), k
 
 
+@pytest.mark.slow
 def test_ctrl_c_in_lockstep_holds_and_lands(tmp_path):
     """In lockstep the sequencer runs at the tick's pace: Ctrl-C still switches to hold and lands."""
     proc = subprocess.Popen(
@@ -224,6 +229,7 @@ def test_ctrl_c_in_lockstep_holds_and_lands(tmp_path):
     assert rep["outcome"] == "aborted" and rep["final_phase"] == "landed" and rep["reached_goal"] is False
 
 
+@pytest.mark.slow
 def test_ctrl_c_in_the_terminal_reaches_the_companion_only_which_lands_the_vehicle(tmp_path):
     """A terminal sends SIGINT to the whole foreground process group: the bundled vehicle runs in its own, so it is
     still flying while the companion holds and lands it, and is stopped last (issue 14)."""

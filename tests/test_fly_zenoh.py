@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow  # every test here flies a mission or a peer against the vehicle
+
 ROOT = Path(__file__).resolve().parents[1]
 FOREST = ROOT / "config" / "missions" / "forest.toml"
 LIVE_TRUNK = {"x_m": 6.0, "y_m": 0.1, "radius_m": 0.3, "height_m": 4.0, "safe_distance_m": 0.1}

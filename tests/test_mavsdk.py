@@ -21,6 +21,8 @@ from mavsdk.plugins.telemetry import FlightMode  # noqa: E402
 
 from sim_bridge.mavclient import free_udp_port, spawn_vehicle, stop_vehicle  # noqa: E402
 
+pytestmark = pytest.mark.slow  # every test here flies a mission or a peer against the vehicle
+
 HOME = (47.397742, 8.545594, 488.0)
 TEST_BUDGET_S = 60.0
 

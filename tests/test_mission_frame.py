@@ -1,6 +1,5 @@
 """Mission coordinates are relative to home (issue 10): a vehicle far from the mission's start is refused with a
 clear reason, and ``--start-here`` flies the mission from where the vehicle stands."""
-
 from __future__ import annotations
 
 import json
@@ -9,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,6 +30,7 @@ def _fly(tmp: Path, *extra: str) -> tuple[subprocess.CompletedProcess, dict]:
     return out, json.loads((run / "report.json").read_text())
 
 
+@pytest.mark.slow
 def test_a_vehicle_far_from_the_start_is_refused_before_arming(tmp_path):
     out, rep = _fly(tmp_path)
     assert out.returncode == 4, out.stderr[-2000:]
@@ -38,6 +39,7 @@ def test_a_vehicle_far_from_the_start_is_refused_before_arming(tmp_path):
     assert "arm" not in [t["to"] for t in rep["transitions"]]
 
 
+@pytest.mark.slow
 def test_start_here_moves_the_mission_under_the_vehicle(tmp_path):
     out, rep = _fly(tmp_path, "--start-here")
     assert out.returncode == 0, out.stderr[-2000:]

@@ -36,6 +36,7 @@ def _run(args: list[str], env: dict[str, str], cwd: Path, timeout: float = 180.0
     return subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=timeout, env=env, cwd=cwd)
 
 
+@pytest.mark.slow
 def test_the_wheel_ships_the_configs_and_a_version(installed):
     tmp, env = installed
     where = tmp / "elsewhere"

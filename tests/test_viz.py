@@ -189,6 +189,7 @@ def flown(tmp_path_factory) -> Path:
     return run
 
 
+@pytest.mark.slow
 def test_a_flight_recording_reads_back_with_every_entity(flown):
     rows, static, batches = read_recording(flown / "recording.rrd")
     rep = json.loads((flown / "report.json").read_text())
@@ -289,6 +290,7 @@ def _port_closed(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) != 0
 
 
+@pytest.mark.slow
 def test_fly_view_web_serves_the_viewer_on_loopback_during_the_flight(tmp_path):
     port = _free_port()
     fly = subprocess.Popen(
@@ -326,6 +328,7 @@ def _listeners() -> list[tuple[str, int]]:
 
 
 # ------------------------------------------------------------------------------------------------ fleet
+@pytest.mark.slow
 def test_view_records_every_vehicle_on_zenoh_under_its_own_path(tmp_path):
     from companion.zenoh_io.session import zenoh_config
     from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry

@@ -15,6 +15,8 @@ import pytest
 
 from lab.faults import free_tcp_port
 
+pytestmark = pytest.mark.slow  # every test here flies a mission or a peer against the vehicle
+
 ROOT = Path(__file__).resolve().parents[1]
 ZCONF = ROOT / "config" / "zenoh"
 FOREST = ROOT / "config" / "missions" / "forest.toml"

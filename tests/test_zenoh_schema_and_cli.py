@@ -161,6 +161,7 @@ def _run(args: list[str], timeout: float = 40.0) -> subprocess.Popen:
                             stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.slow
 def test_listen_json_and_obstacles_publish_against_a_running_driver(tmp_path: Path) -> None:
     """listen --json prints the driver's samples; obstacles publish from a mission TOML reaches it."""
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
