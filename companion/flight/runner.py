@@ -28,7 +28,7 @@ from companion.flight.sequence_types import Transition
 from companion.mavlink_io.codec import send_set_attitude_target
 from companion.mavlink_io.commands import RequestLink
 from companion.mavlink_io.link import MavlinkLink
-from companion.mavlink_io.telemetry import decode
+from companion.mavlink_io.telemetry import TelemetryEvent, decode, decode_frame
 from companion.report.journal import Journal
 
 log = logging.getLogger(__name__)
@@ -90,6 +90,7 @@ class Runner:
             pilot.obstacles.use_source(w.obstacle_source)
         s = self.setup
         self.link = MavlinkLink(s.connect, self._on_message, tlog=s.tlog_path, sock=s.sock, signing_key=s.signing_key)
+        self.link.frame_handler = self._on_frame
         st = pilot.state
         self.requests = RequestLink(self.link.mav, lambda: (st.vehicle_sysid, st.vehicle_compid),
                                     lambda what: pilot.profile.mode_params(what))
@@ -130,11 +131,23 @@ class Runner:
         self.pilot.request_abort(reason)
 
     # ------------------------------------------------------------------ input
+    def _on_frame(self, frame: bytes) -> None:
+        """A CRC-checked unsigned frame (the link's fast path): decoded straight to its typed event."""
+        ev = decode_frame(frame)
+        if ev is None:
+            self.pilot.on_unread_frame(frame[5], frame[6], frame[4])
+            return
+        self._on_event(ev)
+
     def _on_message(self, msg: Any) -> None:
+        """A message pymavlink decoded (signed frames, and anything off the fast path)."""
         ev = decode(msg)
         if ev is None:
             self.pilot.on_unread_frame(msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq())
             return
+        self._on_event(ev)
+
+    def _on_event(self, ev: TelemetryEvent) -> None:
         arrival = self.pilot.on_telemetry(ev, time.monotonic())
         if arrival.vehicle_found:
             self.link.lock_to_last_sender()

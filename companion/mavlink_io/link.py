@@ -43,7 +43,7 @@ from companion.disk_writer import DiskWriter
 from companion.errors import ConfigError, LinkError
 from companion.mavlink_io import signing
 from companion.mavlink_io.codec import STX_V2 as _STX_V2
-from companion.mavlink_io.codec import FrameError, crc_extra_of, decode_lite
+from companion.mavlink_io.codec import FrameError, check_crc, crc_extra_of, decode_lite
 
 log = logging.getLogger(__name__)
 
@@ -204,6 +204,8 @@ class MavlinkLink:
         self.last_rx_wall = 0.0  # monotonic time of the last datagram accepted from the vehicle's address
         self._tlog = TlogWriter(tlog) if tlog else None
         self.on_datagram_done: Callable[[], None] | None = None  # called after each datagram's messages
+        #: set: the unsigned frames of the fast path (CRC checked) go here as bytes instead of to ``handler``
+        self.frame_handler: Callable[[bytes], None] | None = None
 
     def _bind(self) -> socket.socket:
         """The link's socket: bound to the URL's port (udpin), an ephemeral local one (udpout), or the one given;
@@ -349,9 +351,12 @@ class MavlinkLink:
             if self._tlog is not None:  # one record per frame, even when a datagram carries several
                 self._tlog.write(frame)
             try:
-                self.handler(msg)
+                if msg is None:
+                    self.frame_handler(frame)
+                else:
+                    self.handler(msg)
             except Exception:  # a bug in a handler must not kill the socket; log it loudly
-                log.exception("handler failed on %s", msg.get_type())
+                log.exception("handler failed on message %d", frame[7] | (frame[8] << 8) | (frame[9] << 16))
         if self.on_datagram_done is not None:
             self.on_datagram_done()
 
@@ -371,6 +376,12 @@ class MavlinkLink:
             if end > n:
                 return None
             frame = data[i:end]
+            if self.frame_handler is not None:  # the caller decodes the checked frame itself: no message object
+                if not check_crc(frame, frame[7] | (frame[8] << 8) | (frame[9] << 16)):
+                    return None
+                out.append((frame, None))
+                i = end
+                continue
             try:
                 msg = decode_lite(frame)
             except Exception:  # FrameError, or a value pymavlink's constructor refuses
