@@ -377,3 +377,24 @@ def test_decode_fields_gives_pymavlink_values_in_wire_order_and_checks_crc() -> 
     bad[12] ^= 0x55
     with pytest.raises(mf.FrameError):
         mf.decode_fields(bytes(bad))
+
+
+def test_link_hands_checked_frames_to_a_frame_handler_and_bad_ones_to_pymavlink() -> None:
+    """With ``frame_handler`` set, the fast path passes each CRC-valid frame as bytes (the runner decodes it to a typed
+    event, the same event pymavlink's message gives); a frame with a broken CRC is not handed over but goes the slow
+    way, where pymavlink refuses it and it is counted."""
+    from companion.mavlink_io.telemetry import decode, decode_frame
+
+    data = _vehicle_datagram()
+    link, got, _ = _link()
+    frames: list[bytes] = []
+    link.frame_handler = frames.append
+    link._on_datagram(data, ("127.0.0.1", 14580))
+    assert got == [] and b"".join(frames) == data and len(frames) == 5
+    ref = list(M.MAVLink(None).parse_buffer(data))
+    assert [decode_frame(f) for f in frames] == [decode(m) for m in ref]
+    bad = bytearray(frames[0])
+    bad[-1] ^= 0xFF
+    link._on_datagram(bytes(bad), ("127.0.0.1", 14580))
+    assert len(frames) == 5 and got == [] and sum(link.rejected.values()) == 1
+    link.close()
