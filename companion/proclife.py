@@ -88,19 +88,26 @@ def preexec(sig: int = signal.SIGKILL) -> Callable[[], None] | None:
 
 
 @contextlib.contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """Within: SIGTERM raises ``KeyboardInterrupt`` in the main thread, as Ctrl-C does, so that a command's
-    clean stop on Ctrl-C (which stops its children) runs for ``kill PID`` too; Python's default for SIGTERM
-    is to die at once and leave them. Does nothing outside the main thread."""
-    def interrupt(_signum: int, _frame: object) -> None:
-        raise KeyboardInterrupt("terminated (SIGTERM)")
-
+def signals_handled(handler: Callable[[int, object], None] | int, *signums: int) -> Iterator[None]:
+    """Within: ``signums`` go to ``handler`` (a function or ``signal.SIG_IGN``); the old handlers come back after.
+    Does nothing outside the main thread (only the main thread may set handlers; there its owner stops it)."""
     try:
-        old = signal.signal(signal.SIGTERM, interrupt)
+        old = {s: signal.signal(s, handler) for s in signums}
     except ValueError:  # not the main thread
         yield
         return
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def sigterm_as_interrupt() -> contextlib.AbstractContextManager[None]:
+    """Within: SIGTERM raises ``KeyboardInterrupt`` in the main thread, as Ctrl-C does, so that a command's
+    clean stop on Ctrl-C (which stops its children) runs for ``kill PID`` too; Python's default for SIGTERM
+    is to die at once and leave them. Does nothing outside the main thread."""
+    def interrupt(_signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt("terminated (SIGTERM)")
+
+    return signals_handled(interrupt, signal.SIGTERM)

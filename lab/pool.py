@@ -33,7 +33,7 @@ import signal
 import sys
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -157,18 +157,9 @@ def kill_descendants(extra: list[int] | None = None) -> int:
     return len(frozen)
 
 
-@contextlib.contextmanager
-def _no_sigint() -> Iterator[None]:
+def _no_sigint() -> contextlib.AbstractContextManager[None]:
     """A second Ctrl-C must not interrupt the clean-up of the first."""
-    try:
-        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, old)
+    return proclife.signals_handled(signal.SIG_IGN, signal.SIGINT)
 
 
 def run_jobs(jobs: list[Job], workers: int, progress: bool = True, log_level: int = logging.ERROR,

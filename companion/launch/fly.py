@@ -9,7 +9,6 @@ import contextlib
 import dataclasses
 import logging
 import signal
-import threading
 import time
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
@@ -27,6 +26,7 @@ from companion.flight.realtime import RealtimeRunner
 from companion.flight.runner import Runner, Wiring
 from companion.launch.narrate import Narrator
 from companion.launch.spec import DEFAULT_GAINS_NAME, FlySpec
+from companion.proclife import signals_handled
 from companion.report.run_folder import write_run
 
 log = logging.getLogger(__name__)
@@ -128,15 +128,8 @@ def _run_blocking(runner: LockstepRunner) -> None:
     def on_signal(signum: int, _frame: Any) -> None:
         runner.request_abort("terminated (SIGTERM)" if signum == signal.SIGTERM else "operator abort (Ctrl-C)")
 
-    if threading.current_thread() is not threading.main_thread():  # a worker thread (Dask): its owner stops it
+    with signals_handled(on_signal, signal.SIGINT, signal.SIGTERM):  # off the main thread: its owner stops it
         runner.run()
-        return
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        runner.run()
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
 
 
 async def _run_async(runner: RealtimeRunner) -> None:
