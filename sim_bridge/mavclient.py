@@ -19,6 +19,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion import proclife
+
 M = mavlink2
 
 
@@ -155,7 +157,8 @@ def spawn_vehicle(*extra_args: str, ready_timeout_s: float = 30.0,
            "--gcs-remote", f"127.0.0.1:{sink}", "--onboard-remote", f"127.0.0.1:{sink}", *extra_args]
     # a file, not a pipe: a chatty vehicle must never block; closed with the process object
     errlog = tempfile.TemporaryFile(mode="w+")  # noqa: SIM115
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errlog, text=True, env=env, cwd=cwd)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=errlog, text=True, env=env, cwd=cwd,
+                            preexec_fn=proclife.preexec())  # dies with whoever spawned it, SIGKILL included
     proc.errlog = errlog  # type: ignore[attr-defined]
     end = time.monotonic() + ready_timeout_s
     line = ""

@@ -30,7 +30,8 @@ PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "c
 IO_FRAMEWORKS = ("asyncio", "pymavlink", "zenoh", "socket")
 #: What the bundled vehicle may use of the companion: the shared model and MAVLink helpers.
 SIM_MAY_IMPORT = ("companion.core", "companion.mavlink_io.codec", "companion.mavlink_io.signing",
-                  "companion.autopilots", "companion.errors", "companion.config", "companion")
+                  "companion.autopilots", "companion.errors", "companion.config", "companion",
+                  "companion.proclife")  # children tied to their parent's life (no I/O of its own)
 
 
 def _module_name(path: Path) -> str:
