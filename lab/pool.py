@@ -82,13 +82,21 @@ class Progress:
         self.stream.flush()
 
 
-def _worker_init(level: int, parent_pid: int) -> None:
+def _worker_init(level: int, parent_pid: int, counter: Any = None) -> None:
     """Pool worker set-up: tied to the pool's process ``parent_pid`` (it dies with it, SIGKILL included, and
     so do the vehicles it started: :mod:`companion.proclife`), logging, and out of the terminal's reach
     (SIGINT ignored, own process group), so that Ctrl-C is the parent's to handle. (A MAVLink flight still
     installs its own SIGINT handler while it flies; the own process group is what keeps a terminal's Ctrl-C
     away from it.)"""
     proclife.die_with_parent(parent_pid)
+    if counter is not None:  # worker k on CPU k (mod the CPUs): its lockstep pairs then never share one
+        with counter.get_lock():
+            k = counter.value
+            counter.value += 1
+        cpus = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+        if len(cpus) > 1:
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(0, {cpus[k % len(cpus)]})
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     logging.getLogger().setLevel(level)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -206,7 +214,7 @@ def _run_pool(jobs: list[Job], workers: int, log_level: int, fn: Callable[[Job],
     ctx = multiprocessing.get_context("spawn")
     # the workers are started from this thread (submit, spawn context), which lives as long as the pool
     pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init,
-                                  initargs=(log_level, os.getpid()))
+                                  initargs=(log_level, os.getpid(), ctx.Value("i", 0)))
     futs: list[cf.Future] = []
     try:
         futs = [pool.submit(fn, j) for j in jobs]

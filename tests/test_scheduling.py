@@ -202,3 +202,27 @@ def test_a_loop_that_keeps_the_gil_is_not_taken_for_a_stopped_process():
     assert tracer.traced.wait(10.0)
     tracer.stop()
     assert tracer.traces[0]["where"].startswith("the loop thread kept the GIL"), tracer.traces
+
+
+def test_a_lockstep_pair_is_pinned_to_the_cpu_it_runs_on_and_a_child_inherits_it():
+    """pin_to_one_cpu narrows this process to one CPU (the vehicle it starts next inherits it: checked in a real
+    child), and restore_affinity gives the old set back."""
+    import os
+    import subprocess
+    import sys
+
+    from companion.flight.scheduling import pin_to_one_cpu, restore_affinity
+
+    before = os.sched_getaffinity(0)
+    cpu, old = pin_to_one_cpu()
+    try:
+        if len(before) < 2:
+            assert (cpu, old) == (None, None)  # one CPU: nothing to pin
+            return
+        assert old == before and os.sched_getaffinity(0) == {cpu}
+        child = subprocess.run([sys.executable, "-c", "import os; print(sorted(os.sched_getaffinity(0)))"],
+                               capture_output=True, text=True, check=True)
+        assert child.stdout.strip() == str([cpu])
+    finally:
+        restore_affinity(old)
+    assert os.sched_getaffinity(0) == before

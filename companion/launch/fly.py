@@ -24,6 +24,7 @@ from companion.flight.lockstep import LockstepRunner
 from companion.flight.pilot import Pilot
 from companion.flight.realtime import RealtimeRunner
 from companion.flight.runner import Runner, Wiring
+from companion.flight.scheduling import pin_to_one_cpu, restore_affinity
 from companion.launch.narrate import Narrator
 from companion.launch.spec import DEFAULT_GAINS_NAME, FlySpec
 from companion.proclife import signals_handled
@@ -91,6 +92,11 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
             if spec.zenoh is not None:
                 wiring.on_connected = _zenoh_hook(spec, mission, sync_stack, zt_holder, view)
             if spec.sitl:
+                if setup.lockstep and spec.pin_lockstep:  # the vehicle inherits it; undone when the flight ends
+                    cpu, old_affinity = pin_to_one_cpu()
+                    stack.callback(restore_affinity, old_affinity)
+                    if cpu is not None:
+                        log.info("lockstep: companion and vehicle pinned to CPU %d", cpu)
                 setup = await _start_sitl(spec, setup, mission, run_dir, stack)
             if spec.narrate:
                 wiring.sinks.append(Narrator(lockstep=setup.lockstep))

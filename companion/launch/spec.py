@@ -33,7 +33,9 @@ class FlySpec:
     for it); ``run_dir``: the run folder (None: a new one under ``runs/``); ``report``: also write the report here;
     ``plots``: the run folder's figures; ``narrate``: the terminal narration; ``zenoh``: publish and listen on
     Zenoh (None: not at all); ``view``: a recording/live-view session factory ``view(mission, run_dir)`` (None: no
-    recording); ``config_facts(run)``: the effective configuration for Zenoh's ``config`` queryable.
+    recording); ``config_facts(run)``: the effective configuration for Zenoh's ``config`` queryable;
+    ``pin_lockstep``: with ``sitl`` in lockstep, run the companion and the vehicle on one CPU (the one the companion
+    runs on when the flight starts; :func:`companion.flight.scheduling.pin_to_one_cpu`).
     """
 
     setup: FlightSetup
@@ -46,3 +48,4 @@ class FlySpec:
     zenoh: ZenohSpec | None = None
     view: Callable[[Any, Path], Any] | None = None
     config_facts: Callable[[Any], dict[str, Any]] | None = None
+    pin_lockstep: bool = True
