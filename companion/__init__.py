@@ -6,10 +6,12 @@ Subpackages, one concern each (data flows telemetry → estimate → plan → co
 * ``estimation``: vehicle state from telemetry, swing estimation (pure);
 * ``planning``, ``control``: planners and controllers (pure);
 * ``autopilots``: what PX4, ArduPilot and the bundled vehicle mean by modes, thrust and readiness (pure tables);
-* ``flight``: the per-tick flight core, the flight sequence and the asyncio app around them;
-* ``mavlink_io``, ``zenoh_io``: thin I/O shells (MAVLink over UDP, Zenoh streams);
+* ``flight``: the pilot (pure: the flight sequence, its failsafes, the per-tick flight core) and its two thin
+  runners (real time on asyncio; lockstep, a blocking loop);
+* ``launch``: the typed flight run (``FlySpec``) and ``fly_mission``, the bundled vehicle's launcher;
+* ``mavlink_io``, ``zenoh_io``: thin I/O shells (MAVLink over UDP and its typed telemetry, Zenoh streams);
 * ``report``: flight logs, metrics, the run folder and its plots;
-* ``cli``: the ``slungpilot`` command line, benchmarks and the launcher of the bundled vehicle.
+* ``cli``: the ``slungpilot`` command line (flags → ``FlySpec``) and benchmarks.
 
 ``config`` (the project's ``config/`` folder) ships as the package ``companion.configs``.
 """
