@@ -408,3 +408,43 @@ def test_mission_wall_clock_timeout_when_vehicle_time_stands_still():
     h.run_until(lambda: h.seq.state == State.MISSION)
     h.run_until(lambda: h.seq.finished, max_s=10)
     assert h.seq.outcome == "timeout"
+
+
+def test_a_takeover_refused_in_the_air_holds_the_core_where_it_is():
+    """Entry actions run on entering a state: a vehicle already flying whose OFFBOARD is refused goes to HOLD, and
+    the flight core is told to hold where its reference is in that very step. (Before, the order was tied to
+    'time in state == 0.0' inside HOLD's own handler, which does not run in the step a takeover's failure enters
+    HOLD: the core never heard it and flew on with the mission.)"""
+    h = _harness()
+    h.ap.armed, h.ap.on_ground, h.ap.refuse = True, False, {"mode:offboard": 4}
+    orders = []
+    while h.seq.state != State.HOLD:
+        assert h.ap.t < 30.0, h.seq.transitions
+        h.ap.advance(DT)
+        obs = Observation(now_s=h.ap.t, wall_s=h.ap.t, heartbeat_wall_s=h.ap.last_hb, telemetry_wall_s=h.ap.last_tel,
+                          telemetry_ready=True, vehicle_ready=True, armed=h.ap.armed, mode=h.ap.shown_mode,
+                          on_ground=h.ap.on_ground, heartbeats=h.ap.heartbeats, estimate_ok=True)
+        st = h.seq.step(obs)
+        for r in st.send:
+            h.ap.handle(h.seq, r)
+        orders.append((h.seq.state, st.core))
+    assert h.seq.outcome == "refused" and orders[-1] == (State.HOLD, "hold_here")  # CoreOrder.HOLD_HERE
+    assert [o for _, o in orders[:-1]] == [None] * (len(orders) - 1)
+
+
+def test_invalid_estimate_spells_shorter_than_the_limit_are_each_forgiven():
+    """Two invalid-estimate spells of 0.2 s (limit 0.3 s) a second apart are not a failure: the timer starts again
+    with each spell. (Before, it was only ever reset when it was not consulted, so the second spell failed at once.)"""
+    h = _harness()
+    h.run_until(lambda: h.seq.state == State.MISSION)
+    for _ in range(2):
+        h.estimate_ok = False
+        for _ in range(round(0.2 / DT)):
+            h.step()
+        h.estimate_ok = True
+        for _ in range(round(1.0 / DT)):
+            h.step()
+    assert h.seq.state == State.MISSION and h.seq.outcome == "running"
+    h.estimate_ok = False  # a spell past the limit still holds
+    h.run_until(lambda: h.seq.state == State.HOLD, max_s=1.0)
+    assert h.seq.outcome == "invalid_estimate"
