@@ -102,3 +102,15 @@ def test_the_readme_live_obstacle_example_changes_the_path(tmp_path):
     pos = np.load(tmp_path / "run" / "flight_log.npz")["pos_ned_m"]
     near = np.abs(pos[:, 0] - 6.0) < 0.5
     assert np.max(np.abs(pos[near, 1] - 0.1)) > 0.3 + 0.28, "no detour around the published trunk"
+
+
+@pytest.mark.slow
+def test_bench_fly_flies_this_tree_and_another_interleaved():
+    """`bench fly --against DIR` flies real `fly --sitl` commands of this checkout and of DIR, one after the other
+    (here DIR is this tree again): a line of numbers each, the goal reached."""
+    proc = subprocess.run([sys.executable, "-m", "companion.cli.main", "bench", "fly", "--repeats", "1", "--against",
+                           str(ROOT)], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = [ln for ln in proc.stdout.splitlines() if "end to end" in ln and "in flight" in ln]
+    assert [ln.split(":")[0].strip() for ln in lines] == ["this", str(ROOT)]
+    assert all("goal: True" in ln for ln in lines)
