@@ -19,7 +19,6 @@ class LoopStats:
     late_ticks: int = 0
     preempted_ticks: int = 0  # ticks during which the kernel switched the control thread out
     scheduling: str = "SCHED_OTHER"  # what the control thread ran as
-    tick_errors: int = 0
     ingest_errors: int = 0
     watchdog_steps: int = 0
     tick_s: list[float] = field(default_factory=list)
@@ -63,7 +62,6 @@ class LoopStats:
             "late_ticks": self.late_ticks,
             "preempted_ticks": self.preempted_ticks,
             "scheduling": self.scheduling,
-            "tick_errors": self.tick_errors,
             "ingest_errors": self.ingest_errors,
             "watchdog_steps": self.watchdog_steps,
             "jitter_ms_p99": float(np.percentile(np.abs(j), 99) * 1e3),

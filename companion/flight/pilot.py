@@ -71,7 +71,6 @@ class TickOut:
     stream: Stream
     est: Estimate | None
     cmd: Command | None
-    watchdog: bool
 
 
 @dataclass(frozen=True, slots=True)
@@ -107,7 +106,6 @@ class Pilot:
         self.obstacles = ObstacleView(mission.obstacles)
         self.params: dict[str, dict[str, float]] = {"read": {}, "set": {}}  # the autopilot parameters read/set
         self.abort_reason: str | None = None
-        self.last_cmd: Command | None = None
         self.tick_errors = 0
         self.tick_errors_in_row = 0
         self._tracking_error_m = 0.0  # distance from the last command's reference (m, the sequence's divergence)
@@ -231,9 +229,9 @@ class Pilot:
             start_error_m=start_error_m, tracking_error_m=self._tracking_error_m,
         )
 
-    def tick(self, wall_s: float, watchdog: bool = False) -> TickOut:
-        """One control tick at monotonic time ``wall_s`` (s): observe → sequence → (flight core) → setpoint.
-        ``watchdog``: a step made because ticks stopped (the runner sends no setpoint)."""
+    def tick(self, wall_s: float) -> TickOut:
+        """One control tick at monotonic time ``wall_s`` (s): observe → sequence → (flight core) → setpoint. A
+        runner's watchdog step is a tick whose setpoint it does not send."""
         est: Estimate | None = None
         cmd: Command | None = None
         setpoint: Setpoint | None = None
@@ -262,7 +260,7 @@ class Pilot:
                           self.tick_errors, exc, exc_info=self.tick_errors == 1)
             setpoint = self._recent_valid(wall_s) if stream in (Stream.CORE, Stream.DESCENT) else None
             cmd = None
-        return TickOut(send, setpoint, stream, est, cmd, watchdog)
+        return TickOut(send, setpoint, stream, est, cmd)
 
     def _setpoint(self, stream: Stream, est: Estimate | None, wall_s: float) -> tuple[Setpoint | None, Command | None]:
         """What to stream for ``stream``: the core's command, the last valid one (briefly, while the estimate is
@@ -279,7 +277,6 @@ class Pilot:
                 self.record.log.goal_tol_m = self.core.arrival["tolerance_m"]
             self.swing_feed.commanded(est.t_s, cmd.thrust_n)
             self._tracking_error_m = math.dist(est.pos_ned_m, cmd.ref_pos_ned_m)
-            self.last_cmd = cmd
             return Setpoint(est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm), cmd
         if stream is Stream.IDLE:
             yaw = float(est.euler_rad[2]) if est is not None else 0.0

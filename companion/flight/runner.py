@@ -165,7 +165,7 @@ class Runner:
         switches = involuntary_switches()
         wall = time.monotonic()
         self._last_tick_wall = wall
-        out = self.pilot.tick(wall, watchdog)
+        out = self.pilot.tick(wall)
         computed = time.perf_counter()
         computed_cpu = time.thread_time()
         preempted = involuntary_switches() > switches
@@ -286,8 +286,8 @@ class Runner:
     # ------------------------------------------------------------------ the report's view
     def loop_facts(self, provisional: bool = False) -> dict[str, Any]:
         """The loop's timing (``loop`` in the report); the subclass adds its own."""
-        self.stats.tick_errors = self.pilot.tick_errors
-        return self.stats.summary(PROVISIONAL_WINDOW_TICKS if provisional else None) | self.gc_pacer.summary()
+        return (self.stats.summary(PROVISIONAL_WINDOW_TICKS if provisional else None)
+                | {"tick_errors": self.pilot.tick_errors} | self.gc_pacer.summary())
 
     def run_facts(self, provisional: bool = False) -> dict[str, Any]:
         """What happened, for the report; ``provisional``: for the journal's provisional report, made every second,
