@@ -14,6 +14,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import psutil
@@ -92,6 +93,22 @@ def _kill_all(proc: subprocess.Popen, kids: list[psutil.Process]) -> None:
     if proc.stdout is not None:
         proc.stdout.close()
 
+def _sigkill_leaves_nothing(proc: subprocess.Popen, vehicles: int, timeout_s: float,
+                            before_kill: Callable[[], None] | None = None) -> None:
+    """Wait until ``proc`` has ``vehicles`` bundled vehicles among its descendants, SIGKILL it, and assert that every
+    descendant seen is gone (cleaning up after a failure either way)."""
+    kids: list[psutil.Process] = []
+    try:
+        if before_kill is not None:
+            before_kill()
+        kids = _wait_for_descendants(proc, lambda cmds: sum("sim_bridge" in c for c in cmds) >= vehicles, timeout_s)
+        proc.kill()
+        proc.wait(5)
+        assert _survivors(kids) == []
+    finally:
+        _kill_all(proc, kids)
+
+
 
 # ------------------------------------------------------------------------------------------------ the helper
 def test_a_tied_child_dies_with_its_parent_killed_and_one_started_too_late_exits(tmp_path):
@@ -126,15 +143,8 @@ def test_fly_sitl_killed_takes_its_vehicle_with_it(tmp_path):
     err = tmp_path / "stderr.txt"
     proc = _start("fly", "--sitl", "--no-zenoh", "--no-plots", "--no-recording", "--run-dir", str(tmp_path / "run"),
                   stderr=err)
-    kids: list[psutil.Process] = []
-    try:
-        _first_line(proc, "connected", err)  # the narration's first line: the vehicle answered
-        kids = _wait_for_descendants(proc, lambda cmds: any("sim_bridge" in c for c in cmds), 10.0)
-        proc.kill()
-        proc.wait(5)
-        assert _survivors(kids) == []
-    finally:
-        _kill_all(proc, kids)
+    # the narration's first line: the vehicle answered
+    _sigkill_leaves_nothing(proc, 1, 10.0, before_kill=lambda: _first_line(proc, "connected", err))
 
 
 # ------------------------------------------------------------------------------------------------ evaluate
@@ -144,14 +154,7 @@ def test_evaluate_killed_takes_its_workers_and_their_vehicles_with_it(tmp_path):
     fly: workers and vehicles go."""
     proc = _start("evaluate", "--n", "4", "--planners", "safe", "--workers", "2", "--mode", "mavlink",
                   "--timeout", "30", "--no-progress", "--out", str(tmp_path / "eval"), stderr=tmp_path / "stderr.txt")
-    kids: list[psutil.Process] = []
-    try:
-        kids = _wait_for_descendants(proc, lambda cmds: sum("sim_bridge" in c for c in cmds) >= 2, 60.0)
-        proc.kill()
-        proc.wait(5)
-        assert _survivors(kids) == []
-    finally:
-        _kill_all(proc, kids)
+    _sigkill_leaves_nothing(proc, 2, 60.0)
 
 
 # ------------------------------------------------------------------------------------------------ replay --web
@@ -193,11 +196,4 @@ def test_replay_web_stopped_stops_its_viewer(recording, sig, tmp_path):
 def test_fleet_killed_takes_its_companions_and_their_vehicles_with_it(tmp_path):
     """``fleet 2`` SIGKILLed while its pairs fly in real time: every companion and vehicle goes."""
     proc = _start("fleet", "2", "--rt-priority", "0", "--run-dir", str(tmp_path / "fleet"), stderr=tmp_path / "err.txt")
-    kids: list[psutil.Process] = []
-    try:
-        kids = _wait_for_descendants(proc, lambda cmds: sum("sim_bridge" in c for c in cmds) >= 2, 60.0)
-        proc.kill()
-        proc.wait(5)
-        assert _survivors(kids) == []
-    finally:
-        _kill_all(proc, kids)
+    _sigkill_leaves_nothing(proc, 2, 60.0)
