@@ -110,30 +110,28 @@ def _untyped(msgs: list[Any]) -> float:
 
 
 def _typed(msgs: list[Any], decode: Any, source: Any) -> float:
-    """Seconds for what ``Runner._on_message`` + ``Pilot.on_telemetry`` do per message (less the answers)."""
-    state, feed, req, health = _consumers()
-    marker = -1
+    """Seconds for what ``Runner._on_message`` / ``Runner._on_frame`` do per message: decode, then the flight's own
+    :meth:`~companion.flight.pilot.Pilot.on_telemetry` (or ``on_unread_frame``), and the answer check."""
+    from pymavlink.dialects.v20 import common as M
+
+    from companion.config import resolve_mission
+    from companion.core.mission import load_mission
+    from companion.flight.health import LockstepClock
+    from companion.flight.pilot import Pilot
+    from companion.flight.setup import FlightSetup
+    from companion.mavlink_io.commands import RequestLink
+
+    pilot = Pilot(load_mission(resolve_mission("forest")), FlightSetup(lockstep=True), LockstepClock())
+    st = pilot.state
+    req = RequestLink(M.MAVLink(_Sink()), lambda: (st.vehicle_sysid, st.vehicle_compid), lambda w: [0.0])
     t0 = time.process_time()
     for msg in msgs:
         wall = time.monotonic()
         ev = decode(msg)
         if ev is None:
-            src, comp, seq = source(msg)
-            if src == state.vehicle_sysid:
-                health.on_frame(src, comp, seq)
+            pilot.on_unread_frame(*source(msg))
             continue
-        kind = state.ingest(ev, wall)
-        if kind != "REJECTED":
-            feed.ingest(ev, state)
-        src = ev.src_system
-        if src == state.vehicle_sysid:
-            health.on_frame(src, ev.src_component, ev.seq)
-            if kind == "LOCAL_POSITION_NED":
-                health.on_sample("position", state.pos_t_s)
-            elif kind == "ATTITUDE":
-                health.on_sample("attitude", state.att_t_s)
-            elif kind == "SYSTEM_TIME" and ev.t_boot_ms != marker:
-                marker = ev.t_boot_ms
+        pilot.on_telemetry(ev, wall)
         req.answer_of(ev)
     return time.process_time() - t0
 
