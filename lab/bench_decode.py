@@ -116,12 +116,11 @@ def _typed(msgs: list[Any], decode: Any, source: Any) -> float:
 
     from companion.config import resolve_mission
     from companion.core.mission import load_mission
-    from companion.flight.health import LockstepClock
     from companion.flight.pilot import Pilot
     from companion.flight.setup import FlightSetup
     from companion.mavlink_io.commands import RequestLink
 
-    pilot = Pilot(load_mission(resolve_mission("forest")), FlightSetup(lockstep=True), LockstepClock())
+    pilot = Pilot(load_mission(resolve_mission("forest")), FlightSetup(lockstep=True))
     st = pilot.state
     req = RequestLink(M.MAVLink(_Sink()), lambda: (st.vehicle_sysid, st.vehicle_compid), lambda w: [0.0])
     t0 = time.process_time()

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from companion.config import resolve_mission
 from companion.core.mission import load_mission
-from companion.flight.health import LockstepClock
 from companion.flight.phase import State
 from companion.flight.pilot import Pilot
 from companion.flight.setup import FlightSetup
@@ -20,7 +19,7 @@ MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_PX4 = 2, 12
 
 
 def _pilot() -> Pilot:
-    return Pilot(load_mission(resolve_mission("forest")), FlightSetup(lockstep=True), LockstepClock())
+    return Pilot(load_mission(resolve_mission("forest")), FlightSetup(lockstep=True))
 
 
 def _heartbeat(seq: int = 0) -> tm.Heartbeat:

@@ -26,10 +26,11 @@ HOUSEKEEPING_S = 1.0
 class LockstepRunner(Runner):
     """Fly the pilot's mission against a lockstep vehicle: ``outcome = LockstepRunner(pilot, wiring).run()``."""
 
+    lockstep = True
+
     def __init__(self, pilot: Pilot, wiring: Wiring | None = None) -> None:
-        if not isinstance(pilot.clock, LockstepClock):
-            raise ValueError("the lockstep runner needs a pilot on a LockstepClock")
         super().__init__(pilot, wiring)
+        assert isinstance(pilot.clock, LockstepClock)
         self.clock: LockstepClock = pilot.clock
         self.link.on_datagram_done = self._on_datagram_done
         self._done = False

@@ -85,10 +85,11 @@ class Arrival:
 class Pilot:
     """One mission flown: feed it messages and answers, tick it, send what it returns."""
 
-    def __init__(self, mission: Mission, setup: FlightSetup, clock: RealtimeClock | LockstepClock) -> None:
+    def __init__(self, mission: Mission, setup: FlightSetup) -> None:
         self.mission = mission
         self.setup = setup
-        self.clock = clock
+        #: how the sequence sees time: the vehicle's in lockstep, the wall clock otherwise (its runner feeds it)
+        self.clock: RealtimeClock | LockstepClock = LockstepClock() if setup.lockstep else RealtimeClock()
         self.state = VehicleState(
             cable_length_m=mission.vehicle.l, payload_sysid=setup.payload_sysid, swing_input=setup.swing_input,
             max_time_rate=1e4 if setup.lockstep else 2.0,

@@ -28,10 +28,11 @@ log = logging.getLogger(__name__)
 class RealtimeRunner(Runner):
     """Fly the pilot's mission in real time: ``outcome = await RealtimeRunner(pilot, wiring).run()``."""
 
+    lockstep = False
+
     def __init__(self, pilot: Pilot, wiring: Wiring | None = None) -> None:
-        if not isinstance(pilot.clock, RealtimeClock):
-            raise ValueError("the real-time runner needs a pilot on a RealtimeClock")
         super().__init__(pilot, wiring)
+        assert isinstance(pilot.clock, RealtimeClock)
         self.clock: RealtimeClock = pilot.clock
         self.stall_tracer = StallTracer()
         self._done = asyncio.Event()

@@ -78,7 +78,12 @@ class Wiring:
 class Runner:
     """The part of a runner that does not depend on when it ticks. Subclasses call :meth:`_tick`."""
 
+    lockstep: bool  #: which flights a subclass runs (the pilot's set-up must say the same)
+
     def __init__(self, pilot: Pilot, wiring: Wiring | None = None) -> None:
+        if pilot.setup.lockstep is not self.lockstep:
+            raise ValueError(f"{type(self).__name__} runs {'lockstep' if self.lockstep else 'real-time'} flights; "
+                             f"the pilot was set up with lockstep={pilot.setup.lockstep}")
         self.pilot = pilot
         self.setup = pilot.setup
         w = wiring or Wiring()

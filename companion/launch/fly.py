@@ -19,7 +19,6 @@ from companion.config import shipped_config
 from companion.control.params import ControllerConfig, load_controller_config
 from companion.core.mission import Mission
 from companion.errors import ConfigError
-from companion.flight.health import LockstepClock, RealtimeClock
 from companion.flight.lockstep import LockstepRunner
 from companion.flight.pilot import Pilot
 from companion.flight.realtime import RealtimeRunner
@@ -100,7 +99,7 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
                 setup = await _start_sitl(spec, setup, mission, run_dir, stack)
             if spec.narrate:
                 wiring.sinks.append(Narrator(lockstep=setup.lockstep))
-            pilot = Pilot(mission, setup, LockstepClock() if setup.lockstep else RealtimeClock())
+            pilot = Pilot(mission, setup)
             try:
                 if setup.lockstep:
                     runner = LockstepRunner(pilot, wiring)
