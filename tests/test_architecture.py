@@ -26,12 +26,14 @@ PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "c
                  "companion.flight.mode_goal", "companion.flight.setup", "companion.flight.mission_frame",
                  "companion.flight.obstacle_view", "companion.flight.flight_record", "companion.flight.facts",
                  "companion.flight.loop_stats", "companion.flight.arrival", "companion.flight.command",
-                 "companion.report.scoring")
+                 "companion.report.scoring",
+                 "companion.perception")  # scans into a local map: sockets and sessions feed it from outside
 IO_FRAMEWORKS = ("asyncio", "pymavlink", "zenoh", "socket")
 #: What the bundled vehicle may use of the companion: the shared model and MAVLink helpers.
 SIM_MAY_IMPORT = ("companion.core", "companion.mavlink_io.codec", "companion.mavlink_io.signing",
                   "companion.autopilots", "companion.errors", "companion.config", "companion",
-                  "companion.proclife")  # children tied to their parent's life (no I/O of its own)
+                  "companion.proclife",  # children tied to their parent's life (no I/O of its own)
+                  "companion.zenoh_io.schema")  # the Zenoh key expressions and payloads (the raw scan)
 
 
 def _module_name(path: Path) -> str:
