@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from companion.config import dataclass_from_table, read_toml
+from companion.core.fence import Fence
 from companion.core.model import VehicleParams, vehicle_params_with
 from companion.core.obstacles import Obstacle
 from companion.core.wind import WindConfig
@@ -121,6 +122,18 @@ class PayloadConfig:
 
 
 @dataclass(frozen=True)
+class Waypoint:
+    """A point the mission flies through on its way to the goal: NED metres (3,) in the mission frame;
+    ``hold_s`` (s) hovers there first (0: fly through without stopping); ``speed_max_mps`` limits the horizontal
+    speed of the leg that ends here (None: the planner's own limit); ``name`` for the report."""
+
+    pos_ned_m: np.ndarray
+    hold_s: float = 0.0
+    speed_max_mps: float | None = None
+    name: str = ""
+
+
+@dataclass(frozen=True)
 class Mission:
     """A validated mission (see module docstring for the file format). Arrays are NED metres, (3,)."""
 
@@ -137,6 +150,11 @@ class Mission:
     land: bool = True
     source_path: str = ""
     payload: PayloadConfig = field(default_factory=PayloadConfig)
+    #: the points flown through, in order, between the start and the goal (empty: straight to the goal); the
+    #: goal (``goal_ned_m``, hovered ``hold_s``) stays the last point of every mission
+    waypoints: tuple[Waypoint, ...] = ()
+    #: where the flight may and may not go (None: no fence)
+    fence: Fence | None = None
 
     def companion_params(self) -> VehicleParams:
         """The model the companion flies with: ``vehicle`` with ``[payload]``'s measured mass and cable length."""
