@@ -33,6 +33,10 @@ STATUS = "slungpilot.status"
 OBSTACLES = "slungpilot.obstacles"
 CONFIG = "slungpilot.config"
 OBSTACLES_IN = "slungpilot.obstacles_in"
+#: The raw 2-D range scan of the vehicle's LiDAR, published by the vehicle (the bundled one: ``sitl --world``)
+#: at ``<prefix>/<vehicle_id>/scan``; not one of the companion's own :data:`STREAMS`. See :func:`encode_scan`.
+SCAN = "slungpilot.scan"
+SCAN_KEY_NAME = "scan"
 
 STREAMS: dict[str, str] = {
     "swing": SWING,
@@ -172,6 +176,52 @@ def obstacles_body(obstacles: Sequence[Any], rejected_count: int, store_version:
         "rejected_count": int(rejected_count),
         "store_version": int(store_version),
     }
+
+
+def scan_key(prefix: str, vehicle_id: str) -> str:
+    """The key expression of a vehicle's raw scan: ``"slungpilot/1/scan"``."""
+    return f"{prefix}/{vehicle_id}/{SCAN_KEY_NAME}"
+
+
+def encode_scan(
+    seq: int, vehicle_id: str, t_s: float, wall_s: float, time_usec: int, angle_min_rad: float,
+    angle_increment_rad: float, range_min_m: float, range_max_m: float, ranges_m: Sequence[float] | np.ndarray,
+) -> bytes:
+    """One raw scan sample (schema :data:`SCAN`): the header, then
+
+    * ``time_usec`` (int, µs): the vehicle's boot time when the scan was taken (the clock of its MAVLink
+      telemetry's ``time_boot_ms`` / ``time_usec``); ``t_s`` is the same instant in seconds;
+    * ``frame`` = ``"body_frd"``: ray ``i`` lies in the airframe's x-y plane at the angle
+      ``angle_min_rad + i * angle_increment_rad`` (rad) from the airframe's forward axis, positive clockwise
+      seen from above (towards body +y, as MAVLink's BODY_FRD); the scan plane tilts with the airframe;
+    * ``angle_min_rad``, ``angle_increment_rad`` (rad), ``range_min_m``, ``range_max_m`` (m);
+    * ``ranges_m``: one per ray, the range (m) of the nearest return, or ``null`` when there is none;
+    * ``valid``: one bool per ray; ``false`` = the ray was not measured (a dropout), its range is ``null`` and
+      says nothing; ``true`` with a ``null`` range = measured, nothing within ``range_max_m`` (free to there).
+
+    ``ranges_m`` given here: a float per ray, ``+inf`` = no return within range, NaN = not measured (dropout);
+    :func:`scan_ranges` turns a decoded sample back into that array.
+    """
+    r = np.asarray(ranges_m, dtype=np.float64)
+    rng = ",".join(repr(float(x)) if math.isfinite(x) else "null" for x in r.tolist())
+    valid = ",".join("false" if math.isnan(x) else "true" for x in r.tolist())
+    text = (
+        _header_text(SCAN, seq, json.dumps(vehicle_id), t_s, wall_s)
+        + f',"time_usec":{int(time_usec)},"frame":"body_frd","angle_min_rad":{_num(angle_min_rad)},'
+        f'"angle_increment_rad":{_num(angle_increment_rad)},"range_min_m":{_num(range_min_m)},'
+        f'"range_max_m":{_num(range_max_m)},"ranges_m":[{rng}],"valid":[{valid}]}}'
+    )
+    return text.encode()
+
+
+def scan_ranges(sample: Mapping[str, Any]) -> np.ndarray:
+    """The ranges (m) of a decoded scan sample as floats: ``+inf`` = no return within range, NaN = not measured
+    (``valid`` false). Raises ``ValueError`` when ``ranges_m`` and ``valid`` are missing or differ in length."""
+    rng, valid = sample.get("ranges_m"), sample.get("valid")
+    if not isinstance(rng, list) or not isinstance(valid, list) or len(rng) != len(valid):
+        raise ValueError("ranges_m: expected two lists of the same length, ranges_m and valid")
+    out = [math.nan if not v else (math.inf if x is None else float(x)) for x, v in zip(rng, valid, strict=True)]
+    return np.array(out, dtype=np.float64)
 
 
 def decode(raw: bytes | str) -> dict[str, Any]:
