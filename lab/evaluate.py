@@ -343,6 +343,35 @@ def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=float, default=60.0, help="mission timeout (s of flight, default 60)")
     p.add_argument("--keep-runs", action="store_true", help="keep the run folders of successful missions too")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--envelope", action="store_true",
+                   help="fly the payload envelope instead: payload mass x cable length x wind over --n random forests "
+                        "per cell (4 trunks/100 m2, 6 m corridor unless --density/--width say otherwise; first "
+                        "planner of --planners, default shaped); writes envelope.md/.json/.png (lab/envelope.py)")
+    p.add_argument("--envelope-masses", default=None, metavar="KG,..", help="grid masses (default 0.1,0.25,0.5,0.8)")
+    p.add_argument("--envelope-cables", default=None, metavar="M,..", help="grid cable lengths (default 0.5,1,2,3)")
+    p.add_argument("--envelope-winds", default=None, metavar="NAME,..",
+                   help="grid winds: calm, paper (eq. 49), light (3 m/s mean), moderate (6 m/s mean); default all")
+
+
+def _run_envelope(args: argparse.Namespace, planner: str, out: Path) -> int:
+    """``evaluate --envelope``: the payload grid of :mod:`lab.envelope`; prints its table."""
+    from companion.errors import ConfigError
+    from lab.envelope import envelope, parse_grid
+
+    density = float(args.densities.split(",")[0]) if args.densities else (
+        args.density if args.density != 3.0 else 4.0)  # the grid's own default density is 4 trunks/100 m²
+    try:
+        cells = parse_grid(args.envelope_masses, args.envelope_cables, args.envelope_winds)
+        base = ForestSpec(density_per_100m2=density, width_m=args.width, length_m=args.length,
+                          timeout_s=args.timeout, planner=planner, controller=args.controller)
+        base.validate()
+    except ValueError as exc:
+        raise ConfigError(f"evaluate --envelope: {exc}") from None
+    envelope(cells, args.n, seed0=args.seed0, base=base, mode=args.mode, workers=args.workers, out=out,
+             progress=not args.no_progress)
+    print((out / "envelope.md").read_text())
+    print(f"written: {out}/envelope.md, envelope.json, envelope.png, results.jsonl")
+    return 0
 
 
 def run_evaluate(args: argparse.Namespace) -> int:
@@ -373,6 +402,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
         raise ConfigError("--n and --workers: must be >= 1")
     check_cluster(args.cluster)
     out = args.out or Path("runs") / f"evaluate-{datetime.now(UTC).strftime('%Y%m%d-%H%M%S')}"
+    if args.envelope:
+        return _run_envelope(args, planners[0], out)
     try:
         summary = evaluate(planners, densities, args.n, seed0=args.seed0, spec=spec, mode=args.mode,
                            workers=args.workers, out=out, progress=not args.no_progress, keep_runs=args.keep_runs,

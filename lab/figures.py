@@ -164,3 +164,33 @@ def plot_success_vs_density(summary: Mapping[str, Any], path: Path) -> Path:
     ax.legend(loc="best", fontsize=9)
     ax.set_title(f"{summary['n_per_planner_and_density']} forests per point, {summary['mode']} mode", fontsize=10)
     return _save(fig, path)
+
+
+def plot_envelope(summary: Mapping[str, Any], path: Path) -> Path:
+    """Heat maps of ``evaluate --envelope``: per wind (columns), payload mass × cable length of the clean rate,
+    the worst max swing (rad) and the median time over the physical bound (rows)."""
+    cells = summary["cells"]
+    winds = list(dict.fromkeys(c["wind"] for c in cells))
+    masses = sorted({c["mass_kg"] for c in cells})
+    cables = sorted({c["cable_m"] for c in cells})
+    rows = (("clean_rate", "clean rate", "RdYlGn", (0.0, 1.0)),
+            ("max_swing_worst_rad", "worst max swing (rad)", "magma_r", (0.0, 0.5)),
+            ("time_over_bound_median", "time / bound (median)", "viridis_r", (1.0, 3.0)))
+    fig, axes = plt.subplots(len(rows), len(winds), figsize=(3.2 * len(winds), 2.8 * len(rows)), squeeze=False)
+    for j, w in enumerate(winds):
+        for i, (key, label, cmap, (lo, hi)) in enumerate(rows):
+            grid = np.full((len(masses), len(cables)), np.nan)
+            for c in cells:
+                if c["wind"] == w and c.get(key) is not None:
+                    grid[masses.index(c["mass_kg"]), cables.index(c["cable_m"])] = c[key]
+            ax = axes[i][j]
+            im = ax.imshow(grid, cmap=cmap, vmin=lo, vmax=hi, origin="lower", aspect="auto")
+            for (a, b), v in np.ndenumerate(grid):
+                ax.text(b, a, "—" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", fontsize=7)
+            ax.set_xticks(range(len(cables)), [f"{v:g}" for v in cables])
+            ax.set_yticks(range(len(masses)), [f"{v:g}" for v in masses])
+            ax.set_xlabel("cable (m)")
+            ax.set_ylabel("payload (kg)")
+            ax.set_title(f"{w}: {label}", fontsize=9)
+            fig.colorbar(im, ax=ax, fraction=0.046)
+    return _save(fig, path)
