@@ -62,8 +62,16 @@ def _messages(rng: random.Random):
     yield (M.MAVLink_global_position_int_message(ms, lat, lon, alt, 3000, -250, 31, 7, 9000), tm.GlobalPositionInt,
            dict(t_boot_s=ms * 1e-3, lat_deg=lat * 1e-7, lon_deg=lon * 1e-7, alt_amsl_m=488.123,
                 vel_ned_mps=(-2.5, 0.31, 0.07)))
-    yield (M.MAVLink_home_position_message(1, 2, 3, a[0], a[1], a[2], [1, 0, 0, 0], 0, 0, 0, us), tm.HomePosition,
-           dict(pos_ned_m=tuple(a[:3])))
+    yield (M.MAVLink_home_position_message(lat, lon, alt, a[0], a[1], a[2], [1, 0, 0, 0], 0, 0, 0, us),
+           tm.HomePosition, dict(pos_ned_m=tuple(a[:3]), lat_deg=lat * 1e-7, lon_deg=lon * 1e-7, alt_amsl_m=488.123))
+    yield (M.MAVLink_gps_global_origin_message(lat, lon, alt, us), tm.GpsGlobalOrigin,
+           dict(lat_deg=lat * 1e-7, lon_deg=lon * 1e-7, alt_amsl_m=488.123))
+    n = rng.randint(0, 65535)
+    yield M.MAVLink_mission_count_message(1, 191, n, 1), tm.MissionCount, dict(count=n, mission_type=1)
+    yield M.MAVLink_mission_ack_message(1, 191, 13, 1), tm.MissionAck, dict(result=13, mission_type=1)
+    yield (M.MAVLink_mission_item_int_message(1, 191, n, 6, 16, 1, 1, a[0], a[1], a[2], math.nan, lat, lon, a[3], 0),
+           tm.MissionItemInt, dict(item_seq=n, frame=6, command=16, current=1, autocontinue=1, x=lat, y=lon, z=a[3],
+                                   mission_type=0))
     yield M.MAVLink_extended_sys_state_message(0, 2), tm.ExtendedSysState, dict(landed_state=2)
     yield M.MAVLink_system_time_message(us, ms), tm.SystemTime, dict(t_boot_ms=ms)
     yield (M.MAVLink_highres_imu_message(us, a[0], a[1], a[2], *a[3:6], 0, 0, 0, 1013.0, 0, 0, 25.0, 0x1FFF, 0),

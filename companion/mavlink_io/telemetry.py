@@ -99,10 +99,64 @@ class GlobalPositionInt(Sourced):
 
 @dataclass(frozen=True, slots=True)
 class HomePosition(Sourced):
-    """HOME_POSITION: home in the autopilot's local NED frame (m)."""
+    """HOME_POSITION: home in the autopilot's local NED frame (m), and as WGS-84 latitude and longitude (deg) and
+    altitude above mean sea level (m)."""
 
     message: ClassVar[str] = "HOME_POSITION"
     pos_ned_m: tuple[float, float, float]
+    lat_deg: float = 0.0
+    lon_deg: float = 0.0
+    alt_amsl_m: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class GpsGlobalOrigin(Sourced):
+    """GPS_GLOBAL_ORIGIN: the WGS-84 latitude and longitude (deg) and altitude above mean sea level (m) of the
+    autopilot's local NED origin."""
+
+    message: ClassVar[str] = "GPS_GLOBAL_ORIGIN"
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+
+
+@dataclass(frozen=True, slots=True)
+class MissionCount(Sourced):
+    """MISSION_COUNT: how many items the sender holds of ``mission_type`` (MAV_MISSION_TYPE: 0 mission,
+    1 fence, 2 rally)."""
+
+    message: ClassVar[str] = "MISSION_COUNT"
+    count: int
+    mission_type: int
+
+
+@dataclass(frozen=True, slots=True)
+class MissionItemInt(Sourced):
+    """MISSION_ITEM_INT, as sent: item ``item_seq`` (the message's ``seq``; ``seq`` is the frame's) of
+    ``mission_type``, its MAV_FRAME and MAV_CMD, the four parameters (command-specific units), ``x``/``y`` (global
+    frames: degrees × 1e7; local frames: metres × 1e4) and ``z`` (m, the frame's altitude or NED z). Nothing is
+    checked here (NaN parameters are normal, e.g. yaw): the mission's conversion checks the fields it uses."""
+
+    message: ClassVar[str] = "MISSION_ITEM_INT"
+    item_seq: int
+    frame: int
+    command: int
+    current: int
+    autocontinue: int
+    params: tuple[float, float, float, float]
+    x: int
+    y: int
+    z: float
+    mission_type: int
+
+
+@dataclass(frozen=True, slots=True)
+class MissionAck(Sourced):
+    """MISSION_ACK: the MAV_MISSION_RESULT (0 accepted) of a transfer of ``mission_type``."""
+
+    message: ClassVar[str] = "MISSION_ACK"
+    result: int
+    mission_type: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -213,7 +267,8 @@ class Rejected(Sourced):
 
 TelemetryEvent = (Heartbeat | SysStatus | Attitude | LocalPositionNed | GlobalPositionInt | HomePosition
                   | ExtendedSysState | SystemTime | HighresImu | ScaledImu | EstimatorStatus | StatusText
-                  | CommandAck | ParamValue | SwingSensor | AutopilotVersion | Rejected)
+                  | CommandAck | ParamValue | SwingSensor | AutopilotVersion | GpsGlobalOrigin | MissionCount
+                  | MissionItemInt | MissionAck | Rejected)
 
 
 def _constructor(cls: type) -> Any:
@@ -232,7 +287,7 @@ def _constructor(cls: type) -> Any:
 
 for _cls in (Heartbeat, SysStatus, Attitude, LocalPositionNed, GlobalPositionInt, HomePosition, ExtendedSysState,
              SystemTime, HighresImu, ScaledImu, EstimatorStatus, StatusText, CommandAck, ParamValue, SwingSensor,
-             AutopilotVersion, Rejected):
+             AutopilotVersion, GpsGlobalOrigin, MissionCount, MissionItemInt, MissionAck, Rejected):
     _cls._make = _constructor(_cls)  # type: ignore[attr-defined]  # the decoders' constructor
 
 
@@ -277,10 +332,28 @@ def _d_global_position(t: tuple, s: int, c: int, q: int) -> GlobalPositionInt:
 
 
 def _d_home(t: tuple, s: int, c: int, q: int) -> HomePosition | Rejected:
-    x, y, z = t[3], t[4], t[5]
+    lat, lon, alt, x, y, z = t
     if x * 0.0 + y * 0.0 + z * 0.0 != 0.0:
         return Rejected._make(s, c, q, "HOME_POSITION", "nonfinite")
-    return HomePosition._make(s, c, q, (x, y, z))
+    return HomePosition._make(s, c, q, (x, y, z), lat * 1e-7, lon * 1e-7, alt * 1e-3)
+
+
+def _d_origin(t: tuple, s: int, c: int, q: int) -> GpsGlobalOrigin:
+    return GpsGlobalOrigin._make(s, c, q, t[0] * 1e-7, t[1] * 1e-7, t[2] * 1e-3)
+
+
+def _d_mission_count(t: tuple, s: int, c: int, q: int) -> MissionCount:
+    return MissionCount._make(s, c, q, t[0], t[3])
+
+
+def _d_mission_item(t: tuple, s: int, c: int, q: int) -> MissionItemInt:
+    p1, p2, p3, p4, x, y, z, seq, command, _ts, _tc, frame, current, autocontinue, mission_type = t
+    return MissionItemInt._make(s, c, q, seq, frame, command, current, autocontinue, (p1, p2, p3, p4), x, y, z,
+                                mission_type)
+
+
+def _d_mission_ack(t: tuple, s: int, c: int, q: int) -> MissionAck:
+    return MissionAck._make(s, c, q, t[2], t[3])
 
 
 def _d_ext_state(t: tuple, s: int, c: int, q: int) -> ExtendedSysState:
@@ -359,6 +432,11 @@ _LAYOUTS = {lay.msgid: lay for lay in (
     _Layout(30, "<Iffffff", "time_boot_ms roll pitch yaw rollspeed pitchspeed yawspeed", _d_attitude),
     _Layout(32, "<Iffffff", "time_boot_ms x y z vx vy vz", _d_local_position),
     _Layout(33, "<Iiiiihhh", "time_boot_ms lat lon alt relative_alt vx vy vz", _d_global_position),
+    _Layout(44, "<HBBB", "count target_system target_component mission_type", _d_mission_count),
+    _Layout(47, "<BBBB", "target_system target_component type mission_type", _d_mission_ack),
+    _Layout(49, "<iii", "latitude longitude altitude", _d_origin),
+    _Layout(73, "<ffffiifHHBBBBBB", "param1 param2 param3 param4 x y z seq command target_system target_component "
+                                    "frame current autocontinue mission_type", _d_mission_item),
     _Layout(77, "<HB", "command result", _d_ack),
     _Layout(105, "<Qfff", "time_usec xacc yacc zacc", _d_highres),
     _Layout(148, "<QQIIIIHH8B", "capabilities uid flight_sw_version middleware_sw_version os_sw_version "
