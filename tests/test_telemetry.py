@@ -93,6 +93,12 @@ def _messages(rng: random.Random):
         os_custom_version=[0] * 8, vendor_id=0x26AC, product_id=0x11, uid=7, uid2=[0] * 18),
            tm.AutopilotVersion, dict(capabilities=0xE4EF, flight_sw_version=0x01_0F_02_FF, vendor_id=0x26AC,
                                      product_id=0x11, flight_custom_version=bytes([0xAB, 0xCD, 1, 2, 3, 4, 5, 6])))
+    dist = [rng.randint(0, 1201) for _ in range(70)] + [65535, 65535]
+    yield (M.MAVLink_obstacle_distance_message(us, 0, dist, 0, 10, 1200, 1.0, 144.0, 12), tm.ObstacleDistance,
+           dict(time_usec=us, distances_cm=tuple(dist), min_distance_cm=10, max_distance_cm=1200, increment_deg=1.0,
+                angle_offset_deg=144.0, frame=12))
+    yield (M.MAVLink_obstacle_distance_message(us, 0, dist, 5, 20, 4000, 0.0, 0.0, 0), tm.ObstacleDistance,
+           dict(increment_deg=5, frame=0))  # PX4's 72 sectors of 5 deg, integer increment, north-aligned
 
 
 def test_every_message_decodes_alike_by_each_path_in_si_units():

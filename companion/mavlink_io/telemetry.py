@@ -258,6 +258,25 @@ class AutopilotVersion(Sourced):
 
 
 @dataclass(frozen=True, slots=True)
+class ObstacleDistance(Sourced):
+    """OBSTACLE_DISTANCE: one range sensor's sectors at ``time_usec`` (µs, vehicle time since boot, exact);
+    ``distances_cm`` 72 sectors (cm; ``max_distance_cm + 1`` = nothing in range, 65535 = unknown/unused),
+    ``increment_deg`` the sectors' width (deg: ``increment_f`` when non-zero, else ``increment``),
+    ``angle_offset_deg`` the first sector's angle (deg, clockwise), ``frame`` its MAV_FRAME (12: body FRD, 0 or 1:
+    north-aligned). Assembled into scans by :mod:`companion.perception.scan`."""
+
+    message: ClassVar[str] = "OBSTACLE_DISTANCE"
+    time_usec: int
+    distances_cm: tuple[int, ...]
+    min_distance_cm: int
+    max_distance_cm: int
+    sensor_type: int
+    increment_deg: float
+    angle_offset_deg: float
+    frame: int
+
+
+@dataclass(frozen=True, slots=True)
 class Rejected(Sourced):
     """A message refused while decoding: ``message`` its type name, ``kind`` why (``nonfinite``)."""
 
@@ -268,7 +287,7 @@ class Rejected(Sourced):
 TelemetryEvent = (Heartbeat | SysStatus | Attitude | LocalPositionNed | GlobalPositionInt | HomePosition
                   | ExtendedSysState | SystemTime | HighresImu | ScaledImu | EstimatorStatus | StatusText
                   | CommandAck | ParamValue | SwingSensor | AutopilotVersion | GpsGlobalOrigin | MissionCount
-                  | MissionItemInt | MissionAck | Rejected)
+                  | MissionItemInt | MissionAck | ObstacleDistance | Rejected)
 
 
 def _constructor(cls: type) -> Any:
@@ -287,7 +306,8 @@ def _constructor(cls: type) -> Any:
 
 for _cls in (Heartbeat, SysStatus, Attitude, LocalPositionNed, GlobalPositionInt, HomePosition, ExtendedSysState,
              SystemTime, HighresImu, ScaledImu, EstimatorStatus, StatusText, CommandAck, ParamValue, SwingSensor,
-             AutopilotVersion, GpsGlobalOrigin, MissionCount, MissionItemInt, MissionAck, Rejected):
+             AutopilotVersion, GpsGlobalOrigin, MissionCount, MissionItemInt, MissionAck, ObstacleDistance,
+             Rejected):
     _cls._make = _constructor(_cls)  # type: ignore[attr-defined]  # the decoders' constructor
 
 
@@ -410,6 +430,14 @@ def _d_version(t: tuple, s: int, c: int, q: int) -> AutopilotVersion:
     return AutopilotVersion._make(s, c, q, t[0], t[2], t[6], t[7], bytes(t[8:16]))
 
 
+def _d_obstacle_distance(t: tuple, s: int, c: int, q: int) -> ObstacleDistance | Rejected:
+    inc_f, offset = t[77], t[78]
+    if inc_f * 0.0 + offset * 0.0 != 0.0:
+        return Rejected._make(s, c, q, "OBSTACLE_DISTANCE", "nonfinite")
+    return ObstacleDistance._make(s, c, q, t[0], t[1:73], t[73], t[74], t[75], inc_f if inc_f != 0.0 else t[76],
+                                  offset, t[79])
+
+
 class _Layout:
     """One message's decoding: its id, the struct of the payload prefix it reads, those fields' names and array
     lengths (for pymavlink's message objects), and the decoder."""
@@ -447,6 +475,8 @@ _LAYOUTS = {lay.msgid: lay for lay in (
     _Layout(245, "<BB", "vtol_state landed_state", _d_ext_state),
     _Layout(253, "<B50s", "severity text", _d_statustext),
     _Layout(350, "<QH10s5f", "time_usec array_id name data*5", _d_debug_array),
+    _Layout(330, "<Q72HHHBBffB", "time_usec distances*72 min_distance max_distance sensor_type increment "
+                                 "increment_f angle_offset frame", _d_obstacle_distance),
 )}
 #: the message ids :func:`decode` reads (others decode to None)
 DECODED_IDS = frozenset(_LAYOUTS)
