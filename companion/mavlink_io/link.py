@@ -1,24 +1,27 @@
-"""MAVLink 2 over UDP for the companion: a thin asyncio shell around pymavlink's generated codec.
+"""MAVLink 2 for the companion: a thin shell around pymavlink's generated codec over any transport.
 
-Connection URLs as MAVSDK and mavutil users know them:
+Connection URLs (:class:`~companion.mavlink_io.transport.LinkUrl`): ``udpin://0.0.0.0:14540`` (bind, answer the
+vehicle that sends to it: the default, PX4's onboard link), ``udpout://HOST:PORT`` (send there),
+``serial:///dev/ttyACM0:921600`` (a TELEM port), ``tcp://HOST:PORT`` (connect), ``tcpin://HOST:PORT`` (listen).
 
-* ``udpin://0.0.0.0:14540`` — bind that port and talk to the vehicle that sends to it (the default; PX4's
-  SITL sends its onboard link to 127.0.0.1:14540);
-* ``udpout://127.0.0.1:14580`` — send to that address from an ephemeral local port.
+Lock-on (as MAVSDK and MAVProxy do): once the app has found the vehicle (its first autopilot HEARTBEAT) it calls
+:meth:`MavlinkLink.lock_to_last_sender`. UDP: from then on only that address is read and sent to; other senders
+are counted (``foreign_sender``) and dropped before decoding (before the lock, udpin reads all and sends nothing).
+A stream has one other end (the wire, or the one peer tcpin lets in): the lock notes the autopilot's system id
+and drops nothing by sender, as a router multiplexes the payload's and a GCS's systems onto it (the pilot reads
+only the locked system's and the payload's telemetry).
 
-Lock-on (as MAVSDK and MAVProxy do): once the app has found the vehicle (its first autopilot HEARTBEAT) it
-calls :meth:`MavlinkLink.lock_to_last_sender`; from then on only datagrams from that address are read, and
-setpoints go only there. Datagrams from any other address are counted (``foreign_sender``) and dropped
-before decoding: they can neither steer the companion nor re-target its setpoints. Before the lock, a udpin
-link reads everyone but sends nothing.
+Streams are cut into frames by :class:`~companion.mavlink_io.framing.StreamFramer` (partial frames held across
+reads; garbage skipped, counted as ``garbage`` runs and ``garbage_bytes``), and each frame is then handled as a
+one-frame datagram. A stream that dies (a serial device unplugged, its pseudo-terminal's other side gone, a TCP
+reset) is counted once as ``link_closed``, stops being read, and is reopened every :data:`REOPEN_S`; meanwhile
+the link is not ``connected``, nothing is sent, and the flight's own telemetry watch ends it as ``link_lost``.
 
-Every datagram in and out is also written to a ``.tlog`` (8-byte big-endian microsecond UNIX time stamp +
-raw frame, the format ground stations write and ``mavlogdump.py`` reads). Undecodable input is counted and
-logged at most once a second per kind; it never raises into the flight loop.
-
-Hot path: a datagram made only of complete, unsigned, CRC-valid MAVLink 2 frames (what a vehicle sends) is
-decoded by :func:`companion.mavlink_io.codec.decode_lite`; anything else goes through pymavlink's own parser.
-``on_datagram_done`` (optional) is called after the messages of each datagram were handled.
+Every frame in and out also goes to a ``.tlog`` (:mod:`companion.mavlink_io.tlog`). Undecodable input is counted
+and logged at most once a second per kind; it never raises into the flight loop. Hot path: a datagram of complete,
+unsigned, CRC-valid MAVLink 2 frames (what a vehicle sends) is decoded by :func:`~companion.mavlink_io.codec.
+decode_lite`; anything else by pymavlink's own parser. ``on_datagram_done`` (optional) is called after the
+messages of each datagram (stream: each frame) were handled.
 """
 
 from __future__ import annotations
@@ -28,146 +31,35 @@ import contextlib
 import logging
 import select
 import socket
-import struct
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlparse
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.disk_writer import DiskWriter
-from companion.errors import ConfigError, LinkError
+from companion.errors import LinkError
 from companion.mavlink_io import signing
 from companion.mavlink_io.codec import STX_V2 as _STX_V2
-from companion.mavlink_io.codec import FrameError, check_crc, crc_extra_of, decode_lite
+from companion.mavlink_io.codec import check_crc, crc_extra_of, decode_lite
+from companion.mavlink_io.framing import StreamFramer
+from companion.mavlink_io.tlog import TlogWriter, tlog_frames, tlog_messages
+from companion.mavlink_io.transport import DRAIN_MAX, RCVBUF_BYTES, LinkUrl, TransportError, make_transport
+
+__all__ = ["DRAIN_MAX", "MAV_COMP_ID_ONBOARD_COMPUTER", "RCVBUF_BYTES", "REOPEN_S", "LinkUrl", "MavlinkLink",
+           "TlogWriter", "tlog_frames", "tlog_messages"]
 
 log = logging.getLogger(__name__)
 
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
+REOPEN_S = 1.0  # a dead stream is opened again this often
 _MIN_FRAME = 12  # MAVLink 2 header + CRC
 
 
-@dataclass(frozen=True)
-class LinkUrl:
-    """A parsed connection URL: ``mode`` is "udpin" (bind and answer) or "udpout" (send to)."""
-
-    mode: str
-    host: str
-    port: int
-
-    @classmethod
-    def parse(cls, url: str) -> LinkUrl:
-        """Parse ``udpin://host:port`` / ``udpout://host:port``; raise :class:`ConfigError` otherwise."""
-        u = urlparse(url)
-        if u.scheme not in ("udpin", "udpout", "udp"):
-            raise ConfigError(f"--connect {url!r}: scheme must be udpin:// or udpout://")
-        try:
-            port = u.port
-        except ValueError:
-            port = None
-        if not u.hostname or port is None or not 0 < port < 65536:
-            raise ConfigError(f"--connect {url!r}: expected udpin://HOST:PORT or udpout://HOST:PORT")
-        mode = "udpin" if u.scheme in ("udpin", "udp") else "udpout"
-        return cls(mode, u.hostname, port)
-
-
-_TLOG_STAMP = struct.Struct(">Q")
-
-
-class TlogWriter:
-    """Append-only .tlog: each record is a big-endian uint64 UNIX time in µs followed by the frame bytes.
-
-    Records collect in memory and go to a :class:`~companion.disk_writer.DiskWriter` thread every
-    ``HANDOVER_S`` or ``HANDOVER_BYTES``, whichever comes first: the event loop never waits for the disk.
-    """
-
-    HANDOVER_S = 0.25
-    HANDOVER_BYTES = 64 * 1024
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self._writer = DiskWriter("tlog")
-        self._writer.create(path)
-        self._buf = bytearray()
-        self._handed_at = time.monotonic()
-        self._closed = False
-
-    def write(self, frame: bytes) -> None:
-        if self._closed:
-            return
-        self._buf += _TLOG_STAMP.pack(int(time.time() * 1e6))
-        self._buf += frame
-        mono = time.monotonic()
-        if len(self._buf) >= self.HANDOVER_BYTES or mono - self._handed_at >= self.HANDOVER_S:
-            self._hand_over(mono)
-
-    def _hand_over(self, mono: float) -> None:
-        if self._buf:
-            self._writer.append(self.path, bytes(self._buf))
-            self._buf.clear()
-        self._handed_at = mono
-
-    def close(self) -> None:
-        if not self._closed:
-            self._hand_over(time.monotonic())
-            self._closed = True
-            self._writer.close()
-
-
-_STX_V1 = 0xFE
-
-
-def tlog_frames(path: Path) -> list[tuple[float, bytes]]:
-    """(UNIX time s, one MAVLink frame) for every frame of a .tlog (records: 8-byte big-endian µs + bytes;
-    :class:`TlogWriter` writes one frame a record, other tools may write several). A torn or unknown tail ends
-    the record; a torn last record is dropped."""
-    data = path.read_bytes()
-    out: list[tuple[float, bytes]] = []
-    i = 0
-    while i + _TLOG_STAMP.size <= len(data):
-        (t_us,) = _TLOG_STAMP.unpack_from(data, i)
-        i += _TLOG_STAMP.size
-        while i < len(data):  # the record runs until the next frame start we can size; frames are self-delimiting
-            stx = data[i]
-            if stx == _STX_V2 and i + 3 <= len(data):
-                n = _MIN_FRAME + data[i + 1] + (signing.SIGNATURE_LEN if data[i + 2] & signing.IFLAG_SIGNED else 0)
-            elif stx == _STX_V1 and i + 2 <= len(data):
-                n = 8 + data[i + 1]
-            else:
-                break
-            if i + n > len(data):
-                return out
-            out.append((t_us * 1e-6, data[i : i + n]))
-            i += n
-            if i + _TLOG_STAMP.size <= len(data) and data[i] not in (_STX_V1, _STX_V2):
-                break  # the next record's time stamp
-        else:
-            break
-    return out
-
-
-def tlog_messages(path: Path) -> Iterator[tuple[float, Any]]:
-    """(UNIX time s, decoded message) for every frame of a .tlog the codec decodes (signed ones read without
-    their signature, which is not checked here); others are skipped."""
-    for t_s, frame in tlog_frames(path):
-        if frame[0] == _STX_V2 and frame[2] & signing.IFLAG_SIGNED:
-            frame = frame[: -signing.SIGNATURE_LEN]
-        try:
-            yield t_s, decode_lite(frame)
-        except FrameError:
-            continue
-
-
-RCVBUF_BYTES = 4 << 20  # asked of the kernel (it grants up to net.core.rmem_max)
-DRAIN_MAX = 512  # datagrams read per wake-up at most, so a flood cannot starve the event loop either
-
-
 class MavlinkLink:
-    """One MAVLink 2 UDP endpoint. Decoded messages go to ``handler(msg)``; sending via ``self.mav``.
+    """One MAVLink 2 endpoint over UDP, serial or TCP. Decoded messages go to ``handler(msg)``; sending via
+    ``self.mav``.
 
     ``self.mav`` is pymavlink's generated ``MAVLink`` object; use ``link.mav.<msg>_send(...)`` so that
     sequence numbers are kept.
@@ -185,10 +77,12 @@ class MavlinkLink:
         signing_key: bytes | None = None,
     ) -> None:
         self.url = LinkUrl.parse(url)
+        self.transport = make_transport(self.url, sock)  # ``sock``: an already bound UDP socket (udpin)
+        self._stream = self.url.stream
+        self._framer = StreamFramer() if self._stream else None
         # MAVLink 2 signing (companion.mavlink_io.signing): every frame out signed, every frame in checked
         self.verifier = None if signing_key is None else signing.SigningVerifier(signing_key)
         self.signer = None if signing_key is None else signing.LinkSigner(signing_key, link_id=0)
-        self._sock = sock  # an already bound socket to use instead of binding the URL's port (udpin)
         self.handler = handler
         self.mav = mavlink2.MAVLink(self, srcSystem=src_system, srcComponent=src_component)
         self.mav.robust_parsing = True
@@ -198,87 +92,125 @@ class MavlinkLink:
         self._last_log: dict[str, float] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._open = False
-        self._remote: tuple[str, int] | None = None if self.url.mode == "udpin" else (self.url.host, self.url.port)
-        self._locked: tuple[str, int] | None = None
-        self.last_sender: tuple[str, int] | None = None  # address of the datagram being handled
+        self._reader_fd = -1  # the descriptor the event loop watches (-1: none)
+        self._down_since: float | None = None  # monotonic time a stream died (None: alive)
+        self._next_reopen = 0.0
+        self._reopen_timer: asyncio.TimerHandle | None = None
+        self._remote: tuple[str, int] | None = None if self.url.mode in ("udpin", "serial", "tcp", "tcpin") \
+            else (self.url.host, self.url.port)
+        self._locked: tuple[Any, Any] | None = None
+        self.last_sender: tuple[Any, Any] | None = None  # UDP: (host, port); stream: (peer, system id) of the frame
         self.last_rx_wall = 0.0  # monotonic time of the last datagram accepted from the vehicle's address
         self._tlog = TlogWriter(tlog) if tlog else None
         self.on_datagram_done: Callable[[], None] | None = None  # called after each datagram's messages
         #: set: the unsigned frames of the fast path (CRC checked) go here as bytes instead of to ``handler``
         self.frame_handler: Callable[[bytes], None] | None = None
+        self._deliver = self._on_stream if self._stream else self._on_datagram
 
-    def _bind(self) -> socket.socket:
-        """The link's socket: bound to the URL's port (udpin), an ephemeral local one (udpout), or the one given;
-        non-blocking, with a large receive buffer."""
-        sock = self._sock
-        try:
-            if sock is None:
-                sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                if self.url.mode == "udpin":
-                    sock.bind((self.url.host, self.url.port))
-                else:
-                    sock.bind(("127.0.0.1" if self.url.host.startswith("127.") else "0.0.0.0", 0))
-            with contextlib.suppress(OSError):
-                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
-            sock.setblocking(False)
-        except OSError as exc:
-            if sock is not None and sock is not self._sock:
-                sock.close()
-            raise LinkError(f"cannot open {self.url.mode}://{self.url.host}:{self.url.port}: {exc}") from None
-        self._sock = sock
-        self._open = True
-        return sock
-
+    # ------------------------------------------------------------------ opening, reading, closing
     async def open(self) -> None:
-        """Bind the socket (udpin) or create the sending socket (udpout), and read it on the running loop.
+        """Open the transport and read it on the running loop (``loop.add_reader`` on its descriptor).
 
-        The socket is read with ``loop.add_reader``, draining up to :data:`DRAIN_MAX` datagrams per wake-up:
-        asyncio's datagram transport reads one datagram per loop iteration, and under a flood into our port the
-        kernel buffer then overflows and drops the vehicle's own datagrams along with the attacker's.
+        A UDP socket is drained of up to :data:`DRAIN_MAX` datagrams per wake-up: asyncio's datagram transport
+        reads one datagram per loop iteration, and under a flood into our port the kernel buffer then overflows and
+        drops the vehicle's own datagrams along with the attacker's.
         """
-        sock = self._bind()
+        self.transport.open()
+        self._open = True
         self._loop = asyncio.get_running_loop()
-        self._loop.add_reader(sock.fileno(), self._drain)
+        self._watch()
 
     def open_blocking(self) -> None:
-        """Bind the socket for a caller without an event loop, which reads it with :meth:`poll`."""
-        self._bind()
+        """Open the transport for a caller without an event loop, which reads it with :meth:`poll`."""
+        self.transport.open()
+        self._open = True
 
     def poll(self, timeout_s: float) -> bool:
-        """Wait up to ``timeout_s`` (s) for datagrams and handle what the socket holds; False if none came."""
-        sock = self._sock
-        if sock is None:
+        """Wait up to ``timeout_s`` (s) for input and handle what the transport holds; False if none came (a dead
+        stream: waits, and is reopened when due)."""
+        if not self._open:
             return False
-        ready, _, _ = select.select((sock,), (), (), timeout_s)
+        if self._down_since is not None:
+            if time.monotonic() >= self._next_reopen:
+                self._try_reopen()
+            if self._down_since is not None:
+                time.sleep(timeout_s)
+                return False
+        ready, _, _ = select.select((self.transport.fileno(),), (), (), timeout_s)
         if not ready:
             return False
         self._drain()
         return True
 
     def close(self) -> None:
-        """Close the socket and the tlog."""
-        if self._sock is not None and self._open:
-            if self._loop is not None:
-                with contextlib.suppress(Exception):
-                    self._loop.remove_reader(self._sock.fileno())
-            self._sock.close()
+        """Close the transport and the tlog."""
+        if self._reopen_timer is not None:
+            self._reopen_timer.cancel()
+            self._reopen_timer = None
+        if self._open:
+            self._unwatch()
+            self.transport.close()
             self._loop = None
             self._open = False
         if self._tlog is not None:
             self._tlog.close()
 
     def _drain(self) -> None:
-        """Read what the socket holds (at most :data:`DRAIN_MAX` datagrams) and handle each."""
-        sock = self._sock
-        for _ in range(DRAIN_MAX):
-            try:
-                data, addr = sock.recvfrom(65535)
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError as exc:  # e.g. ICMP port unreachable on loopback
-                self._count("socket_error", str(exc))
-                return
-            self._on_datagram(data, addr)
+        """Handle what the transport holds (UDP: at most :data:`DRAIN_MAX` datagrams)."""
+        try:
+            self.transport.read(self._deliver)
+        except TransportError as exc:
+            self._count(exc.kind, str(exc))
+            if exc.dead:
+                self._went_down(str(exc))
+        if self._stream and self._loop is not None:
+            self._watch()  # a tcpin link's descriptor changes when its peer comes or goes
+
+    def _watch(self) -> None:
+        """Have the event loop watch the transport's current descriptor (none while the stream is down)."""
+        fd = self.transport.fileno() if self._down_since is None else -1
+        if fd == self._reader_fd or self._loop is None:
+            return
+        self._unwatch()
+        if fd >= 0:
+            self._loop.add_reader(fd, self._drain)
+            self._reader_fd = fd
+
+    def _unwatch(self) -> None:
+        if self._reader_fd >= 0 and self._loop is not None:
+            with contextlib.suppress(Exception):
+                self._loop.remove_reader(self._reader_fd)
+        self._reader_fd = -1
+
+    def _went_down(self, why: str) -> None:
+        """A stream died: stop reading it, say so once, and try to reopen it every :data:`REOPEN_S`."""
+        now = time.monotonic()
+        self._down_since = now
+        self._next_reopen = now + REOPEN_S
+        if self._framer is not None:
+            self._framer.clear()
+        log.warning("MAVLink link lost (%s); nothing is sent until it is back; reopening it every %.0f s",
+                    why, REOPEN_S)
+        self._unwatch()
+        if self._loop is not None:
+            self._reopen_timer = self._loop.call_later(REOPEN_S, self._try_reopen)
+
+    def _try_reopen(self) -> None:
+        """Open a dead stream again (a re-plugged device, a vehicle back on TCP); else try again later."""
+        self._reopen_timer = None
+        if not self._open or self._down_since is None:
+            return
+        try:
+            self.transport.open()
+        except LinkError:
+            self._next_reopen = time.monotonic() + REOPEN_S
+            if self._loop is not None:
+                self._reopen_timer = self._loop.call_later(REOPEN_S, self._try_reopen)
+            return
+        log.warning("MAVLink link back after %.1f s: %s", time.monotonic() - self._down_since,
+                    self.transport.describe())
+        self._down_since = None
+        self._watch()
 
     async def __aenter__(self) -> MavlinkLink:
         await self.open()
@@ -287,43 +219,50 @@ class MavlinkLink:
     async def __aexit__(self, *exc: object) -> None:
         self.close()
 
+    # ------------------------------------------------------------------ the peer
     def lock_to_last_sender(self) -> None:
-        """Accept datagrams only from the sender of the datagram being handled (the vehicle), and send there
-        (udpin; a udpout link keeps sending to its URL)."""
+        """UDP: accept datagrams only from the sender of the datagram being handled (the vehicle), and send there
+        (udpin; a udpout link keeps sending to its URL). Stream: note the autopilot's system id (module
+        docstring: nothing is dropped by sender on a stream)."""
         if self.last_sender is None:
             return
         self._locked = self.last_sender
+        if self._stream:
+            log.info("locked onto the autopilot (system %d) on %s", self._locked[1], self.transport.describe())
+            return
         if self.url.mode == "udpin":
             self._remote = self.last_sender
         log.info("locked onto the vehicle at %s:%d", *self._locked)
 
     @property
-    def locked(self) -> tuple[str, int] | None:
-        """The vehicle's address once locked on."""
+    def locked(self) -> tuple[Any, Any] | None:
+        """UDP: the vehicle's address once locked on; stream: (the other end, the autopilot's system id)."""
         return self._locked
 
     @property
     def connected(self) -> bool:
-        """True once we know where to send (udpout always; udpin once locked onto the vehicle)."""
+        """True once we know where to send: udpout always, udpin once locked onto the vehicle, a stream while it
+        is open and has its other end."""
+        if self._stream:
+            return self._open and self._down_since is None and self.transport.peer is not None
         return self._remote is not None
 
     # pymavlink calls this to send a packed frame
     def write(self, frame: bytes) -> None:
         """File-like hook for pymavlink: send one frame to the remote (dropped before we know it); signed when
         signing is on."""
-        if not self._open or self._remote is None:
+        if not self._open or self._down_since is not None or (self._remote is None and not self._stream):
             return
         frame = bytes(frame)
         if self.signer is not None and frame[:1] == b"\xfd":
             frame = self.signer.sign(frame, crc_extra_of(frame[7] | (frame[8] << 8) | (frame[9] << 16)))
             self.verifier.note_sent(self.signer.timestamp)
         try:
-            self._sock.sendto(frame, self._remote)
-        except (BlockingIOError, InterruptedError):
-            self._count("send_dropped", "socket buffer full")
-            return
-        except OSError as exc:  # e.g. ICMP port unreachable from an earlier datagram
-            self._count("socket_error", str(exc))
+            self.transport.write(frame, self._remote)
+        except TransportError as exc:
+            self._count(exc.kind, str(exc))
+            if exc.dead:
+                self._went_down(str(exc))
             return
         self.sent += 1
         if self._tlog is not None:
@@ -336,10 +275,28 @@ class MavlinkLink:
             self._last_log[kind] = now
             log.warning("MAVLink input rejected (%s, %d so far) %s", kind, self.rejected[kind], detail)
 
+    # ------------------------------------------------------------------ input
+    def _on_stream(self, data: bytes, peer: Any) -> None:
+        """A chunk of a stream: its complete frames, each handled as a one-frame datagram from (peer, system id)."""
+        framer = self._framer
+        runs, nbytes = framer.garbage_runs, framer.garbage_bytes
+        frames = framer.feed(data)
+        if framer.garbage_runs != runs:
+            self.rejected["garbage_bytes"] += framer.garbage_bytes - nbytes
+            self.rejected["garbage"] += framer.garbage_runs - runs - 1
+            self._count("garbage", f"{framer.garbage_bytes - nbytes} bytes outside MAVLink frames on "
+                        f"{self.transport.describe()}")
+        for frame in frames:
+            self._accept(frame, (peer, frame[5]))
+
     def _on_datagram(self, data: bytes, addr: tuple[str, int]) -> None:
         if self._locked is not None and addr != self._locked:
             self._count("foreign_sender", f"from {addr[0]}:{addr[1]}")
             return
+        self._accept(data, addr)
+
+    def _accept(self, data: bytes, addr: tuple[Any, Any]) -> None:
+        """Handle the frames of a datagram from the peer (or of one stream frame)."""
         self.last_sender = addr
         self.last_rx_wall = time.monotonic()
         msgs = self._split_signed(data) if self.verifier is not None else self._split_fast(data)
