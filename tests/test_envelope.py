@@ -1,55 +1,65 @@
-"""Envelope (eqs. 3-4, 20-21) and swing-from-payload inversion, against hand-computed values."""
+"""The payload envelope (issue 28): adaptation of the swing-bounded accelerations, the grid's cells, and a tiny
+grid flown in-process end to end (files, table, heat map)."""
 
-import math
+from __future__ import annotations
 
-import numpy as np
+import json
+from dataclasses import replace
+
 import pytest
 
-from companion.core.envelope import envelope_radii_m, full_cable_r_max_m, payload_pos_ned_m, r_max_m
+from companion.control.adapt import accel_scale, adapt_to_payload
+from companion.control.params import ControllerConfig
 from companion.core.model import VehicleParams
-from companion.estimation.estimate import swing_from_payload
-
-P = VehicleParams()
-
-
-def test_payload_hangs_below_at_rest():
-    np.testing.assert_allclose(payload_pos_ned_m(np.array([1.0, 2.0, -3.0]), 0.0, 0.0, 1.0), [1.0, 2.0, -2.0])
+from lab.envelope import Cell, cell_mission, cell_spec, envelope, parse_grid, wind_config
+from lab.forests import ForestSpec
 
 
-def test_payload_position_hand_computed():
-    # alpha = 30 deg, beta = 0: offset l*[sin 30, 0, cos 30]
-    p = payload_pos_ned_m(np.zeros(3), math.radians(30), 0.0, 2.0)
-    np.testing.assert_allclose(p, [1.0, 0.0, math.sqrt(3.0)], atol=1e-12)
-    # beta = 30 deg, alpha = 0: offset l*[0, -sin 30, cos 30]
-    p = payload_pos_ned_m(np.zeros(3), 0.0, math.radians(30), 2.0)
-    np.testing.assert_allclose(p, [0.0, -1.0, math.sqrt(3.0)], atol=1e-12)
+def test_table1_payload_flies_the_tuned_limits_unchanged():
+    cfg = ControllerConfig()
+    assert adapt_to_payload(cfg, VehicleParams()) is cfg
+    assert adapt_to_payload(cfg, replace(VehicleParams(), m=0.8, l=0.5)) is cfg  # short cable: never raised
 
 
-def test_r1_r2_and_rmax_switch():
-    r1, r2 = envelope_radii_m(0.0, 0.0, P)
-    assert r1 == 0.0 and r2 == pytest.approx(0.28)
-    assert r_max_m(0.0, 0.0, P) == pytest.approx(0.28)
-    # small swing: payload inside the airframe circle -> r2
-    assert r_max_m(0.1, 0.1, P) == pytest.approx(0.28)
-    # alpha = 0.5 rad, beta = 0.2: r1 = l*sqrt((cos .2 sin .5)^2 + sin^2 .2)
-    exp = math.sqrt((math.cos(0.2) * math.sin(0.5)) ** 2 + math.sin(0.2) ** 2)
-    assert envelope_radii_m(0.5, 0.2, P)[0] == pytest.approx(exp)
-    assert r_max_m(0.5, 0.2, P) == pytest.approx(exp)
-    assert full_cable_r_max_m(P) == 1.0
-    assert full_cable_r_max_m(VehicleParams(l=0.2)) == pytest.approx(0.28)
+def test_long_cable_scales_the_swing_bounded_accelerations_with_the_pendulum_frequency():
+    cfg = ControllerConfig()
+    vp = replace(VehicleParams(), l=4.0)
+    k = accel_scale(vp)
+    assert k == pytest.approx(0.5, rel=1e-3)  # ω ∝ 1/√l for a point payload under a held airframe
+    out = adapt_to_payload(cfg, vp).planner
+    assert out.shaped_a_max_mps2 == pytest.approx(cfg.planner.shaped_a_max_mps2 * k)
+    assert out.a_max_mps2 == pytest.approx(cfg.planner.a_max_mps2 * k)
+    assert out.shaped_v_max_mps == cfg.planner.shaped_v_max_mps  # only the accelerations change
 
 
-@pytest.mark.parametrize("al,be,dal,dbe", [(0.3, -0.2, 0.5, -1.0), (-1.0, 0.7, -2.0, 0.3), (0.0, 0.0, 0.1, 0.2)])
-def test_swing_from_payload_inverts_eqs_3_4(al, be, dal, dbe):
-    l = 1.3
-    pos = np.array([1.0, -2.0, -4.0])
-    vel = np.array([0.3, 0.1, -0.2])
-    ca, sa, cb, sb = math.cos(al), math.sin(al), math.cos(be), math.sin(be)
-    pay = payload_pos_ned_m(pos, al, be, l)
-    pay_vel = vel + l * np.array([ca * cb * dal - sa * sb * dbe, -cb * dbe, -sa * cb * dal - ca * sb * dbe])
-    np.testing.assert_allclose(swing_from_payload(pos, pay, vel, pay_vel, l), [al, be, dal, dbe], atol=1e-9)
+def test_cells_fly_high_enough_for_the_payload_and_under_the_canopy():
+    base = ForestSpec(density_per_100m2=4.0)
+    s = cell_spec(Cell(0.25, 3.0, "calm"), base)
+    assert s.altitude_m == pytest.approx(4.0) and s.trunk_height_m == pytest.approx(7.0)
+    assert cell_spec(Cell(0.25, 0.5, "calm"), base).altitude_m == base.altitude_m
+    m = cell_mission(Cell(0.8, 2.0, "paper"), 3, base)
+    assert (m.vehicle.m, m.vehicle.l, m.wind.model) == (0.8, 2.0, "paper")
+    assert -m.start_ned_m[2] - m.vehicle.l >= 1.0 - 1e-9  # the hanging payload clears the ground by 1 m
+    assert all(o.height_m > -m.start_ned_m[2] for o in m.obstacles)
 
 
-def test_swing_from_payload_refuses_degenerate():
-    with pytest.raises(ValueError):
-        swing_from_payload(np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), 1.0)
+def test_grid_arguments_are_checked():
+    assert len(parse_grid(None, None, None)) == 64
+    with pytest.raises(ValueError, match="unknown wind 'gale'"):
+        parse_grid("0.25", "1", "gale")
+    with pytest.raises(ValueError, match="outside"):
+        parse_grid("-1", "1", "calm")
+    assert wind_config("calm").model == "none" and wind_config("paper").scale == 1.0
+
+
+def test_a_small_grid_flies_and_writes_its_table_and_figure(tmp_path):
+    cells = [Cell(0.25, 1.0, "calm"), Cell(0.25, 2.0, "paper")]
+    summary = envelope(cells, 1, base=ForestSpec(density_per_100m2=4.0, length_m=10.0, planner="shaped"),
+                       mode="inprocess", workers=1, out=tmp_path, progress=False)
+    assert summary["missions"] == 2
+    md = (tmp_path / "envelope.md").read_text()
+    assert "| 0.25 | 2 | paper |" in md
+    assert (tmp_path / "envelope.png").stat().st_size > 10_000
+    cells_out = json.loads((tmp_path / "envelope.json").read_text())["cells"]
+    assert [c["collisions"] for c in cells_out] == [0, 0]
+    assert all(c["clean_rate"] == 1.0 for c in cells_out)
