@@ -1,0 +1,258 @@
+"""A bounded, persistent map of the trunks the scans showed (pure: numpy only).
+
+Each track is a small Kalman filter on (north, east, v_north, v_east) (m, m/s; constant velocity with white
+acceleration noise ``accel_sigma_mps2``) plus a radius averaged by its uncertainty. Per scan:
+
+- **predict** every track to the scan's time;
+- **associate** detections to tracks, gated nearest neighbour: pairs by increasing Mahalanobis distance of the
+  centres (χ² gate for 2 dof, or within the two radii plus :data:`GATE_M` for a track still uncertain), each
+  track and detection used once; a detection left over starts a tentative track (at most ``max_tracks``: beyond,
+  counted in ``full``);
+- **confirm** a track after ``confirm_hits`` hits; only confirmed tracks are published;
+- **retire** a track unseen in ``retire_misses`` scans *that could have seen it*: its centre within range and the
+  ray towards it passing beyond its near side (free space where it should stand). A trunk behind another one, or
+  out of range, is occluded, not missed. A tentative track unseen for ``tentative_s`` goes too.
+
+Published (:attr:`LocalMap.obstacles`) as :class:`~companion.core.obstacles.Obstacle` with ``source="perception"``,
+radius inflated by ``inflate_k`` × its 1σ (centre and radius), and its velocity where it is significant (above 2σ).
+:meth:`LocalMap.free_distance_m` answers how far the last scan saw free along a heading.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.core.obstacles import Obstacle
+from companion.perception.clusters import Detection
+from companion.perception.points import ScanPoints
+
+CHI2_GATE_2DOF = 9.21  # 99 %
+GATE_M = 0.5  # Euclidean gate beyond the two radii (m)
+FREE_STEP_M = 0.05  # the free-distance march's step (m)
+MIN_HEIGHT_M = 1.0
+
+
+@dataclass
+class Track:
+    """One trunk tracked: ``x`` state (north, east, vn, ve), ``p`` its 4×4 covariance, radius and its variance,
+    hits, misses in view since the last hit, the last time seen (s) and the returns' mean NED height (m)."""
+
+    id: int
+    x: np.ndarray
+    p: np.ndarray
+    radius_m: float
+    radius_var: float
+    t_s: float
+    last_seen_s: float
+    z_m: float
+    hits: int = 1
+    misses: int = 0
+    confirmed: bool = False
+
+
+class LocalMap:
+    """Tracks from :class:`Detection` s; :meth:`update` per scan, :attr:`obstacles` the confirmed ones."""
+
+    def __init__(self, confirm_hits: int = 3, retire_misses: int = 5, max_tracks: int = 256,
+                 accel_sigma_mps2: float = 0.5, inflate_k: float = 2.0, tentative_s: float = 2.0,
+                 safe_distance_m: float = 0.1) -> None:
+        self.confirm_hits = confirm_hits
+        self.retire_misses = retire_misses
+        self.max_tracks = max_tracks
+        self.q = accel_sigma_mps2 ** 2
+        self.inflate_k = inflate_k
+        self.tentative_s = tentative_s
+        self.safe_distance_m = safe_distance_m
+        self.tracks: dict[int, Track] = {}
+        self.counts: Counter[str] = Counter()  # born, confirmed, retired, full, ...
+        self.obstacles: tuple[Obstacle, ...] = ()
+        self.version = 0
+        self.last: ScanPoints | None = None
+        self._next_id = 1
+
+    # ------------------------------------------------------------------ per scan
+    def update(self, dets: list[Detection], pts: ScanPoints) -> None:
+        """Fold one scan's detections in (``pts``: the same scan, for what it saw free)."""
+        t = pts.t_s
+        for tr in self.tracks.values():
+            self._predict(tr, t)
+        used = self._associate(dets)
+        seen = set(used.values())
+        unseen = [tr for tid, tr in self.tracks.items() if tid not in seen]
+        if unseen:
+            view = in_view_many(pts, np.array([tr.x[0] for tr in unseen]), np.array([tr.x[1] for tr in unseen]),
+                                np.array([tr.radius_m for tr in unseen]))
+            for tr, v in zip(unseen, view.tolist(), strict=True):
+                self._unseen(tr, pts, v)
+        for k, det in enumerate(dets):
+            if k not in used:
+                self._birth(det, t)
+        self.last = pts
+        self._publish()
+
+    def _predict(self, tr: Track, t: float) -> None:
+        dt = t - tr.t_s
+        if dt <= 0.0:
+            return
+        f = np.eye(4)
+        f[0, 2] = f[1, 3] = dt
+        g = np.array([[0.5 * dt * dt, 0.0], [0.0, 0.5 * dt * dt], [dt, 0.0], [0.0, dt]])
+        tr.x = f @ tr.x
+        tr.p = f @ tr.p @ f.T + self.q * (g @ g.T)
+        tr.t_s = t
+
+    def _associate(self, dets: list[Detection]) -> dict[int, int]:
+        """Detection index → track id, gated nearest neighbour (greedy by Mahalanobis distance)."""
+        if not dets or not self.tracks:
+            return {}
+        trs = list(self.tracks.values())
+        tx = np.array([tr.x[:2] for tr in trs])  # (T, 2)
+        tp = np.array([tr.p[:2, :2] for tr in trs])  # (T, 2, 2)
+        tr_r = np.array([tr.radius_m for tr in trs])
+        dx = np.array([[d.x_m, d.y_m] for d in dets])  # (D, 2)
+        dc = np.array([d.cov_xy for d in dets])  # (D, 2, 2)
+        d_r = np.array([d.radius_m for d in dets])
+        dz = dx[None, :, :] - tx[:, None, :]  # (T, D, 2)
+        s = tp[:, None] + dc[None, :]  # (T, D, 2, 2)
+        a, b, c = s[..., 0, 0], s[..., 0, 1], s[..., 1, 1]
+        det = a * c - b * b
+        with np.errstate(divide="ignore", invalid="ignore"):
+            m2 = (c * dz[..., 0] ** 2 - 2.0 * b * dz[..., 0] * dz[..., 1] + a * dz[..., 1] ** 2) / det
+        m2 = np.where(det > 0.0, m2, np.inf)
+        dist = np.hypot(dz[..., 0], dz[..., 1])
+        ok = (m2 <= CHI2_GATE_2DOF) | (dist <= GATE_M + 0.5 * (tr_r[:, None] + d_r[None, :]))
+        ti, di = np.nonzero(ok)
+        order = np.lexsort((dist[ti, di], m2[ti, di]))
+        used: dict[int, int] = {}
+        taken: set[int] = set()
+        for n in order.tolist():
+            k, tid = int(di[n]), trs[int(ti[n])].id
+            if k in used or tid in taken:
+                continue
+            used[k] = tid
+            taken.add(tid)
+            self._correct(self.tracks[tid], dets[k])
+        return used
+
+    def _correct(self, tr: Track, det: Detection) -> None:
+        h = np.zeros((2, 4))
+        h[0, 0] = h[1, 1] = 1.0
+        s = h @ tr.p @ h.T + det.cov_xy
+        k = tr.p @ h.T @ np.linalg.inv(s)
+        tr.x = tr.x + k @ (np.array([det.x_m, det.y_m]) - tr.x[:2])
+        tr.p = (np.eye(4) - k @ h) @ tr.p
+        rv = max(det.radius_sigma_m ** 2, 1e-6)
+        w = tr.radius_var / (tr.radius_var + rv)
+        tr.radius_m += w * (det.radius_m - tr.radius_m)
+        tr.radius_var = tr.radius_var * rv / (tr.radius_var + rv)
+        tr.z_m += (det.z_m - tr.z_m) / min(tr.hits + 1, 20)
+        tr.hits += 1
+        tr.misses = 0
+        tr.last_seen_s = tr.t_s
+        if not tr.confirmed and tr.hits >= self.confirm_hits:
+            tr.confirmed = True
+            self.counts["confirmed"] += 1
+
+    def _birth(self, det: Detection, t: float) -> None:
+        if len(self.tracks) >= self.max_tracks:
+            self.counts["full"] += 1
+            return
+        p = np.zeros((4, 4))
+        p[:2, :2] = det.cov_xy
+        p[2, 2] = p[3, 3] = 1.0  # (1 m/s)² before any motion is seen
+        tr = Track(self._next_id, np.array([det.x_m, det.y_m, 0.0, 0.0]), p, det.radius_m,
+                   max(det.radius_sigma_m ** 2, 1e-6), t, t, det.z_m)
+        self._next_id += 1
+        self.tracks[tr.id] = tr
+        self.counts["born"] += 1
+        if self.confirm_hits <= 1:
+            tr.confirmed = True
+            self.counts["confirmed"] += 1
+
+    def _unseen(self, tr: Track, pts: ScanPoints, visible: bool) -> None:
+        """A track no detection matched: a miss if the scan could see it (``visible``); retired after enough
+        misses."""
+        if not tr.confirmed and pts.t_s - tr.last_seen_s > self.tentative_s:
+            self._retire(tr, "retired_tentative")
+            return
+        if visible:
+            tr.misses += 1
+            if tr.misses >= self.retire_misses:
+                self._retire(tr, "retired")
+        else:
+            self.counts["unseen_out_of_view"] += 1
+
+    def _retire(self, tr: Track, why: str) -> None:
+        del self.tracks[tr.id]
+        self.counts[why] += 1
+
+    def _publish(self) -> None:
+        out = []
+        for tr in self.tracks.values():
+            if tr.confirmed:
+                out.append(self._obstacle(tr))
+        self.obstacles = tuple(out)
+        self.version += 1
+
+    def _obstacle(self, tr: Track) -> Obstacle:
+        sig = math.sqrt(max(float(np.linalg.eigvalsh(tr.p[:2, :2])[-1]), 0.0) + tr.radius_var)
+        r = min(tr.radius_m + self.inflate_k * sig, Obstacle.MAX_RADIUS_M)
+        vn, ve = float(tr.x[2]), float(tr.x[3])
+        pv = tr.p[2:, 2:]
+        v2 = vn * vn + ve * ve
+        if v2 <= 4.0 * float(np.trace(pv)) or math.sqrt(v2) > Obstacle.MAX_SPEED_MPS:  # not significant
+            vn = ve = 0.0
+        height = min(max(-tr.z_m + 1.0, MIN_HEIGHT_M), Obstacle.MAX_HEIGHT_M)
+        return Obstacle(float(tr.x[0]), float(tr.x[1]), max(r, 0.01), height, self.safe_distance_m, vn, ve,
+                        "perception")
+
+    # ------------------------------------------------------------------ free space
+    def free_distance_m(self, from_xy: tuple[float, float], heading_rad: float, max_m: float | None = None) -> float:
+        """How far (m) from ``from_xy`` (mission frame north, east; m) along ``heading_rad`` (from north, clockwise)
+        the last scan saw free: the march stops at the first point no ray saw free (0 before any scan)."""
+        pts = self.last
+        if pts is None:
+            return 0.0
+        limit = pts.range_max_m if max_m is None else max_m
+        s = np.arange(0.0, limit + FREE_STEP_M, FREE_STEP_M)
+        x = from_xy[0] + s * math.cos(heading_rad)
+        y = from_xy[1] + s * math.sin(heading_rad)
+        ok = seen_free(pts, x, y)
+        bad = np.flatnonzero(~ok)
+        return float(s[bad[0] - 1]) if len(bad) and bad[0] > 0 else (0.0 if len(bad) else float(s[-1]))
+
+
+def _nearest_ray(pts: ScanPoints, bearing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per bearing (rad): the index of the nearest ray and the angle to it (rad)."""
+    b = pts.bearing_rad
+    diff = (bearing[:, None] - b[None, :] + math.pi) % (2.0 * math.pi) - math.pi
+    k = np.argmin(np.abs(diff), axis=1)
+    return k, np.abs(diff[np.arange(len(bearing)), k])
+
+
+def seen_free(pts: ScanPoints, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Per point (mission frame, m): did the scan see it free (a ray towards it, within 1.5 increments, passed
+    beyond it)?"""
+    dx, dy = x - pts.origin_m[0], y - pts.origin_m[1]
+    d = np.hypot(dx, dy)
+    k, off = _nearest_ray(pts, np.arctan2(dy, dx))
+    return (d <= pts.free_m[k]) & ((off <= 1.5 * pts.increment_rad) | (d < 1e-6))
+
+
+def in_view_many(pts: ScanPoints, x: np.ndarray, y: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
+    """Per trunk at (x, y) (m) of ``radius_m``: could the scan have seen it? Within range, and the ray towards it
+    saw free space beyond its near side (nothing in front of it: not occluded)."""
+    dx, dy = x - pts.origin_m[0], y - pts.origin_m[1]
+    d = np.hypot(dx, dy)
+    k, off = _nearest_ray(pts, np.arctan2(dy, dx))
+    near = d - radius_m
+    return (near <= pts.range_max_m) & (d > 1e-6) & (off <= 1.5 * pts.increment_rad) & (pts.free_m[k] > near + 0.05)
+
+
+def in_view(pts: ScanPoints, x: float, y: float, radius_m: float) -> bool:
+    """:func:`in_view_many` for one trunk."""
+    return bool(in_view_many(pts, np.array([x]), np.array([y]), np.array([radius_m]))[0])

@@ -1,0 +1,117 @@
+"""Perception end to end: poses and scans in, the local map's trunks out (pure: numpy only).
+
+:class:`Perception` is what the pilot owns. It is fed on arrival, outside the control tick: the vehicle's poses
+(:meth:`~Perception.on_position`, :meth:`~Perception.on_attitude`), ``OBSTACLE_DISTANCE`` parts
+(:meth:`~Perception.on_part`) and whole scans from other inputs (:meth:`~Perception.on_scan`: Zenoh, ROS 2). Each
+scan that passes the gate goes through the stages — pose at its time, points, clusters, map — and the tick reads
+only :attr:`~Perception.obstacles`, a tuple rebuilt when a scan changed the map. Refusals and drops are counted by
+stage and reason (:meth:`~Perception.facts`, for the report); the time each stage took, per scan, is kept for
+the bench (:attr:`~Perception.stage_s`).
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+from companion.core.obstacles import Obstacle
+from companion.perception.clusters import Clusterer, Detection
+from companion.perception.local_map import LocalMap
+from companion.perception.points import PointFilter, ScanPoints
+from companion.perception.pose_history import PoseHistory
+from companion.perception.scan import ObstacleDistanceAssembler, Scan, ScanGate, ScanPart
+
+
+class Perception:
+    """Scans into the local map of trunks (mission frame). ``vehicle_sysid``: whose scans are taken (None: any,
+    until :attr:`vehicle_sysid` is set). ``timer``: a clock for the stage timings (s; None: not timed)."""
+
+    def __init__(self, vehicle_sysid: int | None = None, *, local_map: LocalMap | None = None,
+                 clusterer: Clusterer | None = None, points: PointFilter | None = None,
+                 gate: ScanGate | None = None, timer: Any = None) -> None:
+        self.vehicle_sysid = vehicle_sysid
+        self.poses = PoseHistory()
+        self.assembler = ObstacleDistanceAssembler()
+        self.gate = gate or ScanGate()
+        self.points = points or PointFilter()
+        self.clusterer = clusterer or Clusterer()
+        self.map = local_map or LocalMap()
+        self.refused: Counter[str] = Counter()  # whole scans or parts refused before the map, by reason
+        self.scans_mapped = 0
+        self.last_points: ScanPoints | None = None
+        self.last_detections: list[Detection] = []
+        self.timer = timer
+        self.stage_s: dict[str, float] = {}
+
+    @property
+    def obstacles(self) -> tuple[Obstacle, ...]:
+        """The confirmed trunks now (``source="perception"``): what the tick reads."""
+        return self.map.obstacles
+
+    # ------------------------------------------------------------------ input
+    def on_position(self, t_s: float, pos_m: tuple[float, float, float]) -> None:
+        """The vehicle's position at vehicle time ``t_s`` (s), mission-frame NED (m)."""
+        self.poses.add_position(t_s, pos_m)
+
+    def on_attitude(self, t_s: float, euler_rad: tuple[float, float, float]) -> None:
+        """The vehicle's attitude at vehicle time ``t_s`` (s): roll, pitch, yaw (rad)."""
+        self.poses.add_attitude(t_s, euler_rad)
+
+    def on_part(self, part: ScanPart) -> int:
+        """One ``OBSTACLE_DISTANCE`` message; returns the number of scans it completed and mapped."""
+        if self.vehicle_sysid is not None and part.system_id != self.vehicle_sysid:
+            self.refused["wrong_vehicle"] += 1  # before assembly: another system's parts never break ours
+            return 0
+        t0 = self._now()
+        scans = self.assembler.add(part)
+        self._took("assembly", t0)
+        return sum(self.on_scan(s) for s in scans)
+
+    def on_scan(self, scan: Scan) -> bool:
+        """One whole scan; True if it was mapped."""
+        if not self.gate.check(scan, self.vehicle_sysid if scan.system_id is not None else None):
+            return False
+        pose = self.poses.at(scan.t_s)
+        if isinstance(pose, str):
+            self.refused[pose] += 1
+            return False
+        t0 = self._now()
+        pts = self.points.place(scan, pose)
+        t1 = self._took("points", t0)
+        dets = self.clusterer.detect(pts)
+        t2 = self._took("clusters", t1)
+        self.map.update(dets, pts)
+        self._took("map", t2)
+        self.last_points, self.last_detections = pts, dets
+        self.scans_mapped += 1
+        return True
+
+    def _now(self) -> float:
+        return self.timer() if self.timer is not None else 0.0
+
+    def _took(self, stage: str, t0: float) -> float:
+        if self.timer is None:
+            return 0.0
+        t1 = self.timer()
+        self.stage_s[stage] = t1 - t0
+        return t1
+
+    # ------------------------------------------------------------------ views
+    def free_distance_m(self, from_xy: tuple[float, float], heading_rad: float) -> float:
+        """How far (m) the last scan saw free from ``from_xy`` (mission frame, m) along ``heading_rad`` (rad from
+        north, clockwise); see :meth:`LocalMap.free_distance_m`."""
+        return self.map.free_distance_m(from_xy, heading_rad)
+
+    def facts(self) -> dict[str, Any]:
+        """For the report: scans mapped, refused (by stage and reason), returns dropped, the map's counts."""
+        refused = Counter(self.refused)
+        refused.update({f"part_{k}": v for k, v in self.assembler.refused.items()})
+        refused.update(self.gate.refused)
+        return {
+            "scans_mapped": self.scans_mapped, "parts": self.assembler.parts,
+            "partial_scans": self.assembler.partial_scans, "refused": dict(sorted(refused.items())),
+            "refused_total": sum(refused.values()), "returns_dropped": dict(self.points.dropped),
+            "segments_skipped": dict(self.clusterer.skipped), "map": dict(self.map.counts),
+            "tracks": len(self.map.tracks), "trunks": len(self.map.obstacles),
+            "pose_samples_ignored": self.poses.ignored,
+        }
