@@ -14,13 +14,16 @@
   LOCAL_POSITION_NED in POSITION, SYS_STATUS in EXTENDED_STATUS).
 * Its simulated slung payload (SIM_SLUP_*) is its own MAVLink system (autopilot INVALID) sending
   GLOBAL_POSITION_INT at 10 Hz; see ``companion.estimation.vehicle_state``.
+* We announce ourselves as an onboard controller: ArduPilot sends its STATUSTEXT to every active channel,
+  whatever heard there (measured 2026-12-03: 23 in 40 s to an onboard-controller link, the arming refusals
+  among them).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 
-from companion.autopilots.family import MAV_TYPE_GCS, AutopilotFamily, SetupOptions, interval_us, refused
+from companion.autopilots.family import MAV_TYPE_ONBOARD_CONTROLLER, AutopilotFamily, SetupOptions, interval_us, refused
 
 GUIDED = 4
 LOITER = 5
@@ -79,6 +82,6 @@ def followups(answers: Mapping[str, float], opts: SetupOptions) -> tuple[tuple[t
 
 ARDUPILOT = AutopilotFamily(
     name="ardupilot", modes=MODES, classify=classify, hover_param="MOT_THST_HOVER", default_hover_thrust=0.35,
-    takeover_before_arm=True, heartbeat_type=MAV_TYPE_GCS, setup=setup, followups=followups,
+    takeover_before_arm=True, heartbeat_type=MAV_TYPE_ONBOARD_CONTROLLER, setup=setup, followups=followups,
     notes="ArduCopter: GUIDED_NOGPS then arm; GUID_OPTIONS bit 3 for thrust; streams only on request",
 )

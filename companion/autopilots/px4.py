@@ -4,16 +4,19 @@
   is ``main << 16 | sub << 24`` (``companion.autopilots.px4_modes``).
 * Hover thrust: ``MPC_THR_HOVER``, default 0.5 (the bundled vehicle: 0.4 = 1/thrust-to-weight).
 * Arming before OFFBOARD, which PX4 accepts only while setpoints already stream (COM_OF_LOSS_T fresh).
-* We announce ourselves as a ground station (MAV_TYPE_GCS): PX4 sends its STATUSTEXT (the reasons behind a
-  refused arm, a failsafe) only to links that heard a GCS heartbeat (``is_gcs_connected()``,
-  src/modules/mavlink/streams/STATUSTEXT.hpp in v1.15).
+* We announce ourselves as what we are, an onboard controller (MAV_TYPE_ONBOARD_CONTROLLER, component 191).
+  PX4 sends its STATUSTEXT (the reasons behind a refused arm, a failsafe) only on a link that heard a GCS
+  heartbeat (``is_gcs_connected()``, src/modules/mavlink/streams/STATUSTEXT.hpp in v1.15): measured 2026-12-03,
+  none on its onboard link alone, all of them once a ground station shares that link (through MAVProxy or
+  mavlink-router, as beside a real GCS). No stream request changes that; the companion's own readiness
+  conditions say what it waits for instead (docs/autopilots.md).
 * Readiness: SYS_STATUS with the pre-arm check bit (PX4 sets it present and healthy once arming is allowed).
 """
 
 from __future__ import annotations
 
 from companion.autopilots import px4_modes as pm
-from companion.autopilots.family import MAV_TYPE_GCS, AutopilotFamily, SetupOptions, interval_us
+from companion.autopilots.family import MAV_TYPE_ONBOARD_CONTROLLER, AutopilotFamily, SetupOptions, interval_us
 
 MODES = {
     "offboard": (pm.MAIN_OFFBOARD, 0),
@@ -54,6 +57,6 @@ def setup(opts: SetupOptions) -> tuple[tuple[str, float], ...]:
 
 PX4 = AutopilotFamily(
     name="px4", modes=MODES, classify=classify, hover_param="MPC_THR_HOVER", default_hover_thrust=0.5,
-    takeover_before_arm=False, heartbeat_type=MAV_TYPE_GCS, setup=setup,
-    notes="PX4: OFFBOARD after arming, setpoints streaming first; STATUSTEXT only to a GCS-typed link",
+    takeover_before_arm=False, heartbeat_type=MAV_TYPE_ONBOARD_CONTROLLER, setup=setup,
+    notes="PX4: OFFBOARD after arming, setpoints streaming first; STATUSTEXT only on a link a GCS shares",
 )

@@ -156,6 +156,8 @@ class Runner:
         arrival = self.pilot.on_telemetry(ev, time.monotonic())
         if arrival.vehicle_found:
             self.link.lock_to_last_sender()
+            # a companion shares its vehicle's system id, with its own component (191), as MAVLink recommends
+            self.link.mav.srcSystem = self.pilot.state.vehicle_sysid
         if arrival.marker:
             self._marker_pending = True
         ans = self.requests.answer_of(ev)
@@ -270,8 +272,9 @@ class Runner:
             log.exception("on_connected hook failed; flying without it")
 
     def _housekeeping(self) -> None:
-        """Once a second: our HEARTBEAT (as the autopilot family wants it: PX4 tells its reasons only to a
-        GCS-typed link), and the journal's flush (bytes handed to its own thread: no disk wait here)."""
+        """Once a second: our HEARTBEAT (an onboard controller, component 191, the vehicle's system id once it is
+        known; docs/autopilots.md says what each autopilot then sends us), and the journal's flush (bytes handed
+        to its own thread: no disk wait here)."""
         if self.link.connected:
             mav_type = self.pilot.profile.family.heartbeat_type if self.pilot.state.vehicle_sysid is not None \
                 else mavlink2.MAV_TYPE_ONBOARD_CONTROLLER
