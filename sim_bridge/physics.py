@@ -1,8 +1,9 @@
 """The bundled vehicle's physics: the Lagrangian model plus what a real airframe adds around it.
 
-One physics step (default 1 ms): wind of eq. 49 → inner attitude loop (SMC) → rotor mixer with rotor-speed
-limits (eq. 13) → RK4 of the 8-DOF model → ground contact. Pure and deterministic; the MAVLink shell in
-``sim_bridge.vehicle`` drives it.
+One physics step (default 1 ms): wind (eq. 49, or drag of the physical wind of
+:mod:`companion.core.turbulence` on airframe and payload, held over the step) → inner attitude loop (SMC) →
+rotor mixer with rotor-speed limits (eq. 13) → RK4 of the 8-DOF model → ground contact. Pure and
+deterministic; the MAVLink shell in ``sim_bridge.vehicle`` drives it.
 
 Ground: the airframe rests on the plane z = 0 (home) while landed. The payload has ground contact too: it
 starts resting on the ground under the airframe with the cable slack, and while it lies there the airframe
@@ -37,6 +38,7 @@ from companion.core.model import (
     rotation_body_to_ned,
 )
 from companion.core.rotations import euler_tuple_from_quat, quat_from_euler
+from companion.core.turbulence import TABLE_DT_S, WindField
 from companion.core.wind import WindConfig, eq49_signal, wind_scale_factor
 from companion.errors import ModelError
 from sim_bridge.inner_loop import (
@@ -46,42 +48,51 @@ from sim_bridge.inner_loop import (
     _rate_torque,
     _smc_torque,
     gains_packed,
-    max_rotor_thrust_n,
     mixer_inverse,
     mixer_matrix,
 )
+from sim_bridge.wind_drag import _drag_disturbance
 
 __all__ = ["InnerLoopGains", "RotorConfig", "VehicleSim"]
 
 
 # before the first kernel (see companion.core.kernel_cache)
-use_kernel_cache(Path(__file__), Path(__file__).with_name("inner_loop.py"))
+use_kernel_cache(Path(__file__), Path(__file__).with_name("inner_loop.py"), Path(__file__).with_name("wind_drag.py"))
 
 
 @njit(cache=True)
 def _physics_steps(
-    x, t, n, dt, p, p_free, wind_k, tgt_euler, tgt_euler_rate, rates_only, tgt_rates, thrust, gp, a_mat, a_inv,
-    f_max, armed, landed, pl, f_out, tau_out, d_out, a_out,
+    x, t, n, dt, p, p_free, wind_k, wtab, tab_dt, drag_k, tgt_euler, tgt_euler_rate, rates_only, tgt_rates,
+    thrust, gp, a_mat, a_inv, f_max, armed, landed, pl, f_out, tau_out, d_out, a_out,
 ):  # pragma: no cover - compiled
     """``n`` physics steps in place on ``x``: wind → attitude SMC → mixer → RK4 → ground and cable contact.
 
-    ``pl`` = [slack (1.0/0.0), payload x, y, z]: the payload's ground contact, updated in place; while slack
-    the airframe flies with ``p_free`` (the parameters with m = 0). Returns (t, landed, ok). ``f_out``,
-    ``tau_out``, ``d_out`` receive the last step's rotor thrusts, body torques and disturbance, ``a_out`` the
-    airframe's acceleration ξ̈ at the final state under them (0 on the ground), for the IMU.
+    Wind: eq. 49 times ``wind_k`` on all six channels, or (``wtab`` non-empty: the wind velocity table, NED m/s,
+    a sample every ``tab_dt`` s from t = 0) drag ``drag_k`` = [k_airframe, k_payload] (N per (m/s)²) on the
+    airframe and on the payload, held over each step. ``pl`` = [slack (1.0/0.0), payload x, y, z]: the
+    payload's ground contact, updated in place; while slack the airframe flies with ``p_free`` (the parameters
+    with m = 0). Returns (t, landed, ok). ``f_out``, ``tau_out``, ``d_out`` receive the last step's rotor
+    thrusts, body torques and disturbance (first six channels), ``a_out`` the airframe's acceleration ξ̈ at
+    the final state under them (0 on the ground), for the IMU.
     """
     inertia = p[3:6]
     tau = np.empty(3)
     u = np.empty(4)
-    d = np.empty(6)
+    d6 = np.empty(6)
+    d8 = np.zeros(8)
+    physical = wtab.shape[0] > 1
+    d = d8 if physical else d6
     w = np.empty(3)
     tilt = np.empty(3)
     for _ in range(n):
         slack = pl[0] > 0.5
         hover = (p[0] + (0.0 if slack else p[1])) * p[2]
-        wv = 0.0 if (landed or wind_k == 0.0) else wind_k * eq49_signal(t)
-        for i in range(6):
-            d[i] = wv
+        if physical:
+            _drag_disturbance(x, t, wtab, tab_dt, drag_k, p[7], slack, landed, d8)
+        else:
+            wv = 0.0 if (landed or wind_k == 0.0) else wind_k * eq49_signal(t)
+            for i in range(6):
+                d6[i] = wv
         if armed:
             if rates_only:
                 phi = x[3]
@@ -279,6 +290,10 @@ class VehicleSim:
         self.rotor_thrust_n = np.zeros(4)
         self.torque_nm = np.zeros(3)
         self.disturbance = np.zeros(6)
+        self._field_cfg: WindConfig | None = None
+        self._field: WindField | None = None
+        self._no_table = np.zeros((0, 3))
+        self._drag_k = np.zeros(2)
         self._accel = np.zeros(3)  # ξ̈ after the last step (the kernel writes it)
         self._zeros3 = np.zeros(3)
         self._consts_key: tuple | None = None
@@ -320,7 +335,7 @@ class VehicleSim:
         if key is None or key[0] is not self.gains or key[1] is not self.rotor:  # identity: cheap every step
             self._consts_key = (self.gains, self.rotor)
             self._consts = (gains_packed(self.gains), mixer_matrix(self.rotor), mixer_inverse(self.rotor),
-                            max_rotor_thrust_n(self.rotor, self.params))
+                            self.params.max_thrust_n / 4.0)
         return self._consts
 
     def step(self, n_steps: int = 1) -> None:
@@ -332,9 +347,11 @@ class VehicleSim:
         else:
             rates = tgt_euler_rate = self._zeros3
         gp, a_mat, a_inv, f_max = self._kernel_constants()
+        wtab = self._wind_table(self.t_s + (int(n_steps) + 1) * self.dt_s)
         t, landed, ok = _physics_steps(
             self.x, self.t_s, int(n_steps), self.dt_s, self._p, self._p_free, wind_scale_factor(self.wind),
-            self.target_euler_rad, tgt_euler_rate, self.rates_only, rates, self.target_thrust_n,
+            wtab, TABLE_DT_S, self._drag_k, self.target_euler_rad, tgt_euler_rate, self.rates_only, rates,
+            self.target_thrust_n,
             gp, a_mat, a_inv, f_max, self.armed, self.landed, self._pl,
             self.rotor_thrust_n, self.torque_nm, self.disturbance, self._accel,
         )
@@ -343,11 +360,31 @@ class VehicleSim:
         if not ok:
             raise ModelError(f"simulation diverged at t = {self.t_s:.3f} s")
 
+    def _wind_field(self) -> WindField | None:
+        """The physical wind field for ``self.wind`` (rebuilt only when the configuration changes value)."""
+        if self._field_cfg != self.wind:
+            self._field_cfg = self.wind
+            self._field = WindField(self.wind) if self.wind.is_physical else None
+            self._drag_k = self.wind.drag_coefficients() if self.wind.is_physical else np.zeros(2)
+        return self._field
+
+    def _wind_table(self, t_until_s: float) -> np.ndarray:
+        """The wind velocity table covering [0, ``t_until_s``] s (empty unless the wind is physical)."""
+        field = self._wind_field()
+        return self._no_table if field is None else field.cover(t_until_s)
+
     # ---------------------------------------------------------------- views
     @property
+    def wind_ned_mps(self) -> np.ndarray:
+        """The air's velocity (NED, m/s) at the airframe now: zero unless the wind is physical."""
+        field = self._wind_field()
+        return np.zeros(3) if field is None else field.velocity(self.t_s)
+
+    @property
     def max_thrust_n(self) -> float:
-        """Total thrust at ω_max on all rotors, N."""
-        return 4.0 * max_rotor_thrust_n(self.rotor, self.params)
+        """Total thrust at ω_max on all rotors, N: the airframe's ``params.max_thrust_n`` (the rotors do not
+        grow with the payload; ``rotor.thrust_to_weight`` only sets the default MPC_THR_HOVER)."""
+        return 4.0 * (self.params.max_thrust_n / 4.0)
 
     @property
     def thrust_n(self) -> float:

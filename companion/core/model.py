@@ -6,7 +6,9 @@ Generalized coordinates (paper eq. 3–10), NED inertial frame, z down, gravity 
 
 The payload hangs at ξ_p = ξ + l·[sα·cβ, −sβ, cα·cβ] (eqs. 3–4). Inputs are ``u = [T, τφ, τθ, τψ]``
 (N, N·m; T is the rotor thrust, along −z_body) and the disturbance ``d = [dx, dy, dz, dφ, dθ, dψ]``
-(N in the inertial frame, N·m in the body frame) — eq. 14's D without its two zeros.
+(N in the inertial frame, N·m in the body frame) — eq. 14's D without its two zeros. ``d`` may carry two
+more entries [Q_α, Q_β] (N·m): generalised forces on the swing angles, which a force on the payload has
+(:func:`companion.core.wind.generalized_drag`; eq. 14's D has zeros there, eq. 49 leaves them zero).
 
 Derivation (the Lagrangian of eq. 10 is the source of truth; the printed eqs. 16–18 are not, see
 ``docs/model-derivation.md``). The kinetic energy splits into two uncoupled blocks:
@@ -61,6 +63,9 @@ class VehicleParams:
     l: float = 1.0  # cable length, m
     r_uav: float = 0.10  # arm length, m (eq. 20)
     L_uav: float = 0.18  # propeller radius, m (eq. 20)
+    #: total rotor thrust at full throttle, N: a property of the airframe, not of what hangs below it. Default:
+    #: the bundled vehicle's rotors, 2.5 × the weight of the paper's 1.5 kg vehicle + payload (36.79 N)
+    max_thrust_n: float = 2.5 * ((1.25 + 0.25) * 9.81)
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for non-physical values."""
@@ -121,8 +126,8 @@ def vehicle_params_with(base: VehicleParams, overrides: dict, where: str) -> Veh
 
 
 # --------------------------------------------------------------------------------------------------------
-# Compiled kernels. x = [q(8), q̇(8)], u = [T, τφ, τθ, τψ], d = [dx, dy, dz, dφ, dθ, dψ],
-# p = VehicleParams.packed().
+# Compiled kernels. x = [q(8), q̇(8)], u = [T, τφ, τθ, τψ], d = [dx, dy, dz, dφ, dθ, dψ] or
+# [dx, dy, dz, dφ, dθ, dψ, Qα, Qβ], p = VehicleParams.packed().
 
 
 # before the first kernel (see companion.core.kernel_cache)
@@ -185,6 +190,9 @@ def _deriv(x, u, d, p, out):  # pragma: no cover - compiled
     r2 = fz - m * ac2
     rsa = -m * (j0a * ac0 + j1a * ac1 + j2a * (ac2 - g))
     rsb = -m * (j0b * ac0 + j1b * ac1 + j2b * (ac2 - g))
+    if d.shape[0] > 6:  # generalised forces on α, β (a force on the payload: Jᵀ·F_p)
+        rsa += d[6]
+        rsb += d[7]
 
     # Schur complement: (D − m²JᵀJ/(M+m))·s̈ = rs − m·Jᵀ·rξ/(M+m), JᵀJ = l²·diag(cβ², 1).
     ka = m * l * l * cb * cb * M / mt + Ip
@@ -269,6 +277,8 @@ def _rk4_batch(X, U, D, p, dt, n_steps):  # pragma: no cover - compiled
 
 def _as_vec(name: str, v, n: int) -> np.ndarray:
     a = np.asarray(v, dtype=np.float64)
+    if name == "d" and a.shape == (8,):  # with the swing channels [Qα, Qβ]
+        n = 8
     if a.shape != (n,):
         raise ModelError(f"{name}: expected shape ({n},), got {a.shape}")
     if not np.all(np.isfinite(a)):
@@ -277,7 +287,7 @@ def _as_vec(name: str, v, n: int) -> np.ndarray:
 
 
 def accelerations(q, q_dot, u, d, params: VehicleParams) -> np.ndarray:
-    """Generalized accelerations q̈ (8,) of the model for q, q̇ (8,), u (4,), d (6,).
+    """Generalized accelerations q̈ (8,) of the model for q, q̇ (8,), u (4,), d (6,) or (8,) (with Qα, Qβ).
 
     Units: m/s² for x, y, z; rad/s² for φ, θ, ψ, α, β. Raises :class:`ModelError` on non-finite input or at
     the Euler-angle singularity θ = ±90°.
