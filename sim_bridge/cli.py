@@ -15,6 +15,7 @@ from companion.errors import ConfigError
 from companion.mavlink_io.signing import load_key_file
 from sim_bridge.imu import ImuNoise
 from sim_bridge.vehicle import SitlConfig, SitlVehicle
+from sim_bridge.world_cli import add_world_arguments, attached_scanner, scanner_from_args
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +82,7 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--imu-noise-scale", type=float, default=1.0,
                    help="multiplier of the IMU noise and bias random walk (SIM_IMU_NSCALE; 0 = ideal)")
     g.add_argument("--imu-seed", type=int, default=0, help="seed of the IMU noise generator")
+    add_world_arguments(parser)
 
 
 def _hostport(text: str, flag: str, shift: int) -> tuple[str, int]:
@@ -152,6 +154,7 @@ def _skip_numba_blas_probe() -> None:
 def run_sitl(args: argparse.Namespace) -> int:
     """Run the vehicle until SIGINT/SIGTERM or --duration; prints ``SITL READY ...`` once bound."""
     cfg = config_from_args(args)
+    scanner = scanner_from_args(args)  # a bad world file or LiDAR flag is refused before anything starts
     _skip_numba_blas_probe()
 
     def ready(v: SitlVehicle) -> None:
@@ -162,9 +165,10 @@ def run_sitl(args: argparse.Namespace) -> int:
         raise ConfigError(f"--rt-priority: must be in 0..{RT_PRIORITY_MAX} (0 = normal scheduling)")
     try:
         vehicle = SitlVehicle(cfg)  # start-up work (model kernels) at normal priority
-        if args.rt_priority and not args.lockstep:  # lockstep runs flat out: FIFO would starve the rest
-            request_fifo(args.rt_priority)
-        return vehicle.run(ready_cb=ready)
+        with attached_scanner(vehicle, scanner, args):
+            if args.rt_priority and not args.lockstep:  # lockstep runs flat out: FIFO would starve the rest
+                request_fifo(args.rt_priority)
+            return vehicle.run(ready_cb=ready)
     except OSError as exc:
         raise ConfigError(f"cannot bind the SITL ports: {exc}") from None
     except KeyboardInterrupt:

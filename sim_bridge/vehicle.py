@@ -144,6 +144,7 @@ class SitlVehicle:
         self._last_hb_wall = 0.0
         self._last_step_wall = 0.0  # lockstep: when a client last stepped the simulation
         self.steps = 0
+        self.scanner = None  # the world's LiDAR (sim_bridge.scan_sender.ScanSender; `sitl --world`), else None
 
     # ------------------------------------------------------------------ construction helpers
     def _new_sim(self, params: VehicleParams, t0_s: float) -> VehicleSim:
@@ -465,6 +466,8 @@ class SitlVehicle:
         self.steps += 1
         self._after_step()
         self._send_due_telemetry()
+        if self.scanner is not None:  # a scan, when due, as part of this instant's telemetry
+            self.scanner.on_step(self)
         if self.cfg.duration_s is not None and self.t_us >= self.cfg.duration_s * 1e6:
             self.stop_requested = True
 
