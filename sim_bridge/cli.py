@@ -72,6 +72,9 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--onboard-peer", metavar="HOST:PORT",
                    help="lock the onboard link to this peer from the start (default: the first sender)")
     g.add_argument("--gcs-peer", metavar="HOST:PORT", help="lock the GCS link to this peer from the start")
+    g.add_argument("--serial", metavar="DEVICE:BAUD",
+                   help="the onboard link on this serial device instead of UDP (e.g. /dev/ttyUSB0:921600, or one end "
+                        "of a pty pair: docs/companion.md); the GCS link stays UDP")
     g.add_argument("--rt-priority", type=int, default=0, metavar="N",
                    help="run the vehicle's loop SCHED_FIFO at priority N (1..99), as PX4 runs its tasks on Linux "
                         "(needs CAP_SYS_NICE or `ulimit -r` >= N, else it runs at normal priority and says so); "
@@ -91,6 +94,15 @@ def _hostport(text: str, flag: str, shift: int) -> tuple[str, int]:
         return host or "127.0.0.1", int(port) + shift
     except ValueError:
         raise ConfigError(f"{flag}: expected HOST:PORT, got {text!r}") from None
+
+
+def _serial_spec(text: str) -> tuple[str, int]:
+    from sim_bridge.link import parse_serial_spec
+
+    try:
+        return parse_serial_spec(text)
+    except ValueError as exc:
+        raise ConfigError(f"--serial: {exc}") from None
 
 
 def config_from_args(args: argparse.Namespace) -> SitlConfig:
@@ -118,6 +130,7 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
         fail_act_t_s=args.offboard_loss_hold,
         onboard_peer=_hostport(args.onboard_peer, "--onboard-peer", 0) if args.onboard_peer else None,
         gcs_peer=_hostport(args.gcs_peer, "--gcs-peer", 0) if args.gcs_peer else None,
+        onboard_serial=_serial_spec(args.serial) if getattr(args, "serial", None) else None,
         signing_key=key,
         imu=ImuNoise(scale=args.imu_noise_scale, seed=args.imu_seed),
         takeoff_alt_m=args.takeoff_alt,
@@ -158,7 +171,9 @@ def run_sitl(args: argparse.Namespace) -> int:
     _skip_numba_blas_probe()
 
     def ready(v: SitlVehicle) -> None:
-        print(f"SITL READY onboard={cfg.onboard_bind[0]}:{cfg.onboard_bind[1]} "
+        bind = cfg.onboard_bind
+        onboard = f"serial:{cfg.onboard_serial[0]}" if cfg.onboard_serial else f"{bind[0]}:{bind[1]}"
+        print(f"SITL READY onboard={onboard} "
               f"gcs={cfg.gcs_bind[0]}:{cfg.gcs_bind[1]} sysid={cfg.sysid}", flush=True)
 
     if not 0 <= args.rt_priority <= RT_PRIORITY_MAX:
@@ -170,7 +185,7 @@ def run_sitl(args: argparse.Namespace) -> int:
                 request_fifo(args.rt_priority)
             return vehicle.run(ready_cb=ready)
     except OSError as exc:
-        raise ConfigError(f"cannot bind the SITL ports: {exc}") from None
+        raise ConfigError(f"cannot open the SITL links (ports, --serial device): {exc}") from None
     except KeyboardInterrupt:
         return 0
 

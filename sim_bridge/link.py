@@ -19,7 +19,10 @@ its frames verify (a peer that restarted on a new port); the first verified fram
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
+import os
+import select
 import time
 from collections.abc import Callable
 from typing import Any
@@ -297,3 +300,96 @@ async def open_link(
         lambda: MavUdpLink(name, remote, sysid, compid, counters, on_message, peer, link_id), local_addr=bind
     )
     return proto
+
+
+SERIAL_PEER = ("serial", 0)  # the "address" of whatever is at the other end of the vehicle's serial device
+_SERIAL_WRITE_WAIT_S = 0.1
+
+
+class SerialPort:
+    """The onboard link on a serial device (a flight controller's TELEM port; in tests one end of a pty pair):
+    what :class:`MavUdpLink` needs of a transport (``sendto``, ``close``) and a ``recvfrom`` that waits up to
+    ``recv_timeout_s`` (s) and returns the complete frames read (framed by
+    :class:`companion.mavlink_io.framing.StreamFramer`; garbage counted as *garbage*), else raises
+    BlockingIOError. A device that goes away (EIO, end of file) is logged once and no longer read."""
+
+    def __init__(self, device: str, baud: int, counters: RejectCounters, recv_timeout_s: float = 0.0) -> None:
+        import serial  # pyserial: only a serial link needs it
+
+        from companion.mavlink_io.framing import StreamFramer
+
+        self.device = device
+        self.counters = counters
+        self.recv_timeout_s = recv_timeout_s
+        self._port = serial.Serial(device, baud, timeout=0, exclusive=True)  # raises SerialException (an OSError)
+        self._fd = self._port.fileno()
+        os.set_blocking(self._fd, False)
+        self._framer = StreamFramer()
+        self.dead = False
+
+    def fileno(self) -> int:
+        return self._fd
+
+    def recvfrom(self, _bufsize: int = 0) -> tuple[bytes, tuple[str, int]]:
+        """The frames that arrived (several at once as one "datagram"), from :data:`SERIAL_PEER`."""
+        if self.dead:
+            time.sleep(self.recv_timeout_s)
+            raise BlockingIOError
+        if self.recv_timeout_s > 0 and not select.select((self._fd,), (), (), self.recv_timeout_s)[0]:
+            raise BlockingIOError
+        try:
+            data = os.read(self._fd, 65536)
+        except (BlockingIOError, InterruptedError):
+            raise BlockingIOError from None
+        except OSError as exc:
+            data = b""
+            log.warning("serial %s: %s", self.device, exc.strerror or exc)
+        if not data:
+            self.dead = True
+            log.warning("serial %s is gone: the onboard link is down (offboard loss acts as configured)", self.device)
+            raise BlockingIOError
+        fr = self._framer
+        runs = fr.garbage_runs
+        frames = fr.feed(data)
+        for _ in range(fr.garbage_runs - runs):
+            self.counters.reject("garbage", f"bytes outside MAVLink frames on serial {self.device}")
+        if not frames:
+            raise BlockingIOError
+        return b"".join(frames), SERIAL_PEER
+
+    def sendto(self, buf: bytes | bytearray, _addr: object = None) -> None:
+        """Write every byte (waiting up to 0.1 s for room); raises OSError when the device is gone or full."""
+        if self.dead:
+            raise OSError("serial device gone")
+        view = memoryview(buf)
+        deadline = time.monotonic() + _SERIAL_WRITE_WAIT_S
+        while view:
+            try:
+                view = view[os.write(self._fd, view):]
+            except (BlockingIOError, InterruptedError):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise OSError(f"serial {self.device}: no room for {len(view)} bytes") from None
+                select.select((), (self._fd,), (), left)
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._port.close()
+
+
+def serial_link(port: SerialPort, sysid: int, compid: int, counters: RejectCounters,
+                on_message: Callable[[MavUdpLink, mavlink2.MAVLink_message], None], link_id: int = 0) -> MavUdpLink:
+    """The onboard link over ``port``: locked to :data:`SERIAL_PEER` from the start (one other end)."""
+    link = MavUdpLink("onboard", SERIAL_PEER, sysid, compid, counters, on_message, SERIAL_PEER, link_id)
+    link.transport = port  # type: ignore[assignment]  # sendto(buf, addr) is all a link asks of it
+    return link
+
+
+def parse_serial_spec(text: str) -> tuple[str, int]:
+    """``DEVICE:BAUD`` → (device, baud bit/s); ValueError naming what is wrong."""
+    device, sep, baud = text.rpartition(":")
+    if not sep or not device:
+        raise ValueError(f"expected DEVICE:BAUD (e.g. /dev/ttyUSB0:921600), got {text!r}")
+    if not baud.isdigit() or not 50 <= int(baud) <= 12_000_000:
+        raise ValueError(f"baud rate {baud!r} is not a number in 50..12000000")
+    return device, int(baud)

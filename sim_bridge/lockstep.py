@@ -4,9 +4,9 @@ Simulated time advances only when the onboard client answers a marker (docs/sitl
 → handle its frames (a SET_ATTITUDE_TARGET from the onboard link flies one control period and sends that
 period's telemetry and the SYSTEM_TIME marker, see :meth:`SitlVehicle._lockstep_step`) → receive the next.
 The onboard socket blocks in the kernel with a short receive timeout (``SO_RCVTIMEO``, one system call per
-datagram); the GCS socket is non-blocking and drained whenever ``poll`` (asked at most once a millisecond)
-says it has input. On the wall clock,
-at least every :data:`DUTY_PERIOD_S`, the vehicle re-sends a marker nobody answered and heartbeats while
+datagram; a serial onboard link, ``sitl --serial``, waits in ``select`` as long); the GCS socket is non-blocking
+and drained whenever ``poll`` (asked at most once a millisecond) says it has input. On the wall clock, at least
+every :data:`DUTY_PERIOD_S`, the vehicle re-sends a marker nobody answered and heartbeats while
 idle (:meth:`SitlVehicle.wall_clock_duties`). SIGINT/SIGTERM end the loop within one receive timeout.
 """
 
@@ -21,7 +21,7 @@ import struct
 import time
 from typing import Any
 
-from sim_bridge.link import MavUdpLink
+from sim_bridge.link import MavUdpLink, SerialPort, serial_link
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +38,17 @@ def _bind(addr: tuple[str, int]) -> socket.socket:
     except OSError:
         sock.close()
         raise
+    return sock
+
+
+def _open_onboard(v: Any) -> Any:
+    """The onboard link's receiver: its UDP socket blocking up to :data:`RECV_TIMEOUT_S` per ``recvfrom``, or the
+    serial device (``sitl --serial``) that waits as long."""
+    cfg = v.cfg
+    if cfg.onboard_serial is not None:
+        return SerialPort(*cfg.onboard_serial, v.counters, recv_timeout_s=RECV_TIMEOUT_S)
+    sock = _bind(cfg.onboard_bind)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("ll", 0, round(RECV_TIMEOUT_S * 1e6)))
     return sock
 
 
@@ -59,7 +70,7 @@ def run_lockstep(v: Any, ready_cb=None) -> int:
     Raises OSError when a port is taken."""
     cfg = v.cfg
     v.warm_up()
-    onboard_sock = _bind(cfg.onboard_bind)
+    onboard_sock = _open_onboard(v)
     try:
         gcs_sock = _bind(cfg.gcs_bind)
     except OSError:
@@ -67,14 +78,16 @@ def run_lockstep(v: Any, ready_cb=None) -> int:
         raise
     old_handlers: dict = {}
     try:
-        onboard_sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO,
-                                struct.pack("ll", 0, round(RECV_TIMEOUT_S * 1e6)))
         gcs_sock.setblocking(False)
-        onboard = MavUdpLink("onboard", cfg.onboard_remote, cfg.sysid, cfg.compid, v.counters, v.on_message,
-                             cfg.onboard_peer, link_id=0)
+        if cfg.onboard_serial is not None:
+            onboard = serial_link(onboard_sock, cfg.sysid, cfg.compid, v.counters, v.on_message)
+        else:
+            onboard = MavUdpLink("onboard", cfg.onboard_remote, cfg.sysid, cfg.compid, v.counters, v.on_message,
+                                 cfg.onboard_peer, link_id=0)
+            onboard.transport = onboard_sock  # a socket's sendto is all a link needs
         gcs = MavUdpLink("gcs", cfg.gcs_remote, cfg.sysid, cfg.compid, v.counters, v.on_message, cfg.gcs_peer,
                          link_id=1)
-        onboard.transport, gcs.transport = onboard_sock, gcs_sock  # a socket's sendto is all a link needs
+        gcs.transport = gcs_sock
         v.attach_links(onboard, gcs)
         old_handlers = _stop_on_signals(v)
         if ready_cb is not None:
@@ -89,7 +102,7 @@ def run_lockstep(v: Any, ready_cb=None) -> int:
     return 0
 
 
-def _loop(v: Any, onboard_sock: socket.socket, onboard: MavUdpLink, gcs_sock: socket.socket,
+def _loop(v: Any, onboard_sock: Any, onboard: MavUdpLink, gcs_sock: socket.socket,
           gcs: MavUdpLink) -> None:
     """Receive → handle until ``v.stop_requested``; the hot path is one ``recvfrom`` and one ``poll(0)``."""
     recv = onboard_sock.recvfrom

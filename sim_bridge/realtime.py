@@ -15,7 +15,7 @@ import signal
 import time
 from typing import Any
 
-from sim_bridge.link import open_link
+from sim_bridge.link import MavUdpLink, SerialPort, open_link, serial_link
 
 log = logging.getLogger(__name__)
 
@@ -42,18 +42,40 @@ async def _realtime_loop(v: Any, stop: asyncio.Event) -> None:
     stop.set()  # --duration reached
 
 
+def _serial_onboard(v: Any, loop: asyncio.AbstractEventLoop) -> MavUdpLink:
+    """The onboard link on the serial device of ``sitl --serial``, read whenever its descriptor is readable."""
+    cfg = v.cfg
+    port = SerialPort(*cfg.onboard_serial, v.counters)
+    link = serial_link(port, cfg.sysid, cfg.compid, v.counters, v.on_message)
+
+    def readable() -> None:
+        try:
+            data, addr = port.recvfrom()
+        except BlockingIOError:
+            if port.dead:
+                loop.remove_reader(port.fileno())
+            return
+        link.datagram_received(data, addr)
+
+    loop.add_reader(port.fileno(), readable)
+    return link
+
+
 async def run_realtime(v: Any, ready_cb=None) -> int:
-    """Bind both links on the running loop and fly ``v`` in real time until SIGINT/SIGTERM or its
-    ``duration_s``; returns 0. Raises OSError when a port is taken."""
+    """Bind both links on the running loop (the onboard one: UDP, or the serial device of ``sitl --serial``) and fly
+    ``v`` in real time until SIGINT/SIGTERM or its ``duration_s``; returns 0. Raises OSError when a port is taken."""
     cfg = v.cfg
     stop = asyncio.Event()
     v.warm_up()
-    onboard = await open_link("onboard", cfg.onboard_bind, cfg.onboard_remote, cfg.sysid, cfg.compid,
-                              v.counters, v.on_message, cfg.onboard_peer, link_id=0)
+    loop = asyncio.get_running_loop()
+    if cfg.onboard_serial is not None:
+        onboard = _serial_onboard(v, loop)
+    else:
+        onboard = await open_link("onboard", cfg.onboard_bind, cfg.onboard_remote, cfg.sysid, cfg.compid,
+                                  v.counters, v.on_message, cfg.onboard_peer, link_id=0)
     gcs = await open_link("gcs", cfg.gcs_bind, cfg.gcs_remote, cfg.sysid, cfg.compid,
                           v.counters, v.on_message, cfg.gcs_peer, link_id=1)
     v.attach_links(onboard, gcs)
-    loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):  # not the main thread
             loop.add_signal_handler(sig, stop.set)
@@ -65,6 +87,8 @@ async def run_realtime(v: Any, ready_cb=None) -> int:
         await stop.wait()
     finally:
         task.cancel()
+        if cfg.onboard_serial is not None:
+            loop.remove_reader(onboard.transport.fileno())
         for lk in (onboard, gcs):
             if lk.transport is not None:
                 lk.transport.close()

@@ -72,6 +72,7 @@ class SitlConfig:
     duration_s: float | None = None
     onboard_peer: tuple[str, int] | None = None  # lock the link to this peer from the start
     gcs_peer: tuple[str, int] | None = None
+    onboard_serial: tuple[str, int] | None = None  # (device, baud bit/s): the onboard link on a serial device
     signing_key: bytes | None = None
     imu: ImuNoise = field(default_factory=ImuNoise)
 

@@ -31,6 +31,7 @@ PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "c
 IO_FRAMEWORKS = ("asyncio", "pymavlink", "zenoh", "socket")
 #: What the bundled vehicle may use of the companion: the shared model and MAVLink helpers.
 SIM_MAY_IMPORT = ("companion.core", "companion.mavlink_io.codec", "companion.mavlink_io.signing",
+                  "companion.mavlink_io.framing",  # MAVLink frames out of a serial stream (sitl --serial)
                   "companion.autopilots", "companion.errors", "companion.config", "companion",
                   "companion.proclife",  # children tied to their parent's life (no I/O of its own)
                   "companion.zenoh_io.schema")  # the Zenoh key expressions and payloads (the raw scan)

@@ -1,10 +1,10 @@
 """MAVLink frames cut out of a byte stream (serial, TCP), for the companion's link and the bundled vehicle.
 
 A datagram carries whole frames; a stream carries bytes. :class:`StreamFramer` keeps what it was fed and hands back
-complete frames whose CRC checks out, in order, in one ``bytes`` (a "datagram" of whole frames, which both links'
-datagram parsers already take). A partial frame waits for the next read. Anything that does not check out is
-garbage: the framer steps one byte past the start marker it tried and looks for the next one (resynchronisation),
-so a false marker inside line noise costs at most one frame length of delay, never the stream.
+complete frames whose CRC checks out, in order, each handled by the links as a one-frame datagram. A partial frame
+waits for the next read. Anything that does not check out is garbage: the framer steps one byte past the start
+marker it tried and looks for the next one (resynchronisation), so a false marker inside line noise costs at most
+one frame length of delay, never the stream.
 
 A frame is accepted when: MAVLink 2 (0xFD) with incompatibility flags 0 or 1 (signed: 13 signature bytes follow
 the CRC, not checked here), or MAVLink 1 (0xFE); a message id whose CRC extra is known; the CRC right. Frames of
@@ -51,11 +51,11 @@ class StreamFramer:
         """Bytes waiting for the rest of their frame."""
         return len(self._buf)
 
-    def feed(self, data: bytes) -> bytes:
-        """Add ``data``; return the frames now complete (concatenated, b"" if none)."""
+    def feed(self, data: bytes) -> list[bytes]:
+        """Add ``data``; return the frames now complete, in order."""
         buf = self._buf
         buf += data
-        out = bytearray()
+        out: list[bytes] = []
         i, n = 0, len(buf)
         skip_from = -1  # start of the current run of garbage
         while i < n:
@@ -64,7 +64,7 @@ class StreamFramer:
                 if skip_from >= 0:
                     self._garbage(i - skip_from)
                     skip_from = -1
-                out += buf[i : i + size]
+                out.append(bytes(buf[i : i + size]))
                 self.frames += 1
                 i += size
             elif size == 0:  # a frame that may still be complete: wait for more bytes
@@ -76,7 +76,7 @@ class StreamFramer:
         if skip_from >= 0:
             self._garbage(i - skip_from)
         del buf[:i]
-        return bytes(out)
+        return out
 
     def _garbage(self, nbytes: int) -> None:
         self.garbage_bytes += nbytes
