@@ -94,7 +94,8 @@ class Runner:
         if w.obstacle_source is not None:
             pilot.obstacles.use_source(w.obstacle_source)
         s = self.setup
-        self.link = MavlinkLink(s.connect, self._on_message, tlog=s.tlog_path, sock=s.sock, signing_key=s.signing_key)
+        self.link = MavlinkLink(s.connect, self._on_message, tlog=s.tlog_path, sock=s.sock, signing_key=s.signing_key,
+                                accept_unsigned=s.accept_unsigned)
         self.link.frame_handler = self._on_frame
         st = pilot.state
         self.requests = RequestLink(self.link.mav, lambda: (st.vehicle_sysid, st.vehicle_compid),
@@ -304,7 +305,8 @@ class Runner:
         return pilot_facts(self.pilot) | {
             "loop": self.loop_facts(provisional),
             "link": {"received": link.received, "sent": link.sent, "rejected": dict(link.rejected),
-                     **self.pilot.health.summary()},
+                     **self.pilot.health.summary(),
+                     "signing": link.verifier.summary() if link.verifier is not None else None},
             "journal": self.journal.summary() if self.journal is not None else None,
         }
 

@@ -31,7 +31,12 @@ class FlightSetup:
     where the journal is flushed each second; ``start_here``: fly the mission from where the vehicle stands;
     ``signing_key``: MAVLink 2 signing (sign everything, accept only signed frames); ``rt_priority`` > 0: the
     control thread runs SCHED_FIFO in real time; ``inject_tick_error_at_s``: the fault suite's failing tick from
-    this vehicle time on (None in normal use).
+    this vehicle time on (None in normal use); ``perception``: map trunks from the vehicle's range scans
+    (``OBSTACLE_DISTANCE``, Zenoh scans) into the planner's obstacles — None (default): on by itself when the
+    vehicle's first scan arrives (a flight with no scans flies exactly as without it), True: from the start,
+    False: never (scans are ignored). ``accept_unsigned``: with signing, the systems whose unsigned frames are read
+    all the same (a payload that cannot sign); ``gcs_sysid``: the only ground station whose commands (pause,
+    resume, land, return) the companion obeys (None: any, unless signing is on, when none is obeyed).
     """
 
     connect: str = "udpin://0.0.0.0:14540"
@@ -57,6 +62,9 @@ class FlightSetup:
     signing_key: bytes | None = None
     rt_priority: int = 0
     inject_tick_error_at_s: float | None = None
+    perception: bool | None = None
+    accept_unsigned: tuple[int, ...] = ()
+    gcs_sysid: int | None = None
 
     @property
     def period_s(self) -> float:
@@ -70,5 +78,13 @@ class FlightSetup:
         if not 0 <= self.rt_priority <= rt_priority_max:
             raise ConfigError(f"--rt-priority: must be in 0..{rt_priority_max} (0 = normal scheduling), got "
                               f"{self.rt_priority}")
+        if self.accept_unsigned and self.signing_key is None:
+            raise ConfigError("--accept-unsigned: only with --signing-key (without signing every frame is read)")
+        for sysid in (*self.accept_unsigned, *(() if self.gcs_sysid is None else (self.gcs_sysid,))):
+            if not 1 <= sysid <= 255:
+                raise ConfigError(f"--accept-unsigned/--gcs-sysid: a MAVLink system id is 1..255, got {sysid}")
+        if self.gcs_sysid is not None and self.gcs_sysid in self.accept_unsigned:
+            raise ConfigError(f"--gcs-sysid {self.gcs_sysid} is also in --accept-unsigned: its commands could then "
+                              "be forged; a ground station the companion obeys must sign")
         if self.swing_input not in SWING_INPUTS:
             raise ConfigError(f"--swing-input: one of {', '.join(SWING_INPUTS)}, got {self.swing_input!r}")

@@ -75,13 +75,15 @@ class MavlinkLink:
         tlog: Path | None = None,
         sock: socket.socket | None = None,
         signing_key: bytes | None = None,
+        accept_unsigned: tuple[int, ...] = (),
     ) -> None:
         self.url = LinkUrl.parse(url)
         self.transport = make_transport(self.url, sock)  # ``sock``: an already bound UDP socket (udpin)
         self._stream = self.url.stream
         self._framer = StreamFramer() if self._stream else None
         # MAVLink 2 signing (companion.mavlink_io.signing): every frame out signed, every frame in checked
-        self.verifier = None if signing_key is None else signing.SigningVerifier(signing_key)
+        # (``accept_unsigned``: systems whose unsigned frames are read all the same, counted in the verifier)
+        self.verifier = None if signing_key is None else signing.SigningVerifier(signing_key, accept_unsigned)
         self.signer = None if signing_key is None else signing.LinkSigner(signing_key, link_id=0)
         self.handler = handler
         self.mav = mavlink2.MAVLink(self, srcSystem=src_system, srcComponent=src_component)
@@ -354,6 +356,8 @@ class MavlinkLink:
         i, n = 0, len(data)
         while i < n:
             if data[i] != _STX_V2 or i + _MIN_FRAME > n:
+                if data[i] == 0xFE and i + 5 <= n:  # MAVLink 1 cannot be signed: dropped, counted by sender
+                    self.verifier.note_dropped(data[i + 3], data[i + 4], "unsigned")
                 self._count("unsigned" if data[i] == 0xFE else "garbage")
                 return out
             flags = data[i + 2]
@@ -363,15 +367,12 @@ class MavlinkLink:
             if len(frame) < total:
                 self._count("truncated")
                 return out
-            if flags != signing.IFLAG_SIGNED:
-                self._count("unsigned" if flags == 0 else "bad_flags")
-                continue
-            kind = self.verifier.check(frame)
+            kind = self.verifier.admit(frame)  # signed and fresh, or unsigned from a system let in so
             if kind is not None:
-                self._count(kind, f"signed frame from system {frame[5]}")
+                self._count(kind, f"frame from system {frame[5]} component {frame[6]}")
                 continue
             try:  # decoded without its signature, recorded with it (a .tlog frame is the frame as received)
-                out.append((frame, decode_lite(frame[: -signing.SIGNATURE_LEN])))
+                out.append((frame, decode_lite(frame[: -signing.SIGNATURE_LEN] if flags else frame)))
             except Exception as exc:  # bad CRC or unknown id inside a valid signature: count, never raise
                 self._count("undecodable", repr(exc)[:120])
         return out

@@ -37,6 +37,7 @@ SIGNATURE_LEN = 13  # link id (1) + timestamp (6) + signature (6)
 KEY_LEN = 32
 EPOCH_2015_UNIX_S = 1_420_070_400  # 2015-01-01T00:00:00Z
 NEW_STREAM_MAX_AGE = 6_000_000  # one minute in 10 µs units
+MAX_SENDERS = 64  # distinct senders counted apart in the dropped-frame tally (the rest together)
 _HDR_LEN = 10
 _TS = struct.Struct("<Q")
 
@@ -118,14 +119,55 @@ def write_new_key_file(path: str | Path) -> bytes:
 
 # ------------------------------------------------------------------------------------------------ state
 class SigningVerifier:
-    """Checks incoming signed frames against one key and keeps the replay window per stream."""
+    """Checks incoming signed frames against one key and keeps the replay window per stream.
 
-    def __init__(self, key: bytes) -> None:
+    :meth:`admit` is the whole policy of a signing link: a frame is let in when it is signed and fresh, or unsigned
+    from a system in ``accept_unsigned`` (a payload that cannot sign, e.g. ArduCopter SITL's slung payload, system
+    2, which ArduPilot forwards unsigned); every frame dropped is counted by sender (system, component) and kind,
+    and every unsigned frame let in is counted by system (:meth:`summary`, for the report)."""
+
+    def __init__(self, key: bytes, accept_unsigned: tuple[int, ...] = ()) -> None:
         if len(key) != KEY_LEN:
             raise ValueError(f"signing key must be {KEY_LEN} bytes, got {len(key)}")
         self.key = bytes(key)
         self.stream_timestamps: dict[tuple[int, int, int], int] = {}
         self.newest = 0  # newest timestamp accepted (or sent, see note_sent)
+        self.accept_unsigned = frozenset(int(s) for s in accept_unsigned)
+        self.dropped: dict[tuple[int, int], dict[str, int]] = {}  # (system, component) -> kind -> frames
+        self.accepted_unsigned: dict[int, int] = {}  # system -> unsigned frames let in
+
+    def admit(self, frame: bytes) -> str | None:
+        """None if one complete MAVLink 2 ``frame`` may be read: signed, authentic and fresh, or unsigned from a
+        system in ``accept_unsigned``; else why not (``unsigned``, ``bad_flags``, ``bad_signature``, ``replay``),
+        counted under its sender."""
+        flags = frame[2]
+        if flags == 0 and frame[5] in self.accept_unsigned:
+            self.accepted_unsigned[frame[5]] = self.accepted_unsigned.get(frame[5], 0) + 1
+            return None
+        kind = self.check(frame) if flags == IFLAG_SIGNED else "unsigned" if flags == 0 else "bad_flags"
+        if kind is not None:
+            self.note_dropped(frame[5], frame[6], kind)
+        return kind
+
+    def note_dropped(self, system: int, component: int, kind: str) -> None:
+        """Count one frame dropped for its signature (``kind``) under its sender; past
+        :data:`MAX_SENDERS` distinct senders (a spoofer can forge any id) the rest share the key (-1, -1)."""
+        key = (system, component)
+        if key not in self.dropped and len(self.dropped) >= MAX_SENDERS:
+            key = (-1, -1)
+        kinds = self.dropped.setdefault(key, {})
+        kinds[kind] = kinds.get(kind, 0) + 1
+
+    def summary(self) -> dict:
+        """For the report: frames dropped by sender ("system/component" -> kind -> count; "other" past
+        :data:`MAX_SENDERS`), the systems accepted unsigned and how many of their frames were let in so."""
+        return {
+            "dropped_by_sender": {("other" if s < 0 else f"{s}/{c}"): dict(k)
+                                  for (s, c), k in sorted(self.dropped.items())},
+            "dropped": sum(sum(k.values()) for k in self.dropped.values()),
+            "accept_unsigned_systems": sorted(self.accept_unsigned),
+            "accepted_unsigned": {str(s): n for s, n in sorted(self.accepted_unsigned.items())},
+        }
 
     def check(self, frame: bytes) -> str | None:
         """None if ``frame`` (signed, complete) is authentic and fresh; else "bad_signature" or "replay".
