@@ -53,7 +53,7 @@ def _messages(rng: random.Random):
     yield (M.MAVLink_heartbeat_message(2, 12, 129, 6 << 16, 4, 3),
            tm.Heartbeat, dict(mav_type=2, autopilot=12, base_mode=129, custom_mode=6 << 16, system_status=4))
     yield (M.MAVLink_sys_status_message(7, 5, 0x10000003, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0),
-           tm.SysStatus, dict(sensors_present=7, sensors_health=0x10000003))
+           tm.SysStatus, dict(sensors_present=7, sensors_health=0x10000003, sensors_enabled=5))
     yield (M.MAVLink_attitude_message(ms, *a[:6]), tm.Attitude,
            dict(t_boot_s=ms * 1e-3, euler_rad=tuple(a[:3]), rates_frd_rad_s=tuple(a[3:6])))
     yield (M.MAVLink_local_position_ned_message(ms, *a[:6]), tm.LocalPositionNed,
@@ -83,6 +83,11 @@ def _messages(rng: random.Random):
     yield (M.MAVLink_statustext_message(4, b"Takeoff detected", 0, 0), tm.StatusText,
            dict(severity=4, text="Takeoff detected"))
     yield M.MAVLink_command_ack_message(400, 0, 0, 0, 0, 0), tm.CommandAck, dict(command=400, result=0)
+    yield (M.MAVLink_command_long_message(1, 191, 193, 0, 0.0, 1.5, 2.0, 3.0, 4.0, 5.0, -6.0), tm.CommandLong,
+           dict(command=193, target_system=1, target_component=191, params=(0.0, 1.5, 2.0, 3.0, 4.0, 5.0, -6.0)))
+    yield (M.MAVLink_command_int_message(1, 191, 6, 193, 0, 0, 1.0, 0.0, 0.0, 0.0, lat, lon, 12.5), tm.CommandInt,
+           dict(command=193, target_system=1, target_component=191, frame=6,
+                params=(1.0, 0.0, 0.0, 0.0, float(lat), float(lon), 12.5)))
     yield (M.MAVLink_param_value_message(b"MPC_THR_HOVER", 0.5, 9, 100, 3), tm.ParamValue,
            dict(param_id="MPC_THR_HOVER", value=0.5))
     yield (M.MAVLink_debug_float_array_message(us, b"SWING", 1, a[:4] + [1.0] + [0.0] * 53), tm.SwingSensor,

@@ -62,6 +62,7 @@ class SysStatus(Sourced):
     message: ClassVar[str] = "SYS_STATUS"
     sensors_present: int
     sensors_health: int
+    sensors_enabled: int  # ArduCopter with ARMING_CHECK 0: the pre-arm bit present, not enabled (never healthy)
 
 
 @dataclass(frozen=True, slots=True)
@@ -277,6 +278,26 @@ class ObstacleDistance(Sourced):
 
 
 @dataclass(frozen=True, slots=True)
+class CommandLong(Sourced):
+    """COMMAND_LONG (e.g. a ground station's pause or land for the companion): MAV_CMD, its target, params 1-7
+    (units per command; NaN is a value some commands use)."""
+
+    message: ClassVar[str] = "COMMAND_LONG"
+    command: int
+    target_system: int
+    target_component: int
+    params: tuple[float, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class CommandInt(CommandLong):
+    """COMMAND_INT: as :class:`CommandLong`, params 1-4 then x, y (integers, e.g. degE7) and z, and its frame."""
+
+    message: ClassVar[str] = "COMMAND_INT"
+    frame: int
+
+
+@dataclass(frozen=True, slots=True)
 class Rejected(Sourced):
     """A message refused while decoding: ``message`` its type name, ``kind`` why (``nonfinite``)."""
 
@@ -287,7 +308,7 @@ class Rejected(Sourced):
 TelemetryEvent = (Heartbeat | SysStatus | Attitude | LocalPositionNed | GlobalPositionInt | HomePosition
                   | ExtendedSysState | SystemTime | HighresImu | ScaledImu | EstimatorStatus | StatusText
                   | CommandAck | ParamValue | SwingSensor | AutopilotVersion | GpsGlobalOrigin | MissionCount
-                  | MissionItemInt | MissionAck | ObstacleDistance | Rejected)
+                  | MissionItemInt | MissionAck | ObstacleDistance | CommandLong | CommandInt | Rejected)
 
 
 def _constructor(cls: type) -> Any:
@@ -307,7 +328,7 @@ def _constructor(cls: type) -> Any:
 for _cls in (Heartbeat, SysStatus, Attitude, LocalPositionNed, GlobalPositionInt, HomePosition, ExtendedSysState,
              SystemTime, HighresImu, ScaledImu, EstimatorStatus, StatusText, CommandAck, ParamValue, SwingSensor,
              AutopilotVersion, GpsGlobalOrigin, MissionCount, MissionItemInt, MissionAck, ObstacleDistance,
-             Rejected):
+             CommandLong, CommandInt, Rejected):
     _cls._make = _constructor(_cls)  # type: ignore[attr-defined]  # the decoders' constructor
 
 
@@ -328,7 +349,15 @@ def _d_heartbeat(t: tuple, s: int, c: int, q: int) -> Heartbeat:
 
 
 def _d_sys_status(t: tuple, s: int, c: int, q: int) -> SysStatus:
-    return SysStatus._make(s, c, q, t[0], t[2])
+    return SysStatus._make(s, c, q, t[0], t[2], t[1])
+
+
+def _d_command_long(t: tuple, s: int, c: int, q: int) -> CommandLong:
+    return CommandLong._make(s, c, q, t[7], t[8], t[9], t[:7])
+
+
+def _d_command_int(t: tuple, s: int, c: int, q: int) -> CommandInt:
+    return CommandInt._make(s, c, q, t[7], t[8], t[9], (*t[:4], float(t[4]), float(t[5]), t[6]), t[10])
 
 
 def _d_attitude(t: tuple, s: int, c: int, q: int) -> Attitude | Rejected:
@@ -465,6 +494,10 @@ _LAYOUTS = {lay.msgid: lay for lay in (
     _Layout(49, "<iii", "latitude longitude altitude", _d_origin),
     _Layout(73, "<ffffiifHHBBBBBB", "param1 param2 param3 param4 x y z seq command target_system target_component "
                                     "frame current autocontinue mission_type", _d_mission_item),
+    _Layout(75, "<4fiifHBBB", "param1 param2 param3 param4 x y z command target_system target_component frame",
+            _d_command_int),
+    _Layout(76, "<7fHBB", "param1 param2 param3 param4 param5 param6 param7 command target_system "
+                          "target_component", _d_command_long),
     _Layout(77, "<HB", "command result", _d_ack),
     _Layout(105, "<Qfff", "time_usec xacc yacc zacc", _d_highres),
     _Layout(148, "<QQIIIIHH8B", "capabilities uid flight_sw_version middleware_sw_version os_sw_version "
