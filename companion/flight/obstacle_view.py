@@ -17,11 +17,15 @@ RECULL_M = 2.0  # the vehicle moved this far since the last cull: cull again
 
 
 class ObstacleView:
-    """Obstacles from ``source(t_s)`` (live input) or the mission's own list, culled around the vehicle."""
+    """Obstacles from ``source(t_s)`` (live input) or the mission's own list, plus those of ``perceived(t_s)``
+    (the vehicle's own sensors' map, when it has one), culled around the vehicle. Each keeps its ``source``."""
 
     def __init__(self, mission_obstacles: Sequence[Obstacle]) -> None:
         self.mission_obstacles = mission_obstacles
         self.source: Callable[[float], Sequence[Obstacle]] | None = None
+        self.perceived: Callable[[float], Sequence[Obstacle]] | None = None
+        self._merged_of: tuple[Sequence[Obstacle] | None, Sequence[Obstacle] | None] = (None, None)
+        self._merged: tuple[Obstacle, ...] = ()
         self._last: Sequence[Obstacle] | None = None
         self._seen: dict[tuple, Obstacle] = {}
         self._culled: Sequence[Obstacle] = ()
@@ -33,17 +37,21 @@ class ObstacleView:
 
     @property
     def seen(self) -> tuple[Obstacle, ...]:
-        """Every obstacle the planner has been given during the flight (mission and live ones)."""
+        """Every obstacle the planner has been given during the flight (mission and live ones; not the perceived
+        ones, whose estimates change with every scan: see the perception facts)."""
         return tuple(self._seen.values())
 
     def around(self, t_s: float, x_m: float, y_m: float) -> Sequence[Obstacle]:
         """The obstacles for the planner at time ``t_s`` (s) with the vehicle at (``x_m``, ``y_m``) (mission frame)."""
         obstacles = self.source(t_s) if self.source else self.mission_obstacles
+        if self.perceived is not None:
+            obstacles = self._merge(obstacles, self.perceived(t_s))
         if obstacles is not self._last:
             self._last = obstacles
             if len(self._seen) < MAX_OBSTACLES_SEEN:
                 for o in obstacles:
-                    self._seen.setdefault((o.x_m, o.y_m, o.radius_m, o.height_m), o)
+                    if o.source != "perception":  # a perceived trunk moves with each scan: not a record of one
+                        self._seen.setdefault((o.x_m, o.y_m, o.radius_m, o.height_m), o)
         elif (x_m - self._cull_xy[0]) ** 2 + (y_m - self._cull_xy[1]) ** 2 < RECULL_M ** 2:
             return self._culled
         self._cull_xy = (x_m, y_m)
@@ -54,3 +62,12 @@ class ObstacleView:
             self._culled = tuple(o for o in obstacles
                                  if (o.x_m - x_m) ** 2 + (o.y_m - y_m) ** 2 < (r + o.radius_m) ** 2)
         return self._culled
+
+    def _merge(self, given: Sequence[Obstacle], perceived: Sequence[Obstacle]) -> Sequence[Obstacle]:
+        """``given`` followed by ``perceived``; the same tuple while neither changed."""
+        if not perceived:
+            return given
+        if self._merged_of[0] is not given or self._merged_of[1] is not perceived:
+            self._merged_of = (given, perceived)
+            self._merged = (*given, *perceived)
+        return self._merged

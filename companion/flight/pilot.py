@@ -42,7 +42,9 @@ from companion.flight.requests import Request
 from companion.flight.sequence import FlightSequence
 from companion.flight.sequence_types import Observation, SequenceConfig, Stream, Transition
 from companion.flight.setup import FlightSetup
-from companion.mavlink_io.telemetry import TelemetryEvent
+from companion.mavlink_io.telemetry import Attitude, LocalPositionNed, ObstacleDistance, Rejected, TelemetryEvent
+from companion.perception.pipeline import Perception
+from companion.perception.scan import ScanPart
 
 log = logging.getLogger(__name__)
 
@@ -105,6 +107,11 @@ class Pilot:
         self.record = FlightRecord(mission, self.state)
         self.frame = MissionFrame(mission.start_ned_m, setup.start_here)
         self.obstacles = ObstacleView(mission.obstacles)
+        #: the map of what the vehicle's own range sensors saw (None until it is on: see ``FlightSetup.perception``)
+        self.perception: Perception | None = None
+        self.perception_errors = 0
+        if setup.perception:
+            self._start_perception()
         self.params: dict[str, dict[str, float]] = {"read": {}, "set": {}}  # the autopilot parameters read/set
         self.abort_reason: str | None = None
         self.tick_errors = 0
@@ -161,6 +168,14 @@ class Pilot:
         found = not known and st.vehicle_sysid is not None
         if found:
             self._vehicle_found()
+        if self.perception is not None or ev.__class__ is ObstacleDistance:
+            try:
+                self._perceive(ev)
+            except Exception as exc:  # a bug in perception must not take the telemetry input down with it
+                self.perception_errors += 1
+                if self.record.error_log_due(wall_s):
+                    log.error("perception failed (%d times): %r", self.perception_errors, exc,
+                              exc_info=self.perception_errors == 1)
         marker = False
         src = ev.src_system
         if src == st.vehicle_sysid:
@@ -177,6 +192,39 @@ class Pilot:
                 self._marker_seen_wall = wall_s
                 marker = True
         return Arrival(found, marker)
+
+    def _start_perception(self) -> None:
+        self.perception = Perception(self.state.vehicle_sysid)
+        p = self.perception
+        self.obstacles.perceived = p.obstacles_at
+        log.info("perception on: trunks mapped from the vehicle's range scans")
+
+    def _perceive(self, ev: TelemetryEvent) -> None:
+        """Feed the perception map on arrival (outside the tick): the vehicle's poses (mission frame) and its
+        range scans. With ``setup.perception`` None the map starts at the vehicle's first scan."""
+        p = self.perception
+        src = ev.src_system
+        cls = ev.__class__
+        if p is None:
+            if self.setup.perception is False or src != self.state.vehicle_sysid:
+                return
+            self._start_perception()
+            p = self.perception
+            assert p is not None
+        p.vehicle_sysid = self.state.vehicle_sysid
+        if cls is ObstacleDistance:
+            p.on_part(ScanPart(ev.time_usec, ev.distances_cm, ev.min_distance_cm, ev.max_distance_cm,
+                               ev.increment_deg, ev.angle_offset_deg, ev.frame, src))
+        elif src != self.state.vehicle_sysid:
+            return
+        elif cls is LocalPositionNed:
+            o = self.frame.origin_ned_m
+            x, y, z = ev.pos_ned_m
+            p.on_position(ev.t_boot_s, (x - float(o[0]), y - float(o[1]), z - float(o[2])))
+        elif cls is Attitude:
+            p.on_attitude(ev.t_boot_s, ev.euler_rad)
+        elif cls is Rejected and ev.message == "OBSTACLE_DISTANCE":
+            p.refused["part_nonfinite"] += 1
 
     def on_unread_frame(self, src_system: int, src_component: int, seq: int) -> None:
         """A message nothing reads: still a frame of the vehicle's stream (its sequence numbers count for loss)."""
