@@ -70,6 +70,8 @@ class LocalMap:
         self.tracks: dict[int, Track] = {}
         self.counts: Counter[str] = Counter()  # born, confirmed, retired, full, ...
         self.obstacles: tuple[Obstacle, ...] = ()
+        self.obstacles_t_s = 0.0  # the time of the scan they were made from (s)
+        self._moving = False
         self.version = 0
         self.last: ScanPoints | None = None
         self._next_id = 1
@@ -196,7 +198,17 @@ class LocalMap:
             if tr.confirmed:
                 out.append(self._obstacle(tr))
         self.obstacles = tuple(out)
+        self.obstacles_t_s = self.last.t_s if self.last is not None else 0.0
+        self._moving = any(o.vx_mps != 0.0 or o.vy_mps != 0.0 for o in out)
         self.version += 1
+
+    def obstacles_at(self, t_s: float) -> tuple[Obstacle, ...]:
+        """:attr:`obstacles` with the moving ones advanced from the last scan's time to ``t_s`` (s, vehicle time);
+        the same tuple while none moves."""
+        if not self._moving:
+            return self.obstacles
+        dt = max(0.0, t_s - self.obstacles_t_s)
+        return tuple(o.at_time(dt) for o in self.obstacles)
 
     def _obstacle(self, tr: Track) -> Obstacle:
         sig = math.sqrt(max(float(np.linalg.eigvalsh(tr.p[:2, :2])[-1]), 0.0) + tr.radius_var)

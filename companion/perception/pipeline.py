@@ -48,6 +48,10 @@ class Perception:
         """The confirmed trunks now (``source="perception"``): what the tick reads."""
         return self.map.obstacles
 
+    def obstacles_at(self, t_s: float) -> tuple[Obstacle, ...]:
+        """The confirmed trunks at vehicle time ``t_s`` (s): moving ones advanced from their scan's time."""
+        return self.map.obstacles_at(t_s)
+
     # ------------------------------------------------------------------ input
     def on_position(self, t_s: float, pos_m: tuple[float, float, float]) -> None:
         """The vehicle's position at vehicle time ``t_s`` (s), mission-frame NED (m)."""
