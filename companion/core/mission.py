@@ -27,6 +27,18 @@ Format (TOML; every table strict: unknown keys, missing required keys and wrong 
     radius_m = 0.3
     height_m = 4.0
     safe_distance_m = 0.1
+    [[waypoints]]                  # optional, at most MAX_WAYPOINTS, flown in order between start and goal
+    ned_m = [4.0, 2.0, -2.0]       # NED metres, mission frame
+    hold_s = 0.0                   # optional: hover here this long first (0: fly through without stopping)
+    speed_max_mps = 1.5            # optional: horizontal speed limit of the leg that ends here
+    name = "gate"                  # optional, for the report
+    [[fence.polygons]]             # optional: a geofence zone (north, east) m, at least three vertices
+    vertices_ne_m = [[-5.0, -5.0], [15.0, -5.0], [15.0, 5.0], [-5.0, 5.0]]
+    inclusion = true               # required: true = stay inside, false = stay outside
+    [[fence.circles]]              # optional
+    center_ne_m = [5.0, 3.0]
+    radius_m = 1.0
+    inclusion = false
 
 ``[vehicle]`` is the whole physical vehicle (the bundled simulator flies it; the companion's model uses it too).
 ``[payload]`` lets the companion's model differ from it: a measured ``mass_kg`` / ``cable_length_m`` overrides
@@ -35,12 +47,15 @@ Format (TOML; every table strict: unknown keys, missing required keys and wrong 
 ``drag_n_per_mps2`` is the payload's drag coefficient for the swing estimator (default 0: negligible drag).
 :meth:`Mission.companion_params` is the model the companion should fly with before any identification.
 
-A start or goal whose airframe circle (r_uav + L_uav) would overlap an obstacle's safety ring
-(radius_m + safe_distance_m) below the obstacle's top is refused too.
+A start, goal or waypoint whose airframe circle (r_uav + L_uav) would overlap an obstacle's safety ring
+(radius_m + safe_distance_m) below the obstacle's top is refused too; so are waypoints with NaN or out-of-range
+values, more than :data:`MAX_WAYPOINTS` of them, and fence zones with fewer than three vertices or a
+non-positive radius (each error names the file, the table and its index, and the key).
 """
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,6 +65,7 @@ import numpy as np
 
 from companion.config import dataclass_from_table, read_toml
 from companion.core.fence import Fence
+from companion.core.mission_zones import check_fenced, fence_toml, parse_fence
 from companion.core.model import VehicleParams, vehicle_params_with
 from companion.core.obstacles import Obstacle
 from companion.core.wind import WindConfig
@@ -58,6 +74,7 @@ from companion.errors import ConfigError
 PLANNERS = ("traditional", "improved", "safe", "shaped", "none")
 CONTROLLERS = ("smc_ff", "smc", "pid")
 _MAX_COORD_M = 1.0e4
+MAX_WAYPOINTS = 1000  # waypoints in one mission file (a mission of 10,000 items is refused, not flown)
 
 
 @dataclass(frozen=True)
@@ -134,6 +151,31 @@ class Waypoint:
 
 
 @dataclass(frozen=True)
+class WaypointTable:
+    """A ``[[waypoints]]`` table as written: ``ned_m`` NED metres, ``hold_s`` s, ``speed_max_mps`` m/s, ``name``."""
+
+    ned_m: tuple[float, float, float]
+    hold_s: float = 0.0
+    speed_max_mps: float | None = None
+    name: str = ""
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` on NaN, far-off or below-ground positions and bad numbers."""
+        if not all(math.isfinite(c) for c in self.ned_m):
+            raise ValueError(f"ned_m: must be finite, got {list(self.ned_m)}")
+        if any(abs(c) > _MAX_COORD_M for c in self.ned_m):
+            raise ValueError(f"ned_m: coordinates beyond {_MAX_COORD_M} m")
+        if self.ned_m[2] > 0.0:
+            raise ValueError(f"ned_m: z = {self.ned_m[2]} m is below the ground (NED: z <= 0 is above ground)")
+        if not 0.0 <= self.hold_s <= 600.0:
+            raise ValueError(f"hold_s: must be in [0, 600], got {self.hold_s}")
+        if self.speed_max_mps is not None and not 0.0 < self.speed_max_mps <= 20.0:
+            raise ValueError(f"speed_max_mps: must be in (0, 20], got {self.speed_max_mps}")
+        if len(self.name) > 64:
+            raise ValueError("name: at most 64 characters")
+
+
+@dataclass(frozen=True)
 class Mission:
     """A validated mission (see module docstring for the file format). Arrays are NED metres, (3,)."""
 
@@ -171,7 +213,8 @@ class Mission:
         return replace(self, **changes)
 
 
-def _check_clear(where: str, key: str, p: np.ndarray, obstacles: tuple[Obstacle, ...], vp: VehicleParams) -> None:
+def _check_clear(where: str, key: str, p: np.ndarray, obstacles: tuple[Obstacle, ...], vp: VehicleParams,
+                 table: str = "[mission]") -> None:
     airframe = vp.r_uav + vp.L_uav
     for i, o in enumerate(obstacles):
         if p[2] < -o.height_m:
@@ -180,17 +223,32 @@ def _check_clear(where: str, key: str, p: np.ndarray, obstacles: tuple[Obstacle,
         need = o.radius_m + o.safe_distance_m + airframe
         if d < need:
             raise ConfigError(
-                f"{where}: [mission] {key}: ({p[0]:g}, {p[1]:g}) is {d:.3f} m from obstacle {i} "
+                f"{where}: {table} {key}: ({p[0]:g}, {p[1]:g}) is {d:.3f} m from obstacle {i} "
                 f"at ({o.x_m:g}, {o.y_m:g}); needs >= {need:.3f} m (radius + safe distance + airframe)"
             )
 
 
+def _waypoints(raw: Any, where: str, obs: tuple[Obstacle, ...], vp: VehicleParams) -> tuple[Waypoint, ...]:
+    """The ``[[waypoints]]`` tables, validated (see module docstring)."""
+    if not isinstance(raw, list):
+        raise ConfigError(f"{where}: waypoints: expected an array of tables [[waypoints]]")
+    if len(raw) > MAX_WAYPOINTS:
+        raise ConfigError(f"{where}: [[waypoints]]: {len(raw)} waypoints, at most {MAX_WAYPOINTS}")
+    out = []
+    for i, t in enumerate(raw):
+        wt = dataclass_from_table(WaypointTable, t, where=f"{where}: [[waypoints]] #{i}")
+        pos = np.array(wt.ned_m, dtype=np.float64)
+        _check_clear(where, "ned_m", pos, obs, vp, table=f"[[waypoints]] #{i}")
+        out.append(Waypoint(pos, float(wt.hold_s), wt.speed_max_mps, wt.name))
+    return tuple(out)
+
+
 def mission_from_dict(data: dict[str, Any], where: str) -> Mission:
     """Build and validate a :class:`Mission` from a parsed TOML document; ``where`` names the file."""
-    unknown = sorted(set(data) - {"mission", "wind", "vehicle", "payload", "obstacles"})
+    unknown = sorted(set(data) - {"mission", "wind", "vehicle", "payload", "obstacles", "waypoints", "fence"})
     if unknown:
         raise ConfigError(f"{where}: unknown table or key {unknown[0]!r} "
-                          "(known: mission, wind, vehicle, payload, obstacles)")
+                          "(known: mission, wind, vehicle, payload, obstacles, waypoints, fence)")
     if "mission" not in data:
         raise ConfigError(f"{where}: missing required table [mission]")
     mt = dataclass_from_table(MissionTable, data["mission"], where=f"{where}: [mission]")
@@ -213,10 +271,16 @@ def mission_from_dict(data: dict[str, Any], where: str) -> Mission:
     goal = np.array(mt.goal_ned_m, dtype=np.float64)
     _check_clear(where, "start_ned_m", start, obs, vp)
     _check_clear(where, "goal_ned_m", goal, obs, vp)
+    waypoints = _waypoints(data.get("waypoints", []), where, obs, vp)
+    fence = parse_fence(data["fence"], where) if "fence" in data else None
+    check_fenced(where, "[mission] start_ned_m", start, fence)
+    check_fenced(where, "[mission] goal_ned_m", goal, fence)
+    for i, wp in enumerate(waypoints):
+        check_fenced(where, f"[[waypoints]] #{i} ned_m", wp.pos_ned_m, fence)
     return Mission(
         name=mt.name, start_ned_m=start, goal_ned_m=goal, planner=mt.planner, controller=mt.controller,
         timeout_s=mt.timeout_s, wind=wind, vehicle=vp, obstacles=obs, hold_s=mt.hold_s, land=mt.land,
-        source_path=where, payload=payload,
+        source_path=where, payload=payload, waypoints=waypoints, fence=fence,
     )
 
 
@@ -243,8 +307,7 @@ def mission_to_toml(mission: Mission) -> str:
         f"land = {'true' if mission.land else 'false'}",
         "",
         "[wind]",
-        f'model = "{mission.wind.model}"',
-        f"scale = {float(mission.wind.scale)!r}",
+        *mission.wind.toml_lines(),
         "",
         "[vehicle]",
     ]
@@ -272,4 +335,18 @@ def mission_to_toml(mission: Mission) -> str:
         ]
         if o.vx_mps or o.vy_mps:
             lines += [f"vx_mps = {o.vx_mps!r}", f"vy_mps = {o.vy_mps!r}"]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + _legs_toml(mission)) + "\n"
+
+
+def _legs_toml(mission: Mission) -> list[str]:
+    """The ``[[waypoints]]`` and ``[fence]`` lines of :func:`mission_to_toml`."""
+    lines: list[str] = []
+    for wp in mission.waypoints:
+        lines += ["", "[[waypoints]]", "ned_m = [" + ", ".join(repr(float(c)) for c in wp.pos_ned_m) + "]",
+                  f"hold_s = {float(wp.hold_s)!r}"]
+        if wp.speed_max_mps is not None:
+            lines.append(f"speed_max_mps = {float(wp.speed_max_mps)!r}")
+        if wp.name:
+            lines.append(f"name = {json.dumps(wp.name)}")
+    return lines + fence_toml(mission.fence)
+

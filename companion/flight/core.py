@@ -43,7 +43,6 @@ from companion.control import (
     PositionController,
     SwingAccelEstimator,
     attitude_from_force,
-    feedforward_acc,
     limit_force_xyz,
     make_position_controller,
 )
@@ -54,8 +53,10 @@ from companion.estimation.estimate import Estimate, swing_sigma_rad, widened_swi
 from companion.estimation.loop_lag import LoopLagEstimator, lag_trust
 from companion.flight.arrival import ARRIVE_DWELL_S, ARRIVE_VERT_M, ArrivalRule, arrival_tolerance_m
 from companion.flight.command import LIFT_MARGIN_M, Command, LagStats, climb_altitude_ned_m
+from companion.flight.legs import Legs, capped, leg_plan, legs_done, planned_swing_acc
 from companion.flight.phase import CorePhase
 from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator, make_planner
+from companion.planning.fence_guard import fence_obstacles
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +116,9 @@ class FlightCore:
         self._airframe_r = self.params.r_uav + self.params.L_uav
         self._goal_xy = np.array(mission.goal_ned_m[:2], dtype=np.float64)
         self._hold_ned_m = np.array(mission.goal_ned_m, dtype=np.float64)  # where hold / done / hold_here hover
+        #: a multi-leg mission's waypoints (None without: straight to the goal), the fence's keep-out discs
+        self.legs = Legs(mission, self.cfg.planner.v_max_mps) if mission.waypoints else None
+        self._fence_obs = fence_obstacles(mission.fence)
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -193,7 +197,7 @@ class FlightCore:
             ) < 0.02 and self._swing_ready(est):
                 self.phase = CorePhase.CRUISE
         elif self.phase == CorePhase.CRUISE:
-            arrived = self._arrival.arrived(est)
+            arrived = self._arrival.arrived(est) if legs_done(self.legs, est) else None
             if arrived is not None:
                 self.phase = CorePhase.HOLD
                 self.t_arrived_s = arrived
@@ -246,6 +250,7 @@ class FlightCore:
         self.t_prev_s = est.t_s
         self._advance_phase(est)
         obs = self._advance_obstacles(obs, est.t_s)
+        obs = [*obs, *self._fence_obs] if self._fence_obs else obs
         self._update_lag_trust()
         swing, r_max, mode, swing_acc = self._envelope(est)
         f_att, f_rep, plan_mode, acc_ctl = self._reference(est, obs, swing, r_max, dt)
@@ -319,14 +324,17 @@ class FlightCore:
             vdz = self._vertical_speed(self._climb_z)
         elif self.phase == CorePhase.CRUISE:
             vel = est.vel_ned_mps
+            goal, z_goal, legs_in, cap = leg_plan(self.legs, self.mission, self._goal_xy, False)
             inp = PlanInput(
                 t_s=est.t_s, pos_m=np.asarray(pos[:2], dtype=np.float64), vel_mps=np.asarray(vel[:2], dtype=np.float64),
-                ref_pos_m=np.array(ref.p[:2]), ref_vel_mps=np.array(ref.v[:2]), goal_m=self._goal_xy, r_max_m=r_max,
+                ref_pos_m=np.array(ref.p[:2]), ref_vel_mps=np.array(ref.v[:2]), goal_m=goal, r_max_m=r_max,
                 swing=swing, cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
+                **legs_in,
             )
             out = self.planner.plan(inp, obs)
             vdx, vdy = float(out.v_des_mps[0]), float(out.v_des_mps[1])
-            vdz = self._vertical_speed(float(self.mission.goal_ned_m[2]))
+            vdx, vdy = capped(vdx, vdy, cap)  # the leg's speed limit
+            vdz = self._vertical_speed(z_goal)
             f_att, f_rep, plan_mode = out.force_att, out.force_rep, out.mode
         else:  # hold / done: hover at the goal; hold_here / descend: at the point where they were asked for
             ka = self.cfg.planner.ka
@@ -345,12 +353,13 @@ class FlightCore:
         m = self.mission
         ref = self.ref
         assert ref is not None
+        goal, z_goal, legs_in, _ = leg_plan(self.legs, m, self._goal_xy, True)
         inp = PlanInput(
             t_s=est.t_s, pos_m=np.asarray(est.pos_ned_m[:2], dtype=np.float64),
             vel_mps=np.asarray(est.vel_ned_mps[:2], dtype=np.float64), ref_pos_m=np.array(ref.p[:2]),
-            ref_vel_mps=np.array(ref.v[:2]), goal_m=self._goal_xy, r_max_m=r_max, swing=swing,
+            ref_vel_mps=np.array(ref.v[:2]), goal_m=goal, r_max_m=r_max, swing=swing,
             cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
-            swing_sigma_rad=swing_sigma_rad(est),
+            swing_sigma_rad=swing_sigma_rad(est), **legs_in,
         )
         out = self.planner.plan(inp, obs)
         if out.no_route and not self.no_route:
@@ -365,25 +374,18 @@ class FlightCore:
             if self.phase == CorePhase.DESCEND:
                 ref.step_vertical(DESCENT_MPS, dt)
             else:
-                z_target = float(m.goal_ned_m[2]) if not (self.no_route or self._timed_stop) else ref.p[2]
+                z_target = z_goal if not (self.no_route or self._timed_stop) else ref.p[2]
                 ref.step_vertical(self._vertical_speed(z_target), dt)
         ref.set_horizontal(r.pos_m, r.vel_mps, r.acc_mps2)
         return out
 
     def _acc_for_controller(self, out: PlanOutput, est: Estimate) -> list[float] | None:
-        """Reference acceleration for the controller: a_ref − ff(nominal swing) with a feed-forward controller
-        (``swing_feedforward``, the smc_ff) fed the cable sensor or the swing estimate (the feed-forward then acts
-        on the deviation from the planned swing; scaled by the same trust as the controller's swing), else None."""
-        r = out.reference
-        if (r is None or not self.controller.swing_feedforward
-                or est.swing_source not in ("cable_sensor", "estimate")):
+        """The controller's reference acceleration with a timed plan (:func:`planned_swing_acc`), or None."""
+        if not self.controller.swing_feedforward or est.swing_source not in ("cable_sensor", "estimate"):
             return None
-        fade = self._swing_trust(est)
-        a, b, da, db, dda, ddb = r.swing_nom
-        ff = feedforward_acc(np.array((a, b, da, db)), np.array((dda, ddb)), self.cfg.feedforward, self.params.l)
-        ref = self.ref
-        assert ref is not None
-        return [ref.a[0] - fade * float(ff[0]), ref.a[1] - fade * float(ff[1]), ref.a[2] - fade * float(ff[2])]
+        assert self.ref is not None
+        return planned_swing_acc(out, self.ref.a, self._swing_trust(est), self.cfg.feedforward, self.params.l)
+
     def _swing_trust(self, est: Estimate) -> float:
         """How much of the swing the controller acts on (0..1): the estimate's ``swing_fade`` (1 for the cable
         sensor) times this tick's loop-lag trust."""

@@ -33,6 +33,12 @@ class PlanInput:
     or None; cable_l_m, airframe_r_m (r_uav + L_uav); z_ned_m: airframe altitude (NED z, m) for "below the trunk's top"
     tests; t_s: time; swing_sigma_rad: standard deviation (rad) of the swing estimate's error (0: exact, the
     cable-angle sensor; the swing estimator will supply it), used by planners that widen their envelope by it.
+
+    Multi-leg missions (:mod:`companion.flight.legs`): ``goal_m`` is the next point to stop at or pass;
+    ``goal_pass_mps`` the speed (m/s) the goal may be passed at (0: stop there; the safe planner brakes to it
+    instead of to rest); ``via_m`` the pass-through points (2,) before the goal, for a time-parameterised planner
+    that plans through them as one path; ``leg_caps_mps`` the speed limit (m/s, inf: none) of each leg of that
+    path (len(via_m) + 1; empty: none).
     """
 
     t_s: float
@@ -48,6 +54,9 @@ class PlanInput:
     g_mps2: float = 9.81
     z_ned_m: float = 0.0
     swing_sigma_rad: float = 0.0
+    goal_pass_mps: float = 0.0
+    via_m: tuple[np.ndarray, ...] = ()
+    leg_caps_mps: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,11 +20,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from companion.planning.clearance import Predicted
+from companion.planning.clearance import Predicted, clearance
+from companion.planning.legs_route import timed_through
 from companion.planning.params import PlannerParams
 from companion.planning.path import smooth_path
 from companion.planning.route import find_route
-from companion.planning.timing import Profile, speed_profile
+from companion.planning.timeline import Timeline
+from companion.planning.timing import Profile, sample_motion, speed_profile
 
 CAPSULE_STEP_M = 0.45  # spacing of a capsule's discs: the union's edge sags < 3 cm for a 0.95 m ring
 
@@ -42,16 +44,22 @@ class Candidate:
 
 
 def timed_routes(p0: np.ndarray, v0: np.ndarray, goal: np.ndarray, c: np.ndarray, ring: np.ndarray, hard: np.ndarray,
-                 a_max: float, p: PlannerParams, options: Sequence[tuple[bool, float]] | None = None
-                 ) -> list[Candidate]:
+                 a_max: float, p: PlannerParams, options: Sequence[tuple[bool, float]] | None = None,
+                 vias: Sequence[np.ndarray] = (), caps: Sequence[float] = ()) -> list[Candidate]:
     """Timed routes from (p0, v0) to the goal around discs (centres ``c``, radii ``ring``, start/goal shrink
     limits ``hard``) at the acceleration bound ``a_max``, fastest first (see module docstring).
 
     Routes around the discs inflated by k·``route_extra_m`` go through ever wider gaps; then the apex of
     the fastest one (its point farthest from the straight line to the goal) is walled off by a large disc
     beyond it and the search repeated, which finds the best route on the other side of that apex.
-    ``options`` (walled, extra) restricts the search to those (a refresh); default: all of them.
+    ``options`` (walled, extra) restricts the search to those (a refresh); default: all of them. With ``vias``
+    (pass-through waypoints) the route runs through them as one path, each leg under its speed limit in ``caps``
+    (:func:`companion.planning.legs_route.timed_through`, plain inflations only).
     """
+    if vias:
+        plain_opts = [e for b, e in (list(options) if options is not None else search_options(p)) if not b]
+        return [Candidate(pr, pr.duration_s, e, True)
+                for pr, e in timed_through(p0, v0, vias, caps, goal, c, ring, hard, a_max, p, plain_opts or [0.0])]
     speed = math.hypot(float(v0[0]), float(v0[1]))
     heading = v0 / speed if speed > 0.05 else None
     out: list[Candidate] = []
@@ -128,3 +136,19 @@ def capsules(c: np.ndarray, r: np.ndarray, hard: np.ndarray, conflicts: list[tup
         add_r.append(np.full(n, ring))
         add_h.append(np.full(n, float(pred.ring_payload[j]) - margin + airframe_r_m))
     return np.concatenate(add_c), np.concatenate(add_r), np.concatenate(add_h)
+
+
+def warm_up() -> None:
+    """Run every compiled kernel of the shaped planner once on a tiny problem (loads them from numba's cache, or
+    compiles them), so that the first replan of a flight is not the one that pays for it."""
+    c = np.array([[2.0, 0.1], [4.0, -0.3]])
+    r = np.array([0.6, 0.5])
+    rt = find_route(np.zeros(2), np.array([6.0, 0.0]), c, r, r)
+    assert rt is not None
+    path = smooth_path(rt.points, c, r, ds_m=0.4, heading=np.array([1.0, 0.0]))
+    prof = speed_profile(path, 0.5, a_max_mps2=1.0, v_max_mps=2.0, heading=np.array([1.0, 0.0]))
+    pos, vel, acc = sample_motion(prof, np.arange(0.0, prof.duration_s, 0.05))
+    tl = Timeline(0.0, np.zeros(2), 0.01, (3, 4, 5), 3.0, 9.81)
+    tl.splice(2, np.concatenate([pos, vel, acc], axis=1), 0)
+    z = np.zeros(1)
+    clearance(tl.ref, 0.0, 0.01, 0.0, 1.0, Predicted(z, z, z, z, z + 0.5, z + 0.3, z, np.zeros(1, np.bool_)))

@@ -223,10 +223,23 @@ def smooth_path(points: np.ndarray, centers: np.ndarray, radii: np.ndarray, *, d
     along the current velocity (weight ``w_heading``). Discs that contain the start or the goal do not bound
     (the route search shrank them there).
     """
+    return smooth_path_pinned(points, centers, radii, ds_m=ds_m, heading=heading, d_max_m=d_max_m,
+                              w_heading=w_heading, rounds=rounds)[0]
+
+
+def smooth_path_pinned(points: np.ndarray, centers: np.ndarray, radii: np.ndarray, *, ds_m: float = 0.4,
+                       heading: np.ndarray | None = None, d_max_m: float = 4.0, w_heading: float = 50.0,
+                       rounds: int = 30, pins_s_m: tuple[float, ...] = (), pin_m: float = 0.3
+                       ) -> tuple[np.ndarray, list[int]]:
+    """:func:`smooth_path`, with the points at arc lengths ``pins_s_m`` (m along ``points``: waypoints flown
+    through) kept within ``pin_m`` of the route; also returns the index of each pinned point in the path."""
     ref = resample(points, ds_m)
     n = len(ref)
+    seg = np.hypot(*np.diff(np.asarray(points, dtype=np.float64), axis=0).T)
+    total = float(np.sum(seg))
+    pins = [min(n - 1, max(0, round(sp / total * (n - 1)))) if total > 1e-9 else 0 for sp in pins_s_m]
     if n < 4:
-        return ref
+        return ref, pins
     c = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
     r = np.ascontiguousarray(np.asarray(radii, dtype=np.float64).reshape(-1))
     tan = np.empty_like(ref)
@@ -240,6 +253,8 @@ def smooth_path(points: np.ndarray, centers: np.ndarray, radii: np.ndarray, *, d
         skip |= np.hypot(c[:, 0] - ref[e, 0], c[:, 1] - ref[e, 1]) < r - 1e-6
     lo, hi = _corridor(ref, nrm, np.ascontiguousarray(c[:, 0]), np.ascontiguousarray(c[:, 1]), r, float(d_max_m),
                        skip)
+    for k in pins:
+        lo[k], hi[k] = max(lo[k], -pin_m), min(hi[k], pin_m)
     if heading is not None:
         tgt = ref[0] + float(np.hypot(*(ref[1] - ref[0]))) * np.asarray(heading, dtype=np.float64)
         nfix, tx, ty = 2, float(tgt[0]), float(tgt[1])
@@ -247,7 +262,7 @@ def smooth_path(points: np.ndarray, centers: np.ndarray, radii: np.ndarray, *, d
         nfix, tx, ty = 1, 0.0, 0.0
     wres = np.ones(n)
     d = _min_curvature(ref, nrm, lo, hi, nfix, tx, ty, float(w_heading), int(rounds), np.ascontiguousarray(wres))
-    return ref + d[:, None] * nrm
+    return ref + d[:, None] * nrm, pins
 
 
 def path_clear(points: np.ndarray, centers: np.ndarray, radii: np.ndarray) -> float:

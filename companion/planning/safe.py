@@ -33,7 +33,9 @@ length — and changes how it is enforced:
    all obstacles or closer to the goal than where it got stuck (boundary following, as in Bug algorithms).
 6. Goal approach: speed min(v_max, sqrt(2·a_goal·d'), ka·d) towards the goal, with the braking distance
    d' = d − T_g·v_along measured from where the lagging reference will be (T_g = ``goal_lookahead_s``):
-   the reference stops at the goal instead of overshooting it and dragging the swinging payload past.
+   the reference stops at the goal instead of overshooting it and dragging the swinging payload past. A
+   waypoint passed without stopping (``PlanInput.goal_pass_mps`` = v_p > 0) is approached at
+   min(v_max, sqrt(v_p² + 2·a_goal·d'), v_p + ka·d): braked to v_p, not to rest.
 """
 
 from __future__ import annotations
@@ -145,7 +147,11 @@ class SafePlanner:
         # braking distance measured from where the lagging reference will be in goal_lookahead_s
         v_along = float(inp.ref_vel_mps[0]) * edx + float(inp.ref_vel_mps[1]) * edy
         d_brake = max(0.0, dg - p.goal_lookahead_s * max(0.0, v_along))
-        speed = min(p.v_max_mps, math.sqrt(2.0 * p.a_goal_mps2 * d_brake), p.ka * dg)
+        v_pass = inp.goal_pass_mps
+        if v_pass > 0.0:  # a waypoint passed without stopping: brake to v_pass at it, not to rest
+            speed = min(p.v_max_mps, math.sqrt(v_pass * v_pass + 2.0 * p.a_goal_mps2 * d_brake), v_pass + p.ka * dg)
+        else:
+            speed = min(p.v_max_mps, math.sqrt(2.0 * p.a_goal_mps2 * d_brake), p.ka * dg)
         nom_x, nom_y = speed * edx, speed * edy
         gaps = self._gaps(inp, obstacles)
         v_ref = math.hypot(float(inp.ref_vel_mps[0]), float(inp.ref_vel_mps[1]))

@@ -45,32 +45,18 @@ import numpy as np
 from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
 from companion.planning.base import PlanInput, PlanOutput, ReferenceSample
-from companion.planning.candidates import capsules, search_options, timed_routes
+from companion.planning.candidates import capsules, search_options, timed_routes, warm_up
 from companion.planning.clearance import Predicted, clearance
+from companion.planning.legs_route import remaining_vias, route_through
 from companion.planning.params import PlannerParams
-from companion.planning.path import smooth_path
 from companion.planning.route import find_route
 from companion.planning.shaping import box_widths, pendulum_omega_rad_s
 from companion.planning.timeline import Timeline
-from companion.planning.timing import Profile, sample_motion, speed_profile, state_at, stop_along
+from companion.planning.timing import Profile, sample_motion, state_at, stop_along
 
 LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps ahead of now
 
 
-def warm_up() -> None:
-    """Run every compiled kernel once on a tiny problem (loads them from numba's cache, or compiles them), so
-    that the first replan of a flight is not the one that pays for it."""
-    c = np.array([[2.0, 0.1], [4.0, -0.3]])
-    r = np.array([0.6, 0.5])
-    rt = find_route(np.zeros(2), np.array([6.0, 0.0]), c, r, r)
-    assert rt is not None
-    path = smooth_path(rt.points, c, r, ds_m=0.4, heading=np.array([1.0, 0.0]))
-    prof = speed_profile(path, 0.5, a_max_mps2=1.0, v_max_mps=2.0, heading=np.array([1.0, 0.0]))
-    pos, vel, acc = sample_motion(prof, np.arange(0.0, prof.duration_s, 0.05))
-    tl = Timeline(0.0, np.zeros(2), 0.01, (3, 4, 5), 3.0, 9.81)
-    tl.splice(2, np.concatenate([pos, vel, acc], axis=1), 0)
-    z = np.zeros(1)
-    clearance(tl.ref, 0.0, 0.01, 0.0, 1.0, Predicted(z, z, z, z, z + 0.5, z + 0.3, z, np.zeros(1, np.bool_)))
 # an optional replan's motion may exceed a_max by the profile's discretisation (a few per cent), not by braking
 OPTIONAL_A_FACTOR = 1.06
 _ZERO2 = np.zeros(2)
@@ -107,6 +93,7 @@ class ShapedPlanner:
         self._search_sig: tuple = ()
         self._search_pred: Predicted | None = None
         self._search_ring_m = 0.0
+        self._search_goal: np.ndarray | None = None  # the goal of the last replan (a new one: search again)
         self.plan_option: tuple[bool, float] = (False, 0.0)
         self.plan_profile: Profile | None = None  # the unshaped plan being flown, from absolute row plan_k0
         self.plan_k0 = 0
@@ -243,6 +230,7 @@ class ShapedPlanner:
         u0 = tl.unshaped_at(k_r)
         p0, v0 = u0[0:2], u0[2:4]
         goal = np.asarray(inp.goal_m, dtype=np.float64)
+        vias, caps = remaining_vias(p0, inp.via_m, goal, inp.leg_caps_mps) if inp.via_m else ((), ())
         c, ring, bare, contact, moving, pred = self._discs(inp, obstacles)
         l_m = inp.cable_l_m
 
@@ -256,13 +244,16 @@ class ShapedPlanner:
         cur_ok = bool(np.all(np.isinf(first_cur)))
         remaining = max(0.0, (self.plan_end_k - k_r) * h)
         at_goal = math.hypot(float(goal[0] - p0[0]), float(goal[1] - p0[1])) < 1e-3
-        if at_goal and math.hypot(float(v0[0]), float(v0[1])) < 1e-3 and cur_ok:
+        if at_goal and not vias and math.hypot(float(v0[0]), float(v0[1])) < 1e-3 and cur_ok:
             self.mode = "track"
             self.last = {"kept": True, "reason": "at goal"}
             return
         if self.no_route or self.stop_requested:
             self._hold(k_r, k_now, p0, v0, cur_ok, "no_route" if self.no_route else "hold")
             return
+        if self._search_goal is not None and not np.array_equal(goal, self._search_goal):
+            self.plan_reaches_goal = False  # a multi-leg mission's next stretch: the plan ends at the last one
+        self._search_goal = goal
         ring_now = self.envelope_m(inp) + self.err_peak_m
         valid = cur_ok and self.plan_reaches_goal
         why = self._changed(t, obstacles, pred, ring_now) if valid else "invalid"
@@ -281,7 +272,8 @@ class ShapedPlanner:
             self._rotation += 1
 
         # static route existence (the bare safety ring): none means no route at all
-        if why != "refresh" and find_route(p0, goal, c, bare, contact) is None:
+        if why != "refresh" and (route_through(p0, vias, goal, c, bare, contact) if vias
+                                 else find_route(p0, goal, c, bare, contact)) is None:
             if self.no_route_since_s is None:
                 self.no_route_since_s = t
             if t - self.no_route_since_s >= p.no_route_confirm_s - 1e-9:
@@ -298,13 +290,13 @@ class ShapedPlanner:
         for rnd in range(3):
             if rnd > 0:  # with capsules in the way: the three smallest plain inflations are enough
                 options = [(False, e) for walled, e in search_options(p) if not walled][:3]
-            cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p, options)
+            cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p, options, vias, caps)
             if not cands and options is not None:
-                cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p)
+                cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p, None, vias, caps)
             if not cands:
                 # only the bare ring lets a route through: fly it at half the acceleration (less lead, less swing)
                 cands = timed_routes(p0, v0, goal, cc, np.maximum(rr - (ring - bare).max(initial=0.0), 0.0)
-                                     if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2, p)
+                                     if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2, p, None, vias, caps)
             conflicts: list[tuple[int, float]] = []
             for cand in cands:
                 if optional and cand.profile.a_peak_mps2 > OPTIONAL_A_FACTOR * p.shaped_a_max_mps2:

@@ -91,12 +91,13 @@ def _spline_eval(s, y, mm, q, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _profile(kappa, h, v0, a, v_max, a_brake):  # pragma: no cover - compiled
-    """Speeds at stations h apart with curvature kappa: time-optimal under |a| <= a (see module docstring)."""
+def _profile(kappa, h, v0, a, v_max, a_brake, vcap):  # pragma: no cover - compiled
+    """Speeds at stations h apart with curvature kappa: time-optimal under |a| <= a and v <= vcap (per station;
+    see module docstring)."""
     n = len(kappa)
     v = np.empty(n)
     for i in range(n):
-        v[i] = min(v_max, math.sqrt(a / max(kappa[i], 1e-9)))
+        v[i] = min(v_max, vcap[i], math.sqrt(a / max(kappa[i], 1e-9)))
     v[n - 1] = 0.0
     for i in range(n - 2, -1, -1):
         lat = v[i + 1] * v[i + 1] * kappa[i + 1]
@@ -142,11 +143,13 @@ class Profile:
 
 def speed_profile(points: np.ndarray, v0_mps: float, *, a_max_mps2: float, v_max_mps: float,
                   heading: np.ndarray | None = None, ds_m: float = 0.1, a_brake_mps2: float | None = None,
-                  ) -> Profile:
+                  caps: tuple[np.ndarray, np.ndarray] | None = None) -> Profile:
     """Fastest motion along ``points`` (n, 2) from speed ``v0_mps`` to rest at the end (see module docstring).
 
     ``heading`` clamps the spline's initial direction. If the current speed is too high for the bend ahead,
     the forward pass brakes with up to ``a_brake_mps2`` (default ``a_max_mps2``) until back under the limit.
+    ``caps`` (arc lengths (m) where legs end, their speed limits (m/s)): each station's speed stays under the
+    limit of the leg it is on (the last leg's beyond the last end).
     """
     p = np.ascontiguousarray(points, dtype=np.float64)
     seg = np.hypot(*np.diff(p, axis=0).T)
@@ -167,8 +170,12 @@ def speed_profile(points: np.ndarray, v0_mps: float, *, a_max_mps2: float, v_max
     sp = np.maximum(np.hypot(ev[:, 2], ev[:, 3]), 1e-9)
     kappa = np.abs(ev[:, 2] * ev[:, 5] - ev[:, 3] * ev[:, 4]) / sp**3
     kappa = np.maximum(kappa, np.maximum(np.r_[kappa[1:], kappa[-1]], np.r_[kappa[0], kappa[:-1]]))
+    vcap = np.full(n, np.inf)
+    if caps is not None:
+        ends, lim = np.asarray(caps[0], dtype=np.float64), np.asarray(caps[1], dtype=np.float64)
+        vcap = lim[np.minimum(np.searchsorted(ends, s, side="left"), len(lim) - 1)]
     v = _profile(kappa, s[1] - s[0], float(v0_mps), float(a_max_mps2), float(v_max_mps),
-                 float(a_brake_mps2 if a_brake_mps2 is not None else a_max_mps2))
+                 float(a_brake_mps2 if a_brake_mps2 is not None else a_max_mps2), np.ascontiguousarray(vcap))
     vm = v[:-1] + v[1:]
     dt = np.where(vm > 1e-9, 2.0 * (s[1] - s[0]) / np.maximum(vm, 1e-9), 0.0)
     t = np.r_[0.0, np.cumsum(dt)]
