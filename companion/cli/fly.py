@@ -127,6 +127,7 @@ def spec_from_args(args: argparse.Namespace, mission: Mission) -> FlySpec:
         sitl_args += ["--instance", str(args.instance)]
     if args.signing_key is not None:
         sitl_args += ["--signing-key", str(args.signing_key)]
+    world = _world_from_args(args)
     zspec = None
     if not args.no_zenoh:
         zcfg = zenoh_config_from_args(args, "companion")  # flag errors before anything starts
@@ -141,8 +142,20 @@ def spec_from_args(args: argparse.Namespace, mission: Mission) -> FlySpec:
         setup=setup, sitl=args.sitl, sitl_args=tuple(sitl_args), run_dir=args.run_dir, report=args.report,
         plots=not args.no_plots, narrate=not getattr(args, "quiet", False), zenoh=zspec,
         view=(lambda m, d: flight_view(args, m, d)) if not getattr(args, "no_recording", False) else None,
-        config_facts=effective_config,
+        config_facts=effective_config, world=world,
     )
+
+
+def _world_from_args(args: argparse.Namespace) -> Any:
+    """``--world``: the simulated world (read and checked now: a broken file is exit 2 before anything starts), or
+    None; only with ``--sitl`` (a real vehicle flies in the real world)."""
+    if getattr(args, "world", None) is None:
+        return None
+    if not args.sitl:
+        raise ConfigError("--world: only with --sitl (the bundled vehicle is the one that flies in a world)")
+    from companion.core.world import load_world
+
+    return load_world(args.world)
 
 
 async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:

@@ -49,6 +49,10 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sitl", action="store_true",
                    help="start the bundled SITL vehicle on free local ports (lockstep unless --realtime)")
     p.add_argument("--realtime", action="store_true", help="with --sitl: fly in real time to watch it live")
+    p.add_argument("--world", default=None, metavar="FILE|NAME",
+                   help="with --sitl: the trunks that stand in the simulated world (a world TOML, or a shipped one: "
+                        "forest, forest_crossing), which the vehicle's LiDAR sees; the report scores clearance "
+                        "against them (docs/sitl.md)")
     p.add_argument("--lockstep", action="store_true",
                    help="the vehicle is a lockstep simulator (driven by its SYSTEM_TIME step markers)")
     p.add_argument("--planner", choices=PLANNERS, help="override the mission's")

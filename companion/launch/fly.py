@@ -122,6 +122,12 @@ async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path
     from companion.launch.sitl import SitlProcess
 
     extra = ["--control-period-ms", str(round(1000.0 / setup.rate_hz)), *spec.sitl_args]
+    if spec.world is not None:  # written into the run folder: the flight's record of the world it flew in
+        from companion.core.world import world_to_toml
+
+        wfile = run_dir / "world.toml"
+        wfile.write_text(world_to_toml(spec.world.name, spec.world.trunks))
+        extra += ["--world", str(wfile.resolve())]
     if setup.rt_priority and not setup.lockstep:  # the simulated autopilot at the same priority, as PX4's
         extra += ["--rt-priority", str(setup.rt_priority)]
     sitl = await stack.enter_async_context(SitlProcess(mission, run_dir, lockstep=setup.lockstep, extra_args=extra))
@@ -184,7 +190,10 @@ def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path
     flog = runner.pilot.record.log
     flog.wall_time_s = wall
     seen = runner.obstacles_seen
-    if seen:
+    if spec.world is not None:  # the trunks that really stood there: the truth, whatever the flight knew of them
+        flog.obstacles = tuple(spec.world.trunks)
+        extra["obstacle_truth"] = f"world:{spec.world.name}"
+    elif seen:
         flog.obstacles = seen  # live obstacles count for clearance and collisions too
     if view is not None:
         extra["recording"] = view.stats()

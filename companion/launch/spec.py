@@ -49,3 +49,6 @@ class FlySpec:
     view: Callable[[Any, Path], Any] | None = None
     config_facts: Callable[[Any], dict[str, Any]] | None = None
     pin_lockstep: bool = True
+    #: with ``sitl``: the simulated world (:class:`companion.core.world.World`) the vehicle is started in
+    #: (``--world``); the report then scores clearance and collisions against its trunks, the truth
+    world: Any = None

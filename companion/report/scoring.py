@@ -12,6 +12,9 @@ Where a moving obstacle is at each logged time ``t_s`` (vehicle time, s):
   ``clock_t0_s`` — the first setpoint of the mission (``FlightCore.t0_s``, kept in
   ``FlightLog.obstacle_clock_t0_s``) — and moves at constant velocity from there (:meth:`Obstacle.at_time`); before
   the zero it stands at its file position, as the flight core sees it;
+* a world trunk (``source == "world"``: the truth of a flight in a simulated world, ``fly --sitl --world``) is at
+  its file position at the vehicle's boot, vehicle time 0, and moves at constant velocity from there
+  (:mod:`companion.core.world`), whatever ``clock_t0_s``;
 * a live obstacle (any other source) is logged where it was seen, already advanced by the obstacle store, and is
   scored there, standing;
 * without a clock zero (``clock_t0_s`` None: run folders written before the log carried it) every obstacle is
@@ -27,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.core.obstacles import Obstacle
+from companion.core.world import WORLD_SOURCE
 
 
 def is_moving(o: Obstacle) -> bool:
@@ -36,7 +40,9 @@ def is_moving(o: Obstacle) -> bool:
 
 def _track(o: Obstacle, t: np.ndarray, clock_t0_s: float | None) -> tuple[float | np.ndarray, float | np.ndarray]:
     """Where ``o`` is at each time of ``t`` (NED x, y in m): scalars for an obstacle that stands (see module
-    docstring), arrays (n,) for a mission obstacle moving from the clock zero."""
+    docstring), arrays (n,) for a mission obstacle moving from the clock zero or a world trunk moving from time 0."""
+    if o.source == WORLD_SOURCE and is_moving(o):
+        return o.x_m + o.vx_mps * t, o.y_m + o.vy_mps * t
     if clock_t0_s is None or o.source != "mission" or not is_moving(o):
         return o.x_m, o.y_m
     dt = np.maximum(t - float(clock_t0_s), 0.0)
