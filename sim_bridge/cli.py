@@ -58,6 +58,9 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--home-lat", type=float, default=47.397742, help="home latitude, deg")
     g.add_argument("--home-lon", type=float, default=8.545594, help="home longitude, deg")
     g.add_argument("--home-alt", type=float, default=488.0, help="home altitude AMSL, m")
+    g.add_argument("--home", metavar="LAT,LON,ALT",
+                   help="home (and the local NED frame's origin, GPS_GLOBAL_ORIGIN): latitude, longitude (deg) and "
+                        "altitude AMSL (m) in one flag; overrides --home-lat/--home-lon/--home-alt")
     g.add_argument("--address", default="127.0.0.1", help="address the vehicle binds to")
     g.add_argument("--onboard-port", type=int, help="onboard link bind port (default 14580+i)")
     g.add_argument("--onboard-remote", default=None, metavar="HOST:PORT",
@@ -105,6 +108,19 @@ def _serial_spec(text: str) -> tuple[str, int]:
         raise ConfigError(f"--serial: {exc}") from None
 
 
+def _home(args: argparse.Namespace) -> tuple[float, float, float]:
+    """(latitude deg, longitude deg, altitude AMSL m) from --home or --home-lat/--home-lon/--home-alt."""
+    if not getattr(args, "home", None):
+        return args.home_lat, args.home_lon, args.home_alt
+    try:
+        lat, lon, alt = (float(p) for p in args.home.split(","))
+    except ValueError:
+        raise ConfigError(f"--home: expected LAT,LON,ALT (deg, deg, m), got {args.home!r}") from None
+    if not (abs(lat) <= 90.0 and abs(lon) <= 180.0 and -500.0 <= alt <= 10_000.0):
+        raise ConfigError(f"--home: latitude in ±90°, longitude in ±180°, altitude in [-500, 10000] m, got {args.home}")
+    return lat, lon, alt
+
+
 def config_from_args(args: argparse.Namespace) -> SitlConfig:
     """Build and validate the :class:`SitlConfig`; raises :class:`ConfigError` naming the flag or key."""
     i = args.instance
@@ -134,7 +150,7 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
         signing_key=key,
         imu=ImuNoise(scale=args.imu_noise_scale, seed=args.imu_seed),
         takeoff_alt_m=args.takeoff_alt,
-        home=(args.home_lat, args.home_lon, args.home_alt),
+        home=_home(args),
         onboard_bind=(args.address, args.onboard_port if args.onboard_port is not None else 14580 + i),
         onboard_remote=(_hostport(args.onboard_remote, "--onboard-remote", 0) if args.onboard_remote
                         else ("127.0.0.1", 14540 + i)),

@@ -32,6 +32,8 @@ MSG_DEBUG_FLOAT_ARRAY = mavlink2.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY
 MSG_HOME_POSITION = mavlink2.MAVLINK_MSG_ID_HOME_POSITION
 MSG_HIGHRES_IMU = mavlink2.MAVLINK_MSG_ID_HIGHRES_IMU
 MSG_SCALED_IMU = mavlink2.MAVLINK_MSG_ID_SCALED_IMU
+MSG_MISSION_CURRENT = mavlink2.MAVLINK_MSG_ID_MISSION_CURRENT
+MSG_GPS_GLOBAL_ORIGIN = mavlink2.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN
 MSG_PROTOCOL_VERSION = 300  # not in pymavlink's common dialect; packed by ProtocolVersionMessage
 
 SWING_NAME = b"SWING"
@@ -42,6 +44,10 @@ CAPABILITIES = (
     | mavlink2.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
     | mavlink2.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
     | mavlink2.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT  # the mission service (sim_bridge.mission_server)
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+    | mavlink2.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY
 )
 SW_VERSION = (0 << 24) | (1 << 16) | (0 << 8) | 255  # slungpilot 0.1.0, release
 
@@ -55,7 +61,8 @@ def default_intervals_us(control_period_us: int, mode: str = "onboard") -> dict[
     ``mode`` "onboard" (the companion's link) or "normal" (the ground-station link), after PX4's stream
     lists of the same names in mavlink_main.cpp (v1.15): HIGHRES_IMU 50 Hz, SYS_STATUS and
     EXTENDED_SYS_STATE 5 Hz and HOME_POSITION 0.5 Hz on onboard; normal mode has PX4's slower rates and no
-    IMU stream. Onboard keeps faster position/attitude-target rates than PX4 (50 Hz, for the companion) and
+    IMU stream; MISSION_CURRENT at 1 Hz on the normal link only (the onboard link gets it when the mission
+    changes, or on request). Onboard keeps faster position/attitude-target rates than PX4 (50 Hz, for the companion) and
     the simulator's cable-angle sensor every control period.
     """
     if mode == "normal":
@@ -69,6 +76,7 @@ def default_intervals_us(control_period_us: int, mode: str = "onboard") -> dict[
             MSG_EXTENDED_SYS_STATE: 1_000_000,
             MSG_ATTITUDE_TARGET: 500_000,
             MSG_HOME_POSITION: 2_000_000,
+            MSG_MISSION_CURRENT: 1_000_000,
             MSG_DEBUG_FLOAT_ARRAY: max(control_period_us, 100_000),
         }
     return {
@@ -337,6 +345,11 @@ def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any, snap: Snapsh
         mav.home_position_send(round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0), float(h[0]), float(h[1]),
                                float(h[2]), list(quat_from_euler(0.0, 0.0, v.home_yaw_rad)), 0.0, 0.0, 0.0,
                                v.home_time_us)
+    elif msgid == MSG_GPS_GLOBAL_ORIGIN:  # the local NED frame's origin (LOCAL_POSITION_NED's zero)
+        mav.gps_global_origin_send(round(v.origin[0] * 1e7), round(v.origin[1] * 1e7), round(v.origin[2] * 1000.0),
+                                   v.t_us)
+    elif msgid == MSG_MISSION_CURRENT:
+        mav.mission_current_send(**v.missions.current_fields())
     elif msgid == MSG_SCALED_IMU:
         acc, gyro, mag, _, _, temp_c = v.imu_sample()
         mav.scaled_imu_send(v.t_us // 1000 & 0xFFFFFFFF, *(_i16(a / G_STD * 1000.0) for a in acc),
@@ -428,4 +441,5 @@ def _i16(x: float) -> int:
 
 
 _ZERO3 = (0.0, 0.0, 0.0)
-_STREAMABLE = {MSG_SYSTEM_TIME, MSG_AUTOPILOT_VERSION, MSG_HIGHRES_IMU, MSG_SCALED_IMU, MSG_HOME_POSITION}
+_STREAMABLE = {MSG_SYSTEM_TIME, MSG_AUTOPILOT_VERSION, MSG_HIGHRES_IMU, MSG_SCALED_IMU, MSG_HOME_POSITION,
+               MSG_MISSION_CURRENT, MSG_GPS_GLOBAL_ORIGIN}

@@ -24,7 +24,7 @@ from companion.core.rotations import wrap_pi
 from companion.core.wind import WindConfig
 from companion.errors import ModelError
 from companion.mavlink_io.signing import SigningVerifier
-from sim_bridge import commands, telemetry
+from sim_bridge import commands, mission_server, telemetry
 from sim_bridge.imu import ImuModel, ImuNoise
 from sim_bridge.link import MavUdpLink, RejectCounters
 from sim_bridge.params import build_param_table, gains_from_params
@@ -145,6 +145,7 @@ class SitlVehicle:
         self._last_hb_wall = 0.0
         self._last_step_wall = 0.0  # lockstep: when a client last stepped the simulation
         self.steps = 0
+        self.missions = mission_server.MissionServer()  # mission, fence, rally (docs/sitl.md)
         self.scanner = None  # the world's LiDAR (sim_bridge.scan_sender.ScanSender; `sitl --world`), else None
 
     # ------------------------------------------------------------------ construction helpers
@@ -259,7 +260,7 @@ class SitlVehicle:
     def can_send(self, msgid: int) -> bool:
         return msgid in telemetry.default_intervals_us(1) or msgid in (
             telemetry.MSG_AUTOPILOT_VERSION, telemetry.MSG_PROTOCOL_VERSION, telemetry.MSG_SYSTEM_TIME,
-            telemetry.MSG_SCALED_IMU)
+            telemetry.MSG_SCALED_IMU, telemetry.MSG_MISSION_CURRENT, telemetry.MSG_GPS_GLOBAL_ORIGIN)
 
     def send_message(self, msgid: int, link: MavUdpLink) -> None:
         telemetry.send_vehicle_message(msgid, link.mav, self)
@@ -469,6 +470,8 @@ class SitlVehicle:
         self._send_due_telemetry()
         if self.scanner is not None:  # a scan, when due, as part of this instant's telemetry
             self.scanner.on_step(self)
+        if self.missions.busy:  # a mission transfer's retries and timeout
+            self._mission_out(self.missions.tick(time.monotonic()))
         if self.cfg.duration_s is not None and self.t_us >= self.cfg.duration_s * 1e6:
             self.stop_requested = True
 
@@ -545,10 +548,11 @@ class SitlVehicle:
             self.counters.reject("other_target", f"{msg.get_type()} for system {tgt}")
             return
         comp = getattr(msg, "target_component", None)
-        if comp is not None and comp not in (0, self.cfg.compid):
-            self.counters.reject("other_target", f"{msg.get_type()} for component {comp}")
-            return
         t = msg.get_type()
+        if comp is not None and comp not in (0, self.cfg.compid) and not (
+                comp == M.MAV_COMP_ID_MISSIONPLANNER and t.startswith("MISSION_")):  # PX4 takes the planner's too
+            self.counters.reject("other_target", f"{t} for component {comp}")
+            return
         if t == "SET_ATTITUDE_TARGET":
             self.on_attitude_target(link, msg)
         elif t == "SET_POSITION_TARGET_LOCAL_NED":
@@ -569,6 +573,15 @@ class SitlVehicle:
             self.set_mode(px4_modes.Px4Mode.from_custom_mode(msg.custom_mode))
         elif t == "TIMESYNC" and msg.tc1 == 0:
             link.mav.timesync_send(self.t_us * 1000, msg.ts1)
+        elif t.startswith("MISSION_"):
+            self._mission_out(self.missions.handle(
+                msg, mission_server.Peer(link, msg.get_srcSystem(), msg.get_srcComponent()), time.monotonic()))
+
+    def _mission_out(self, outs: list) -> None:
+        """Send the mission service's answers (its retries and timeouts run on the wall clock, as a ground
+        station's do, also in lockstep)."""
+        if outs:
+            mission_server.send_outputs(outs, self._links(), self.statustext)
 
     # ------------------------------------------------------------------ links and clocks (shared by both runners)
     def warm_up(self) -> None:
@@ -622,6 +635,8 @@ class SitlVehicle:
         once a second while nobody steps the simulation."""
         if now - self._last_marker_wall >= MARKER_RESEND_S:
             self._send_marker()
+        if self.missions.busy:
+            self._mission_out(self.missions.tick(now))
         # While a client steps the simulation, HEARTBEATs come on simulated time only (a wall-clock one
         # would show the client a state change at a wall-time-dependent moment: lockstep runs must repeat bit
         # for bit). Only an idle vehicle (no step for 1 s) heartbeats on the wall clock, to be discovered and
