@@ -3,8 +3,8 @@
 A datagram carries whole frames; a stream carries bytes. :class:`StreamFramer` keeps what it was fed and hands back
 complete frames whose CRC checks out, in order, each handled by the links as a one-frame datagram. A partial frame
 waits for the next read. Anything that does not check out is garbage: the framer steps one byte past the start
-marker it tried and looks for the next one (resynchronisation), so a false marker inside line noise costs at most
-one frame length of delay, never the stream.
+marker it tried and looks for the next one (resynchronisation). A false marker whose "frame" is still incomplete is
+given up as soon as a whole valid frame follows it, so noise never holds real frames back.
 
 A frame is accepted when: MAVLink 2 (0xFD) with incompatibility flags 0 or 1 (signed: 13 signature bytes follow
 the CRC, not checked here), or MAVLink 1 (0xFE); a message id whose CRC extra is known; the CRC right. Frames of
@@ -67,9 +67,9 @@ class StreamFramer:
                 out.append(bytes(buf[i : i + size]))
                 self.frames += 1
                 i += size
-            elif size == 0:  # a frame that may still be complete: wait for more bytes
+            elif size == 0 and not _complete_frame_after(buf, i, n):  # may still be a frame: wait for more bytes
                 break
-            else:
+            else:  # no frame here, or a "frame" still incomplete while a whole one follows it: a false start
                 if skip_from < 0:
                     skip_from = i
                 i += 1
@@ -85,6 +85,18 @@ class StreamFramer:
     def clear(self) -> None:
         """Forget a partial frame (the stream was reopened)."""
         self._buf.clear()
+
+
+def _complete_frame_after(buf: bytearray, i: int, n: int) -> bool:
+    """True if a whole valid frame starts after ``i`` and ends within the buffer: then the incomplete "frame" at
+    ``i`` is a false start (a real one would contain that frame, CRC and all, by chance), not one to wait for."""
+    j = i + 1
+    while j < n:
+        b = buf[j]
+        if b in (STX_V2, STX_V1) and _frame_size(buf, j, n) > 0:
+            return True
+        j += 1
+    return False
 
 
 def _frame_size(buf: bytearray, i: int, n: int) -> int:

@@ -293,22 +293,26 @@ class TcpTransport(_FdStream):
     there and take one peer; while it is connected the listening socket is closed, so a second client is refused
     by the kernel; when the peer goes the port listens again."""
 
-    def __init__(self, url: LinkUrl, connect_timeout_s: float = 5.0) -> None:
+    def __init__(self, url: LinkUrl, connect_timeout_s: float = 5.0, reconnect_timeout_s: float = 0.2) -> None:
         self.url = url
-        self.connect_timeout_s = connect_timeout_s
+        self.connect_timeout_s = connect_timeout_s  # the first connection (s); later ones wait reconnect_timeout_s
+        self.reconnect_timeout_s = reconnect_timeout_s  # short: a reconnection is tried inside a flying loop
         self._conn: socket.socket | None = None
         self._listener: socket.socket | None = None
+        self._opened = False
 
     def open(self) -> None:
         """Connect (tcp) or listen (tcpin); :class:`LinkError` when refused or the port is taken."""
         addr = (self.url.host, self.url.port)
         try:
             if self.url.mode == "tcp":
-                self._take(socket.create_connection(addr, timeout=self.connect_timeout_s))
+                timeout = self.reconnect_timeout_s if self._opened else self.connect_timeout_s
+                self._take(socket.create_connection(addr, timeout=timeout))
             else:
                 self._listen()
         except OSError as exc:
             raise LinkError(f"cannot open {self.url}: {exc.strerror or exc}") from None
+        self._opened = True
 
     def _listen(self) -> None:
         s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
