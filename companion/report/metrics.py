@@ -274,7 +274,7 @@ def compute_metrics(log: FlightLog, mission) -> dict[str, Any]:
         else:
             settle_abs = float(t[over[-1] + 1])
     t_goal = float(t[i_goal]) if i_goal is not None else None
-    return {
+    rep = {
         "mission": mission.name,
         "planner": log.planner or mission.planner,
         "controller": log.controller or mission.controller,
@@ -295,3 +295,100 @@ def compute_metrics(log: FlightLog, mission) -> dict[str, Any]:
         "sim_time_s": float(t[-1] - t[0]),
         "wall_time_s": log.wall_time_s,
     }
+    if getattr(mission, "waypoints", ()):
+        rep["waypoints"] = waypoint_metrics(log, mission, i_cruise or 0, swing_abs, obstacles)
+    if getattr(mission, "fence", None) is not None:
+        rep["fence"] = fence_metrics(log, mission)
+    return rep
+
+
+def _leg_clearance(log: FlightLog, a: int, b: int, obstacles, airframe_r_m: float) -> float | None:
+    """Smallest clearance (m) over the rows a..b−1 and every obstacle (None: no obstacle below reach)."""
+    if b <= a or not obstacles:
+        return None
+    c = obstacle_clearances(log.t[a:b], log.pos[a:b], log.payload_pos[a:b], obstacles, airframe_r_m,
+                            log.obstacle_clock_t0_s)
+    m = float(np.min(c)) if len(c) else math.inf
+    return m if math.isfinite(m) else None
+
+
+def waypoint_metrics(log: FlightLog, mission, i_cruise: int, swing_abs: np.ndarray, obstacles) -> list[dict]:
+    """Per waypoint, then the goal: when it was reached or passed (``reached_at_s``, from the cruise start like
+    ``time_to_goal_s``; None: never), the closest the airframe came (m), and over the leg that ends there (from
+    the previous point's passage, or the cruise start): the largest swing (rad) and the smallest clearance (m).
+
+    The passages are replayed from the log's cruise rows with the flight's own rule
+    (:class:`companion.flight.legs.Legs`: pass-through within 0.6 m or past the corner, a hold waypoint by the
+    arrival tolerance and dwell); the goal's leg ends where the vehicle was first within the arrival tolerance."""
+    from companion.estimation.estimate import Estimate
+    from companion.flight.legs import Legs
+
+    t, pos = log.arr("t"), log.arr("pos")
+    legs = Legs(mission, 0.0)
+    reach_i: list[int | None] = [None] * len(mission.waypoints)
+    zero = np.zeros(3)
+    for i in range(i_cruise, len(t)):
+        if log.phase[i] != "cruise" or legs.at_goal:
+            continue
+        k = legs.index
+        legs.update(Estimate(float(t[i]), pos[i], zero, zero, zero, None, "none"))
+        if legs.reached_t_s[k] is not None and reach_i[k] is None:
+            reach_i[k] = int(np.searchsorted(t, legs.reached_t_s[k]))
+    goal = np.asarray(mission.goal_ned_m, dtype=np.float64)
+    d_goal = np.hypot(pos[:, 0] - goal[0], pos[:, 1] - goal[1])
+    after = reach_i[-1] if reach_i and reach_i[-1] is not None else i_cruise
+    i_goal = _first_index((d_goal < log.goal_tol_m) & (np.arange(len(t)) >= after))
+    names = [f["name"] for f in legs.facts()] + ["goal"]
+    ends = [*reach_i, i_goal]
+    vp = mission.vehicle
+    out, start = [], i_cruise
+    for k, (name, end) in enumerate(zip(names, ends, strict=True)):
+        stop = len(t) if end is None else end + 1
+        # the closest approach: over this leg and the next (the passage counts on entering the radius)
+        far = len(t) if k + 1 >= len(ends) or ends[k + 1] is None else ends[k + 1] + 1
+        p = np.asarray(legs.targets[k].pos_ned_m, dtype=np.float64)
+        d = np.hypot(pos[start:far, 0] - p[0], pos[start:far, 1] - p[1])
+        sw = swing_abs[start:stop]
+        sw = sw[np.isfinite(sw)]
+        out.append({"name": name, "reached_at_s": None if end is None else float(t[end] - t[i_cruise]),
+                    "closest_m": round(float(np.min(d)), 3) if d.size else None,
+                    "leg_max_swing_rad": float(np.max(sw)) if sw.size else None,
+                    "leg_min_clearance_m": _leg_clearance(log, start, stop, obstacles, vp.r_uav + vp.L_uav)})
+        if end is None:
+            break
+        start = end
+    return out
+
+
+def fence_metrics(log: FlightLog, mission) -> dict[str, Any]:
+    """How far inside the fence the flight stayed (m): the airframe's circle (r_uav + L_uav) and the payload
+    point, over every row; ``breaches``: rows where either was outside (negative margin)."""
+    from companion.planning.fence_guard import fence_margin_m
+
+    vp = mission.vehicle
+    pos, pay = log.arr("pos"), log.arr("payload_pos")
+    air = fence_margin_m(mission.fence, pos[:, :2]) - (vp.r_uav + vp.L_uav)
+    ok = np.all(np.isfinite(pay[:, :2]), axis=1)
+    pm = np.full(len(pos), np.inf)
+    pm[ok] = fence_margin_m(mission.fence, pay[ok, :2])
+    return {"min_margin_airframe_m": float(np.min(air)) if len(air) else None,
+            "min_margin_payload_m": float(np.min(pm)) if np.any(ok) else None,
+            "breaches": int(np.sum((air < 0.0) | (pm < 0.0)))}
+
+
+def waypoint_lines(rep: dict[str, Any]) -> list[str]:
+    """The summary's per-waypoint lines (none for a mission without waypoints) and its fence line."""
+    lines = []
+    for k, w in enumerate(rep.get("waypoints") or []):
+        at = "never" if w.get("reached_at_s") is None else f"{w['reached_at_s']:.2f} s"
+        sw, cl = w.get("leg_max_swing_rad"), w.get("leg_min_clearance_m")
+        label = "goal" if w["name"] == "goal" else f"waypoint {k + 1} {w['name'][:24]}"
+        lines.append(f"  {label:<36}reached {at:<9} leg: max swing {'—' if sw is None else f'{sw:.3f} rad'}, "
+                     f"min clearance {'—' if cl is None else f'{cl:.3f} m'}")
+    f = rep.get("fence")
+    if f:
+        def m(v: float | None) -> str:
+            return "—" if v is None else f"{v:.3f} m"
+        lines.append(f"  fence               min margin airframe {m(f.get('min_margin_airframe_m'))}, payload "
+                     f"{m(f.get('min_margin_payload_m'))}, breaches {f.get('breaches')}")
+    return lines

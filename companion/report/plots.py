@@ -37,7 +37,37 @@ def _short_source(source: str) -> str:
     return source.rstrip("/").rsplit("/", 1)[-1] or source
 
 
-def _plan(ax, a: Mapping[str, np.ndarray], obstacles: Sequence[Obstacle], start, goal, title: str) -> None:
+def _legs_and_fence(ax, start, goal, waypoints: Sequence = (), fence=None) -> None:
+    """A multi-leg mission's planned legs (start → waypoints → goal, dashed), its waypoints (circles; squares
+    where the flight holds, labelled with name and hold) and the fence's zones (inclusion dashed green, exclusion
+    hatched red)."""
+    if waypoints:
+        pts = np.array([start[:2], *[w.pos_ned_m[:2] for w in waypoints], goal[:2]], dtype=np.float64)
+        ax.plot(pts[:, 1], pts[:, 0], color="purple", lw=0.8, ls="--", alpha=0.7, label="legs (as planned)", zorder=3)
+        for k, w in enumerate(waypoints):
+            hold = w.hold_s > 0.0
+            ax.plot(w.pos_ned_m[1], w.pos_ned_m[0], "s" if hold else "o", color="purple", ms=7, mfc="none", zorder=5,
+                    label=("waypoint (square: hold)" if k == 0 else None))
+            text = f"{k + 1} {w.name}" + (f" (hold {w.hold_s:g} s)" if hold else "")
+            ax.annotate(text, (w.pos_ned_m[1], w.pos_ned_m[0]), xytext=(6, -10), textcoords="offset points",
+                        fontsize=7, color="purple", zorder=6)
+    if fence is None:
+        return
+    for z in fence.polygons:
+        v = np.array(z.vertices_ne_m + z.vertices_ne_m[:1], dtype=np.float64)
+        if z.inclusion:
+            ax.plot(v[:, 1], v[:, 0], color="green", ls="--", lw=1.0, zorder=2)
+        else:
+            ax.fill(v[:, 1], v[:, 0], facecolor="none", edgecolor="red", hatch="xx", lw=1.0, zorder=2)
+    for c in fence.circles:
+        ax.add_patch(Circle((c.center_ne_m[1], c.center_ne_m[0]), c.radius_m, fill=False, zorder=2, lw=1.0,
+                            **({"ls": "--", "color": "green"} if c.inclusion else {"hatch": "xx", "color": "red"})))
+    ax.plot([], [], color="green", ls="--", label="fence: inclusion zone")
+    ax.plot([], [], color="red", lw=1.0, label="fence: exclusion zone (hatched)")
+
+
+def _plan(ax, a: Mapping[str, np.ndarray], obstacles: Sequence[Obstacle], start, goal, title: str,
+          waypoints: Sequence = (), fence=None) -> None:
     live_sources: list[str] = []
     for o in obstacles:
         live = o.source != "mission"
@@ -72,6 +102,7 @@ def _plan(ax, a: Mapping[str, np.ndarray], obstacles: Sequence[Obstacle], start,
                                     lw=0.6, zorder=2))
         handles_extra.append(Line2D([], [], ls="none", marker="o", mfc="none", mec="tab:blue", alpha=0.5, ms=9,
                                     label=f"swing envelope R_max (every {step}-th tick)"))
+    _legs_and_fence(ax, start, goal, waypoints, fence)
     ax.plot(start[1], start[0], "k^", ms=8, label="start", zorder=5)
     ax.plot(goal[1], goal[0], "k*", ms=12, label="goal", zorder=5)
     ax.set_xlabel("east y (m)")
@@ -92,10 +123,11 @@ def _plan(ax, a: Mapping[str, np.ndarray], obstacles: Sequence[Obstacle], start,
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, borderaxespad=0.0)
 
 
-def plot_plan(a: Mapping[str, np.ndarray], obstacles, start, goal, path: Path, title: str = "") -> Path:
-    """Plan view (Figs. 11–12) to ``path``."""
+def plot_plan(a: Mapping[str, np.ndarray], obstacles, start, goal, path: Path, title: str = "",
+              waypoints: Sequence = (), fence=None) -> Path:
+    """Plan view (Figs. 11–12) to ``path``; a multi-leg mission's ``waypoints`` and ``fence`` drawn too."""
     fig, ax = plt.subplots(figsize=(9, 8))
-    _plan(ax, a, obstacles, start, goal, title or "plan view")
+    _plan(ax, a, obstacles, start, goal, title or "plan view", waypoints, fence)
     fig.tight_layout()
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
@@ -179,11 +211,13 @@ def plot_3d(a: Mapping[str, np.ndarray], obstacles, path: Path, title: str = "")
     return path
 
 
-def plot_flight(a: Mapping[str, np.ndarray], obstacles, start, goal, out_dir: Path, title: str = "") -> list[Path]:
-    """All three figures into ``out_dir``; returns their paths."""
+def plot_flight(a: Mapping[str, np.ndarray], obstacles, start, goal, out_dir: Path, title: str = "",
+                waypoints: Sequence = (), fence=None) -> list[Path]:
+    """All three figures into ``out_dir``; returns their paths. ``waypoints`` (:class:`~companion.core.mission.
+    Waypoint` s) and ``fence`` (:class:`~companion.core.fence.Fence`) are marked on the plan view."""
     out_dir.mkdir(parents=True, exist_ok=True)
     return [
-        plot_plan(a, obstacles, start, goal, out_dir / "plan.png", title),
+        plot_plan(a, obstacles, start, goal, out_dir / "plan.png", title, waypoints, fence),
         plot_timeseries(a, out_dir / "timeseries.png", title),
         plot_3d(a, obstacles, out_dir / "trajectory3d.png", title),
     ]

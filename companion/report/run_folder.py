@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from companion.core.mission import Mission
-from companion.report.metrics import FlightLog, compute_metrics, estimation_error
+from companion.report.metrics import FlightLog, compute_metrics, estimation_error, waypoint_lines
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +95,7 @@ def write_run(
 
         title = f"{mission.name}: {rep['planner']} + {rep['controller']}"
         paths = plot_flight(arrays, flog.obstacles or mission.obstacles, mission.start_ned_m, mission.goal_ned_m,
-                            run_dir, title)
+                            run_dir, title, mission.waypoints, mission.fence)
         rep["plots"] = [str(p) for p in paths]
     text = json.dumps(rep, indent=2, sort_keys=False)
     (run_dir / "report.json").write_text(text + "\n")
@@ -131,6 +131,7 @@ def summary_text(rep: dict[str, Any]) -> str:
         f"  min clearance       {_fmt(rep.get('min_clearance_m'), ' m', 3)}   collisions {rep.get('collisions')}",
         f"  sim time            {_fmt(rep.get('sim_time_s'), ' s')}   wall time {_fmt(rep.get('wall_time_s'), ' s')}",
     ]
+    lines += waypoint_lines(rep)
     if loop:
         lines.append(
             f"  loop                {loop.get('ticks')} ticks, tick p50 {_fmt(loop.get('tick_ms_p50'), ' ms', 3)}, "
