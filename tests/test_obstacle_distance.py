@@ -181,3 +181,31 @@ def test_without_scans_or_with_perception_off_there_is_no_map():
         finally:
             tx.close()
             run.link.close()
+
+
+def test_scans_from_zenoh_reach_the_pilots_map_between_ticks():
+    """The pilot's ``on_scan`` (what the Zenoh scan input hands over): scans on the vehicle's clock are placed at
+    their time, a ROS-stamped one at the newest pose (counted); with perception off, nothing."""
+    from companion.mavlink_io import telemetry as tm
+    from companion.perception.scan import Scan
+
+    for perception in (None, False):
+        pilot = Pilot(load_mission(resolve_mission("forest")), FlightSetup(lockstep=True, perception=perception))
+        pilot.on_telemetry(tm.Heartbeat(1, 1, 0, 2, 12, 0, 0, 3), 0.0)
+        ang = np.radians(np.arange(360.0))
+        for k in range(4):
+            t = 1.0 + 0.1 * k
+            for dt in (-0.01, 0.01):
+                pilot.on_telemetry(tm.Attitude(1, 1, 0, t + dt, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), 0.0)
+                pilot.on_telemetry(tm.LocalPositionNed(1, 1, 0, t + dt, (0.0, 0.0, -2.0), (0.0, 0.0, 0.0)), 0.0)
+            rays = raycast((0.0, 0.0), 0.0, TRUNKS, noise_m=0.01, rng=np.random.default_rng(k))
+            scan = Scan(t if k < 3 else 1e9, ang, rays, 0.1, 12.0, math.radians(1.0), source="zenoh")
+            pilot.on_scan(scan, vehicle_clock=k < 3)
+        if perception is False:
+            assert pilot.perception is None
+            continue
+        p = pilot.perception
+        # on by itself at the first scan (no poses yet: refused), then three mapped, the ROS-stamped one at the
+        # newest pose
+        assert p is not None and p.scans_mapped == 3 and p.refused == {"no_pose": 1} and p.restamped == 1
+        assert len(p.obstacles) == 2

@@ -41,6 +41,11 @@ class ObstacleView:
         ones, whose estimates change with every scan: see the perception facts)."""
         return tuple(self._seen.values())
 
+    @property
+    def in_use(self) -> Sequence[Obstacle]:
+        """The whole set given last (before culling): mission, live and perceived obstacles."""
+        return self._last if self._last is not None else ()
+
     def around(self, t_s: float, x_m: float, y_m: float) -> Sequence[Obstacle]:
         """The obstacles for the planner at time ``t_s`` (s) with the vehicle at (``x_m``, ``y_m``) (mission frame)."""
         obstacles = self.source(t_s) if self.source else self.mission_obstacles

@@ -44,7 +44,7 @@ from companion.flight.sequence_types import Observation, SequenceConfig, Stream,
 from companion.flight.setup import FlightSetup
 from companion.mavlink_io.telemetry import Attitude, LocalPositionNed, ObstacleDistance, Rejected, TelemetryEvent
 from companion.perception.pipeline import Perception
-from companion.perception.scan import ScanPart
+from companion.perception.scan import Scan, ScanPart
 
 log = logging.getLogger(__name__)
 
@@ -225,6 +225,22 @@ class Pilot:
             p.on_attitude(ev.t_boot_s, ev.euler_rad)
         elif cls is Rejected and ev.message == "OBSTACLE_DISTANCE":
             p.refused["part_nonfinite"] += 1
+
+    def on_scan(self, scan: Scan, vehicle_clock: bool = True) -> None:
+        """A whole range scan from another input than MAVLink (Zenoh: the project's stream, ROS 2), handed over
+        between ticks; ``vehicle_clock`` False: its stamp may be on another clock (ROS time)."""
+        if self.perception is None:
+            if self.setup.perception is False:
+                return
+            self._start_perception()
+        p = self.perception
+        assert p is not None
+        p.vehicle_sysid = self.state.vehicle_sysid
+        try:
+            p.on_scan(scan) if vehicle_clock else p.on_foreign_scan(scan)
+        except Exception as exc:  # as in on_telemetry: counted, never raised into the input
+            self.perception_errors += 1
+            log.error("perception failed on a %s scan (%d times): %r", scan.source, self.perception_errors, exc)
 
     def on_unread_frame(self, src_system: int, src_component: int, seq: int) -> None:
         """A message nothing reads: still a frame of the vehicle's stream (its sequence numbers count for loss)."""

@@ -12,6 +12,7 @@ the bench (:attr:`~Perception.stage_s`).
 from __future__ import annotations
 
 from collections import Counter
+from dataclasses import replace
 from typing import Any
 
 from companion.core.obstacles import Obstacle
@@ -38,6 +39,7 @@ class Perception:
         self.map = local_map or LocalMap()
         self.refused: Counter[str] = Counter()  # whole scans or parts refused before the map, by reason
         self.scans_mapped = 0
+        self.restamped = 0  # scans placed at the newest pose: their stamp was not on the vehicle's clock
         self.last_points: ScanPoints | None = None
         self.last_detections: list[Detection] = []
         self.timer = timer
@@ -90,6 +92,18 @@ class Perception:
         self.scans_mapped += 1
         return True
 
+    def on_foreign_scan(self, scan: Scan) -> bool:
+        """A whole scan whose stamp may be on another clock than the vehicle's (ROS time): placed at its stamp when
+        the pose history covers it, else at the newest pose (counted ``restamped``); True if it was mapped."""
+        if isinstance(self.poses.at(scan.t_s), str):
+            newest = self.poses.newest_s
+            if newest is None:
+                self.refused["no_pose"] += 1
+                return False
+            self.restamped += 1
+            scan = replace(scan, t_s=newest)
+        return self.on_scan(scan)
+
     def _now(self) -> float:
         return self.timer() if self.timer is not None else 0.0
 
@@ -117,5 +131,5 @@ class Perception:
             "refused_total": sum(refused.values()), "returns_dropped": dict(self.points.dropped),
             "segments_skipped": dict(self.clusterer.skipped), "map": dict(self.map.counts),
             "tracks": len(self.map.tracks), "trunks": len(self.map.obstacles),
-            "pose_samples_ignored": self.poses.ignored,
+            "pose_samples_ignored": self.poses.ignored, "restamped": self.restamped,
         }

@@ -262,6 +262,11 @@ class ZenohTelemetry:
     def is_open(self) -> bool:
         return self._session is not None
 
+    @property
+    def session(self) -> zenoh.Session | None:
+        """The open session (None when closed): for other inputs of the same vehicle (the scan input)."""
+        return self._session
+
     def __enter__(self) -> ZenohTelemetry:
         return self.open()
 
@@ -479,7 +484,9 @@ class ZenohTelemetrySink:
     Per tick: swing (``est.swing``, ``cmd.r_max_m``, ``cmd.envelope_mode``), state (payload position from the
     swing and ``cable_l_m``), setpoint (every field of ``cmd``), status (``status_fn(app)``, default empty)
     and the obstacle set last returned by ``zt.obstacles_current`` (use ``zt.obstacle_source(...)`` as the
-    app's obstacle source and ``zt.ingest`` as its obstacle ingest). Duck-typed: only those attribute names are read.
+    app's obstacle source and ``zt.ingest`` as its obstacle ingest), or, once the pilot maps what its sensors
+    see (``app.pilot.perception``), the set the planner was given last with the perceived trunks. Duck-typed:
+    only those attribute names are read.
     """
 
     def __init__(self, zt: ZenohTelemetry, cable_l_m: float,
@@ -514,5 +521,9 @@ class ZenohTelemetrySink:
         if cmd is not None and dataclasses.is_dataclass(cmd):
             zt.publish_setpoint(t, {f.name: getattr(cmd, f.name) for f in dataclasses.fields(cmd) if f.name != "t_s"})
         zt.publish_status(t, self.status_fn(app) if self.status_fn is not None else {})
-        if zt.last_obstacles is not None:
-            zt.publish_obstacles(t, zt.last_obstacles)
+        obstacles = zt.last_obstacles
+        pilot = getattr(app, "pilot", None)
+        if pilot is not None and getattr(pilot, "perception", None) is not None:
+            obstacles = pilot.obstacles.in_use  # the perceived trunks too (source "perception")
+        if obstacles is not None:
+            zt.publish_obstacles(t, obstacles)
