@@ -17,7 +17,7 @@ import sys
 from typing import Any
 
 from companion.autopilots.profile import profile_by_name
-from companion.cli.fly_args import EXIT_CODES
+from companion.cli.fly_args import DEFAULT_MISSION, EXIT_CODES
 from companion.cli.viz_cmds import flight_view
 from companion.config import resolve_mission
 from companion.core.mission import Mission, load_mission
@@ -35,11 +35,19 @@ __all__ = ["DEFAULT_GAINS", "FlyResult", "fly_async", "load_gains", "mission_fro
 
 log = logging.getLogger(__name__)
 
+AUTOPILOT_MISSION = "autopilot"  # --mission autopilot: fly the mission uploaded to the autopilot
+
 
 
 def mission_from_args(args: argparse.Namespace) -> Mission:
     """The mission file with CLI overrides applied; ConfigError (exit 2) when it is broken."""
-    mission = load_mission(resolve_mission(args.mission))
+    base = getattr(args, "base_mission", None)
+    if args.mission == AUTOPILOT_MISSION:  # the route comes from the autopilot; the rest from the base mission
+        mission = load_mission(resolve_mission(base or str(DEFAULT_MISSION)))
+    elif base is not None:
+        raise ConfigError("--base-mission: only with --mission autopilot")
+    else:
+        mission = load_mission(resolve_mission(args.mission))
     changes: dict[str, Any] = {}
     if args.planner:
         changes["planner"] = args.planner
@@ -142,7 +150,7 @@ def spec_from_args(args: argparse.Namespace, mission: Mission) -> FlySpec:
         setup=setup, sitl=args.sitl, sitl_args=tuple(sitl_args), run_dir=args.run_dir, report=args.report,
         plots=not args.no_plots, narrate=not getattr(args, "quiet", False), zenoh=zspec,
         view=(lambda m, d: flight_view(args, m, d)) if not getattr(args, "no_recording", False) else None,
-        config_facts=effective_config, world=world,
+        config_facts=effective_config, autopilot_mission=args.mission == AUTOPILOT_MISSION, world=world,
     )
 
 

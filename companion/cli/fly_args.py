@@ -36,9 +36,15 @@ EXIT_HELP = ("exit codes: 0 goal reached; 1 mission not completed (timeout, no r
 
 def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     """The ``fly`` options."""
-    p.add_argument("--mission", default=str(DEFAULT_MISSION), metavar="FILE|NAME",
+    p.add_argument("--mission", default=str(DEFAULT_MISSION), metavar="FILE|NAME|autopilot",
                    help="mission TOML file, or the name of a shipped mission (`slungpilot missions` lists them; "
-                        "default: forest, the paper's Table 2 forest)")
+                        "default: forest, the paper's Table 2 forest), or `autopilot`: download and fly the mission "
+                        "and geofence the operator uploaded to the autopilot (take-off, waypoints with holds, land "
+                        "or return; anything else is refused before take-off), with --base-mission's planner, "
+                        "controller, vehicle, payload and obstacles")
+    p.add_argument("--base-mission", default=None, metavar="FILE|NAME",
+                   help="with --mission autopilot: the mission file that gives everything but the route and the "
+                        "fence (planner, controller, vehicle, payload, wind, obstacles; default: forest)")
     p.add_argument("--connect", default=None,
                    help="autopilot link: udpin://HOST:PORT (listen; default udpin://0.0.0.0:14540, PX4's onboard "
                         "link, +N with --instance N) or udpout://HOST:PORT; not with --sitl (it picks free ports)")

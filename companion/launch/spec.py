@@ -49,6 +49,9 @@ class FlySpec:
     view: Callable[[Any, Path], Any] | None = None
     config_facts: Callable[[Any], dict[str, Any]] | None = None
     pin_lockstep: bool = True
+    #: fly the mission the operator uploaded to the autopilot (``--mission autopilot``): downloaded before the
+    #: flight, its route and fence replace the given mission's (:mod:`companion.launch.autopilot_mission`)
+    autopilot_mission: bool = False
     #: with ``sitl``: the simulated world (:class:`companion.core.world.World`) the vehicle is started in
     #: (``--world``); the report then scores clearance and collisions against its trunks, the truth
     world: Any = None
