@@ -81,8 +81,6 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
     zt_holder: list[Any] = []
     runner: Runner | None = None
     error: BaseException | None = None
-    refusal: Any = None  # the autopilot's mission refused before take-off (fly --mission autopilot)
-    am_facts: dict[str, Any] | None = None
     view = spec.view(mission, run_dir) if spec.view is not None else None
     with contextlib.ExitStack() as sync_stack:
         async with contextlib.AsyncExitStack() as stack:
@@ -101,41 +99,21 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
                 setup = await _start_sitl(spec, setup, mission, run_dir, stack)
             if spec.narrate:
                 wiring.sinks.append(Narrator(lockstep=setup.lockstep))
-            if spec.autopilot_mission:  # before the pilot: its route and fence are what the autopilot holds
-                mission, refusal, am_facts = _fetch_autopilot_mission(spec, setup, mission, run_dir)
             pilot = Pilot(mission, setup)
             try:
                 if setup.lockstep:
                     runner = LockstepRunner(pilot, wiring)
-                    if refusal is None:
-                        _run_blocking(runner)
+                    _run_blocking(runner)
                 else:
                     runner = RealtimeRunner(pilot, wiring)
-                    if refusal is None:
-                        await _run_async(runner)
+                    await _run_async(runner)
             except Exception as exc:  # still write what we have, then re-raise
                 error = exc
     assert runner is not None
-    report = _write_report(runner, spec, mission, run_dir, zt_holder, view, time.monotonic() - wall0, error,
-                           refusal, am_facts)
+    report = _write_report(runner, spec, mission, run_dir, zt_holder, view, time.monotonic() - wall0, error)
     if error is not None:
         raise error
-    return FlyResult(runner.outcome if refusal is None else refusal.outcome, report, run_dir)
-
-
-def _fetch_autopilot_mission(spec: FlySpec, setup: Any, mission: Mission,
-                             run_dir: Path) -> tuple[Mission, Any, dict[str, Any]]:
-    """``--mission autopilot``: the mission to fly, the refusal (None when it can be flown) and the report's facts
-    (:mod:`companion.launch.autopilot_mission`)."""
-    from companion.launch.autopilot_mission import Refusal, fetch_autopilot_mission
-
-    bundled = spec.sitl or (setup.profile is not None and setup.profile.name == "bundled")
-    try:
-        flown, facts = fetch_autopilot_mission(setup, mission, bundled=bundled, run_dir=run_dir)
-    except Refusal as r:
-        log.error("the autopilot's mission is not flown: %s", r.detail)
-        return mission, r, {"refused": r.detail, **r.facts}
-    return flown, None, facts
+    return FlyResult(runner.outcome, report, run_dir)
 
 
 async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path,
@@ -196,23 +174,31 @@ def _zenoh_hook(spec: FlySpec, mission: Mission, stack: contextlib.ExitStack, zt
         run.sinks.append(ZenohTelemetrySink(zt, mission.vehicle.l, status_fn=status_of))
         if view is not None:
             view.sink.current_obstacles = lambda: zt.last_obstacles
-        run.use_obstacle_input(zt.obstacle_source(mission.obstacles), zt.ingest)
+        scans = _scan_input(zt, run, z.prefix, vid)
+        zt_holder.append(scans)
+
+        def ingest(t_s: float) -> None:  # live obstacles, then the scans that wait (issue 26)
+            zt.ingest(t_s)
+            scans.drain()
+
+        run.use_obstacle_input(zt.obstacle_source(mission.obstacles), ingest)
 
     return connect
 
 
+def _scan_input(zt: Any, run: Runner, prefix: str, vid: str) -> Any:
+    """The scans on Zenoh (the project's stream and ROS 2's LaserScan) into the pilot's perception map."""
+    from companion.zenoh_io.scan_input import ScanInput
+
+    return ScanInput(zt.session, run.pilot.on_scan, prefix=prefix, vehicle_id=vid)
+
+
 def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path, zt_holder: list[Any], view: Any,
-                  wall: float, error: BaseException | None, refusal: Any = None,
-                  am_facts: dict[str, Any] | None = None) -> dict[str, Any]:
+                  wall: float, error: BaseException | None) -> dict[str, Any]:
     extra = runner.run_facts()
     if error is not None:
         extra["outcome"] = "error"
         extra["outcome_detail"] = str(error)
-    elif refusal is not None:  # refused before take-off: nothing flown
-        extra["outcome"] = refusal.outcome
-        extra["outcome_detail"] = refusal.detail
-    if am_facts is not None:
-        extra["autopilot_mission"] = am_facts
     extra.update(run_options(runner, spec, run_dir, zt_holder))
     extra["wall_time_s"] = wall
     flog = runner.pilot.record.log
@@ -251,6 +237,8 @@ def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any])
                         "obstacles_in_rejected": zt.store.rejected_count,
                         "obstacles_in_unchanged": zt.unchanged, "obstacles_in_superseded": zt.superseded,
                         "obstacles_in_ring_full": zt.ring_full}
+        if len(zt_holder) > 1:
+            out["zenoh"]["scans_in"] = zt_holder[1].facts()
     return out
 
 
