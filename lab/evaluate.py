@@ -45,11 +45,13 @@ from typing import Any
 
 import numpy as np
 
+from companion.core.wind import WindConfig
 from lab.compare import plot_comparison
 from lab.evaljob import SCENARIOS, scenario_spec
 from lab.forests import ForestSpec, generate_forest
 from lab.pool import Interrupted, check_cluster, run_jobs
 from lab.runner import MODES, Job, memory_summary, rss_mb
+from lab.wind_options import add_wind_arguments, wind_from_args, with_wind
 
 log = logging.getLogger(__name__)
 
@@ -99,17 +101,18 @@ def summarise(results: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def build_jobs(planners: list[str], densities: list[float], n: int, seed0: int, spec: ForestSpec, mode: str,
-               out: Path, keep_runs: bool = False, scenarios: tuple[str, ...] = ("static",), movers: int = 2
-               ) -> list[Job]:
+               out: Path, keep_runs: bool = False, scenarios: tuple[str, ...] = ("static",), movers: int = 2,
+               wind: WindConfig | None = None) -> list[Job]:
     """One job per (scenario, planner, density, seed), seeds ``seed0 .. seed0 + n - 1`` shared by every planner.
-    The static scenario keeps the historical folder layout ``runs/<planner>/d<density>/s<seed>``."""
+    The static scenario keeps the historical folder layout ``runs/<planner>/d<density>/s<seed>``. ``wind``
+    (:mod:`lab.wind_options`): flown in every forest instead of the forests' own, turbulence seeded per seed."""
     jobs = []
     for sc in scenarios:
         sspec = scenario_spec(spec, sc, movers)
         for d in densities:
             for seed in range(seed0, seed0 + n):
                 for p in planners:
-                    mission = generate_forest(seed, sspec.with_(density_per_100m2=d, planner=p))
+                    mission = with_wind(generate_forest(seed, sspec.with_(density_per_100m2=d, planner=p)), wind, seed)
                     base = out / "runs" if sc == "static" else out / "runs" / sc
                     run_dir = base / p / f"d{d:g}" / f"s{seed}"
                     jobs.append(Job(key=f"{p}|{d:g}|{seed}|{sc}", mission=mission, run_dir=run_dir, mode=mode,
@@ -119,7 +122,8 @@ def build_jobs(planners: list[str], densities: list[float], n: int, seed0: int, 
 
 def evaluate(planners: list[str], densities: list[float], n: int, *, seed0: int = 0, spec: ForestSpec | None = None,
              mode: str = "mavlink", workers: int = 2, out: Path, progress: bool = True, keep_runs: bool = False,
-             scenarios: tuple[str, ...] = ("static",), movers: int = 2, cluster: str | None = None) -> dict[str, Any]:
+             scenarios: tuple[str, ...] = ("static",), movers: int = 2, cluster: str | None = None,
+             wind: WindConfig | None = None) -> dict[str, Any]:
     """Fly everything, write the summary files into ``out`` and return the summary dict.
 
     ``cluster``: a Dask scheduler address (``tcp://host:8786``) or ``"local"`` to fly the missions on a Dask
@@ -133,7 +137,7 @@ def evaluate(planners: list[str], densities: list[float], n: int, *, seed0: int 
             raise ValueError(f"scenario: must be one of {', '.join(SCENARIOS)}, got {sc!r}")
     spec = spec or ForestSpec()
     out.mkdir(parents=True, exist_ok=True)
-    jobs = build_jobs(planners, densities, n, seed0, spec, mode, out, keep_runs, scenarios, movers)
+    jobs = build_jobs(planners, densities, n, seed0, spec, mode, out, keep_runs, scenarios, movers, wind)
     wall0 = time.monotonic()
     rss0 = rss_mb()
     try:
@@ -337,6 +341,7 @@ def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vary", action="store_true",
                    help="draw wind scale (0–2), payload mass (0.1–0.5 kg), cable length (0.5–1.5 m) per seed")
     p.add_argument("--wind-scale", type=float, default=1.0, help="fixed wind scale without --vary (default 1)")
+    add_wind_arguments(p)
     p.add_argument("--controller", choices=["smc_ff", "smc", "pid"], default="smc_ff")
     p.add_argument("--length", type=float, default=20.0, help="corridor length (m, default 20)")
     p.add_argument("--width", type=float, default=6.0, help="corridor width (m, default 6)")
@@ -407,7 +412,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     try:
         summary = evaluate(planners, densities, args.n, seed0=args.seed0, spec=spec, mode=args.mode,
                            workers=args.workers, out=out, progress=not args.no_progress, keep_runs=args.keep_runs,
-                           scenarios=scenarios, movers=args.movers, cluster=args.cluster)
+                           scenarios=scenarios, movers=args.movers, cluster=args.cluster, wind=wind_from_args(args))
     except Interrupted as exc:
         print((out / "summary.md").read_text())
         print(f"slungpilot evaluate: {exc}; partial summary in {out}/summary.md, summary.json, results.jsonl",

@@ -8,7 +8,7 @@ import logging
 import os
 import sys
 
-from companion.config import dataclass_from_table
+from companion.config import dataclass_from_table, read_toml
 from companion.core.model import VehicleParams, load_vehicle_params
 from companion.core.wind import WindConfig
 from companion.errors import ConfigError
@@ -45,10 +45,18 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
                    help="advance one control period per SET_ATTITUDE_TARGET on the onboard link (docs/sitl.md)")
     g.add_argument("--control-period-ms", type=int, default=4, help="control period, ms (multiple of 1 ms)")
     g.add_argument("--vehicle", metavar="FILE", help="vehicle TOML ([vehicle] table, config/vehicle.toml format)")
-    g.add_argument("--payload-mass", type=float, help="payload mass m, kg (overrides --vehicle)")
-    g.add_argument("--cable-length", type=float, help="cable length l, m (overrides --vehicle)")
-    g.add_argument("--wind", choices=["paper", "none"], default="paper", help="wind model (eq. 49 or none)")
-    g.add_argument("--wind-scale", type=float, default=1.0, help="wind scale factor")
+    g.add_argument("--payload-mass", "--payload-mass-kg", type=float, dest="payload_mass",
+                   help="the TRUE payload mass m, kg (overrides --vehicle; the rotors' maximum thrust stays the "
+                        "vehicle's max_thrust_n)")
+    g.add_argument("--cable-length", "--cable-length-m", type=float, dest="cable_length",
+                   help="the TRUE cable length l, m (overrides --vehicle)")
+    g.add_argument("--wind", choices=["paper", "none", "turbulence"], default="paper",
+                   help="wind model: eq. 49, none, or physical drag of a mean wind + Dryden turbulence + gust "
+                        "(its settings from --wind-file)")
+    g.add_argument("--wind-scale", type=float, default=1.0, help="wind scale factor (eq. 49)")
+    g.add_argument("--wind-file", metavar="FILE",
+                   help="TOML with a [wind] table (mission format: model, mean_speed_mps, direction_deg, intensity, "
+                        "seed, gusts, drag areas; companion.core.wind.WindConfig); overrides --wind/--wind-scale")
     g.add_argument("--thr-hover", type=float, help="MPC_THR_HOVER (default 1/thrust_to_weight = 0.4)")
     g.add_argument("--offboard-timeout", type=float, default=1.0,
                    help="COM_OF_LOSS_T: offboard setpoint loss timeout, s (sim time; PX4's default 1.0)")
@@ -121,12 +129,24 @@ def _home(args: argparse.Namespace) -> tuple[float, float, float]:
     return lat, lon, alt
 
 
+def _wind_from_args(args: argparse.Namespace) -> WindConfig:
+    """The wind: ``--wind-file``'s [wind] table if given, else --wind/--wind-scale."""
+    wind_file = getattr(args, "wind_file", None)
+    if wind_file:
+        data = read_toml(wind_file)
+        if set(data) - {"wind"}:
+            raise ConfigError(f"{wind_file}: expected only a [wind] table, got {sorted(data)}")
+        return dataclass_from_table(WindConfig, data.get("wind", {}), where=f"{wind_file}: [wind]")
+    return dataclass_from_table(WindConfig, {"model": args.wind, "scale": args.wind_scale}, where="--wind-scale:")
+
+
 def config_from_args(args: argparse.Namespace) -> SitlConfig:
     """Build and validate the :class:`SitlConfig`; raises :class:`ConfigError` naming the flag or key."""
     i = args.instance
     if not 0 <= i <= 54:
         raise ConfigError(f"--instance: must be in 0..54, got {i}")
     params = load_vehicle_params(args.vehicle) if args.vehicle else VehicleParams()
+    declared_hover_n = params.hover_thrust_n
     over = {}
     if args.payload_mass is not None:
         over["m"] = args.payload_mass
@@ -134,7 +154,7 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
         over["l"] = args.cable_length
     if over:
         params = dataclass_from_table(VehicleParams, over, where="--payload-mass/--cable-length:", base=params)
-    wind = dataclass_from_table(WindConfig, {"model": args.wind, "scale": args.wind_scale}, where="--wind-scale:")
+    wind = _wind_from_args(args)
     key = load_key_file(args.signing_key) if args.signing_key else None
     cfg = SitlConfig(
         params=params,
@@ -160,6 +180,7 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
         compid=args.compid,
         payload_sysid=args.payload_sysid if args.payload_sysid is not None else (2 if i == 0 else 200 + i),
         duration_s=args.duration,
+        thrust_ref_n=declared_hover_n if "m" in over else None,  # the thrust calibration is the declared vehicle's
     )
     try:
         cfg.validate()

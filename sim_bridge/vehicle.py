@@ -75,6 +75,9 @@ class SitlConfig:
     onboard_serial: tuple[str, int] | None = None  # (device, baud bit/s): the onboard link on a serial device
     signing_key: bytes | None = None
     imu: ImuNoise = field(default_factory=ImuNoise)
+    #: the hover thrust (N) MPC_THR_HOVER was calibrated for: the declared vehicle's when the true payload differs
+    #: (``--payload-mass-kg``: the autopilot was tuned with what it was told); None: the simulated vehicle's own
+    thrust_ref_n: float | None = None
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for inconsistent settings."""
@@ -111,7 +114,8 @@ class SitlVehicle:
         self.counters = RejectCounters()
         self.params = build_param_table(
             thr_hover=cfg.thr_hover or 1.0 / cfg.rotor.thrust_to_weight,
-            offboard_timeout_s=cfg.offboard_timeout_s, wind_model=cfg.wind.model, wind_scale=cfg.wind.scale,
+            offboard_timeout_s=cfg.offboard_timeout_s, wind_scale=cfg.wind.scale,
+            wind_model="none" if cfg.wind.model == "none" else "paper",  # SIM_WIND_MODEL 1: the configured wind
             payload_mass_kg=cfg.params.m, cable_length_m=cfg.params.l, takeoff_alt_m=cfg.takeoff_alt_m,
             gains=InnerLoopGains(), counters=self.counters.counts, obl_action=cfg.obl_action,
             fail_act_t_s=cfg.fail_act_t_s, imu_noise_scale=cfg.imu.scale,
@@ -150,16 +154,20 @@ class SitlVehicle:
 
     # ------------------------------------------------------------------ construction helpers
     def _new_sim(self, params: VehicleParams, t0_s: float) -> VehicleSim:
-        wind = WindConfig("paper" if self.params.value("SIM_WIND_MODEL") >= 0.5 else "none",
-                          self.params.value("SIM_WIND_SCALE"))
         gains = gains_from_params(self.params, InnerLoopGains())
-        return VehicleSim(params, wind=wind, rotor=self.cfg.rotor, gains=gains,
+        return VehicleSim(params, wind=self._wind_from_params(), rotor=self.cfg.rotor, gains=gains,
                           dt_s=self.cfg.physics_dt_us * 1e-6, t0_s=t0_s)
+
+    def _wind_from_params(self) -> WindConfig:
+        """The configured wind (``cfg.wind``, all its physical-wind settings) switched by SIM_WIND_MODEL
+        (0 none; 1 the configured model, eq. 49 when that is none) and scaled by SIM_WIND_SCALE (eq. 49)."""
+        on = self.params.value("SIM_WIND_MODEL") >= 0.5
+        model = (self.cfg.wind.model if self.cfg.wind.model != "none" else "paper") if on else "none"
+        return dataclasses.replace(self.cfg.wind, model=model, scale=self.params.value("SIM_WIND_SCALE"))
 
     def _param_changed(self, prm) -> None:
         if prm.name.startswith("SIM_WIND"):
-            self.sim.wind = WindConfig("paper" if self.params.value("SIM_WIND_MODEL") >= 0.5 else "none",
-                                       self.params.value("SIM_WIND_SCALE"))
+            self.sim.wind = self._wind_from_params()
         elif prm.name.startswith("SMC_"):
             try:
                 g = gains_from_params(self.params, self.sim.gains)
@@ -206,7 +214,10 @@ class SitlVehicle:
 
     @property
     def hover_thrust_n(self) -> float:
-        return self.sim.params.hover_thrust_n
+        """The hover thrust (N) the thrust calibration (MPC_THR_HOVER) refers to (``cfg.thrust_ref_n``, else the
+        simulated vehicle's true (M + m)·g)."""
+        ref = self.cfg.thrust_ref_n
+        return self.sim.params.hover_thrust_n if ref is None else ref
 
     @property
     def prearm_ok(self) -> bool:

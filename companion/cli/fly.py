@@ -135,6 +135,7 @@ def spec_from_args(args: argparse.Namespace, mission: Mission) -> FlySpec:
         sitl_args += ["--instance", str(args.instance)]
     if args.signing_key is not None:
         sitl_args += ["--signing-key", str(args.signing_key)]
+    sitl_args += _true_payload_args(args)
     world = _world_from_args(args)
     zspec = None
     if not args.no_zenoh:
@@ -164,6 +165,21 @@ def _world_from_args(args: argparse.Namespace) -> Any:
     from companion.core.world import load_world
 
     return load_world(args.world)
+
+
+def _true_payload_args(args: argparse.Namespace) -> list[str]:
+    """The bundled vehicle's flags for ``--true-payload-mass-kg`` / ``--true-cable-length-m`` (only with --sitl)."""
+    out: list[str] = []
+    for flag, value in (("--payload-mass-kg", getattr(args, "true_payload_mass_kg", None)),
+                        ("--cable-length-m", getattr(args, "true_cable_length_m", None))):
+        if value is None:
+            continue
+        if not args.sitl:
+            raise ConfigError(f"--true{flag[1:]}: only with --sitl (a real vehicle carries what it carries)")
+        if not (value > 0.0 and value < 100.0):
+            raise ConfigError(f"--true{flag[1:]}: must be in (0, 100), got {value}")
+        out += [flag, repr(float(value))]
+    return out
 
 
 async def fly_async(args: argparse.Namespace, mission: Mission) -> FlyResult:

@@ -55,6 +55,11 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sitl", action="store_true",
                    help="start the bundled SITL vehicle on free local ports (lockstep unless --realtime)")
     p.add_argument("--realtime", action="store_true", help="with --sitl: fly in real time to watch it live")
+    p.add_argument("--true-payload-mass-kg", type=float, default=None, metavar="KG",
+                   help="with --sitl: the payload the bundled vehicle really carries, kg (the mission's is what the "
+                        "companion is told; a mis-declared payload)")
+    p.add_argument("--true-cable-length-m", type=float, default=None, metavar="M",
+                   help="with --sitl: the bundled vehicle's real cable length, m (the mission's is the declared one)")
     p.add_argument("--world", default=None, metavar="FILE|NAME",
                    help="with --sitl: the trunks that stand in the simulated world (a world TOML, or a shipped one: "
                         "forest, forest_crossing), which the vehicle's LiDAR sees; the report scores clearance "

@@ -18,6 +18,7 @@ from typing import Any
 from companion.config import shipped_config
 from companion.control.params import ControllerConfig, load_controller_config
 from companion.core.mission import Mission
+from companion.core.payload_check import thrust_margin
 from companion.errors import ConfigError
 from companion.flight.lockstep import LockstepRunner
 from companion.flight.pilot import Pilot
@@ -76,6 +77,9 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
     spec.setup.validate()
     run_dir = spec.run_dir or new_run_dir(mission)
     run_dir.mkdir(parents=True, exist_ok=True)
+    too_heavy = _thrust_margin_refusal(spec, mission, run_dir)  # before anything starts or takes off
+    if too_heavy is not None:
+        return too_heavy
     setup = replace(spec.setup, tlog_path=run_dir / "flight.tlog", run_dir=run_dir)
     wall0 = time.monotonic()
     zt_holder: list[Any] = []
@@ -132,6 +136,22 @@ async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path
         extra += ["--rt-priority", str(setup.rt_priority)]
     sitl = await stack.enter_async_context(SitlProcess(mission, run_dir, lockstep=setup.lockstep, extra_args=extra))
     return replace(setup, connect=sitl.companion_url, sock=sitl.companion_sock)
+
+
+def _thrust_margin_refusal(spec: FlySpec, mission: Mission, run_dir: Path) -> FlyResult | None:
+    """Outcome ``refused`` (the run folder written, nothing started) when the declared payload leaves the vehicle
+    too little thrust margin (:mod:`companion.core.payload_check`); None when it may fly."""
+    from companion.report.metrics import FlightLog
+
+    margin = thrust_margin(mission.companion_params())
+    if margin.ok:
+        return None
+    log.error("%s", margin.detail())
+    flog = FlightLog(planner=mission.planner, controller=mission.controller, mission=mission.name,
+                     obstacles=mission.obstacles)
+    extra = {"outcome": "refused", "outcome_detail": margin.detail(), "final_phase": "not_started",
+             "thrust_margin": margin.as_dict()}
+    return FlyResult("refused", write_run(flog, mission, extra, run_dir, spec.report, plots=False), run_dir)
 
 
 def _run_blocking(runner: LockstepRunner) -> None:
@@ -226,7 +246,12 @@ def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any])
         "run_dir": str(run_dir),
         "tlog": str(run_dir / "flight.tlog"),
         "vehicle": m.vehicle.as_dict(),
+        "thrust_margin": thrust_margin(m.companion_params()).as_dict(),
     }
+    true_payload = _true_payload(spec.sitl_args) if spec.sitl else {}
+    if true_payload:  # the bundled vehicle flies another payload than the mission declares (issue 28)
+        out["payload_declared"] = {"mass_kg": m.companion_params().m, "cable_length_m": m.companion_params().l}
+        out["payload_true"] = true_payload
     if profile.name == "bundled":  # the mission's wind is the bundled vehicle's simulation; a real one has its own
         out["wind"] = {"model": m.wind.model, "scale": m.wind.scale}
     if zt_holder:
@@ -240,6 +265,13 @@ def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any])
         if len(zt_holder) > 1:
             out["zenoh"]["scans_in"] = zt_holder[1].facts()
     return out
+
+
+def _true_payload(sitl_args: tuple[str, ...]) -> dict[str, float]:
+    """The bundled vehicle's true payload from its flags (``--payload-mass-kg``, ``--cable-length-m``), if given."""
+    keys = {"--payload-mass-kg": "mass_kg", "--cable-length-m": "cable_length_m"}
+    args = list(sitl_args)
+    return {keys[a]: float(args[i + 1]) for i, a in enumerate(args[:-1]) if a in keys}
 
 
 def status_of(run: Runner) -> dict[str, Any]:

@@ -85,6 +85,10 @@ class SitlProcess:
             "--wind", self.mission.wind.model,
             "--wind-scale", repr(self.mission.wind.scale),
         ]
+        if self.mission.wind.model not in ("paper", "none"):  # physical wind: all its settings in a file
+            wfile = self.workdir / "wind.toml"
+            wfile.write_text("\n".join(["[wind]", *self.mission.wind.toml_lines()]) + "\n")
+            argv += ["--wind-file", str(wfile)]
         if self.lockstep:
             argv.append("--lockstep")
         return argv + self.extra_args

@@ -1,0 +1,64 @@
+"""The thrust-margin check before take-off: a payload the vehicle cannot lift with margin is refused (pure).
+
+Hovering the vehicle and its payload takes (M + m)·g of thrust; the rotors give at most ``max_thrust_n``
+(``[vehicle] max_thrust_n``, N). The flight is refused before take-off when the hover takes more than
+:data:`HOVER_FRACTION_LIMIT` (0.75) of it. Why 0.75 (docs/companion.md, "Thrust margin"):
+
+* multirotor design guidance asks for a thrust-to-weight ratio of about 2:1 at take-off weight (hover at
+  ~50 % throttle; ArduPilot's wiki: the learnt hover throttle MOT_THST_HOVER "is usually between 0.2 and 0.6").
+  0.75 (thrust-to-weight 1.33) is the far edge of that;
+* what the remaining 25 % must pay for: the companion's controller tilts up to 0.6 rad
+  (``LimitGains.tilt_max_rad``), which at constant altitude takes 1/cos 0.6 = 1.21× the hover thrust: 0.91 of
+  the maximum at a hover fraction of 0.75, leaving ~9 % for the attitude loop's differential thrust (a rotor at
+  its limit has no authority) and nothing for a climb; above 0.83 it cannot even hold altitude at full tilt.
+
+The check uses what the companion is told (the mission's vehicle with ``[payload]``'s declared mass); a payload
+heavier than declared is the vehicle's to discover in flight.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from companion.core.model import VehicleParams
+
+#: Largest hover thrust, as a fraction of the maximum thrust, that the companion takes off with.
+HOVER_FRACTION_LIMIT = 0.75
+
+
+@dataclass(frozen=True)
+class ThrustMargin:
+    """Hover thrust ``hover_n`` and maximum thrust ``max_n`` (N); ``fraction`` = hover / max; ``limit``."""
+
+    payload_kg: float
+    vehicle_kg: float
+    hover_n: float
+    max_n: float
+    limit: float = HOVER_FRACTION_LIMIT
+
+    @property
+    def fraction(self) -> float:
+        """Hover thrust over maximum thrust (dimensionless)."""
+        return self.hover_n / self.max_n
+
+    @property
+    def ok(self) -> bool:
+        """True when the vehicle lifts the payload with margin."""
+        return self.fraction <= self.limit
+
+    def detail(self) -> str:
+        """The numbers in one sentence, e.g. for the report's ``outcome_detail``."""
+        verdict = "" if self.ok else "refused before take-off: "
+        return (f"{verdict}hover needs {self.fraction:.2f} of maximum thrust (limit {self.limit:.2f}): payload "
+                f"{self.payload_kg:g} kg + vehicle {self.vehicle_kg:g} kg = {self.hover_n:.1f} N of "
+                f"{self.max_n:.1f} N")
+
+    def as_dict(self) -> dict[str, float | bool]:
+        """For the report: masses (kg), thrusts (N), fraction, limit, ok."""
+        return {"payload_kg": self.payload_kg, "vehicle_kg": self.vehicle_kg, "hover_thrust_n": self.hover_n,
+                "max_thrust_n": self.max_n, "hover_fraction": self.fraction, "limit": self.limit, "ok": self.ok}
+
+
+def thrust_margin(params: VehicleParams, limit: float = HOVER_FRACTION_LIMIT) -> ThrustMargin:
+    """The hover thrust (M + m)·g of ``params`` against its ``max_thrust_n``."""
+    return ThrustMargin(params.m, params.M, params.hover_thrust_n, params.max_thrust_n, limit)
