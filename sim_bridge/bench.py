@@ -152,12 +152,14 @@ class _Discard:
         pass
 
 
-def run_bench_step_inprocess(steps: int = 5000) -> dict[str, float]:
+def run_bench_step_inprocess(steps: int = 5000, scanner=None) -> dict[str, float]:
     """The vehicle's own CPU per lockstep control step, in this process and without sockets: a hover client's
     SET_ATTITUDE_TARGET frames go straight into the onboard link's ``datagram_received`` and what the vehicle
     sends is dropped. Physics, mode logic, telemetry packing and framing, as in ``--lockstep``; the UDP system
-    calls (and the wake-ups they cause) are what the subprocess bench adds on top."""
+    calls (and the wake-ups they cause) are what the subprocess bench adds on top. ``scanner``: a world's LiDAR
+    (:class:`sim_bridge.scan_sender.ScanSender`) on the vehicle, as ``sitl --world`` attaches it."""
     v = SitlVehicle(SitlConfig(lockstep=True))
+    v.scanner = scanner
     v.warm_up()
     sink = _Discard()
     links = [MavUdpLink(name, ("127.0.0.1", 9), 1, 1, v.counters, v.on_message, None, link_id=k)

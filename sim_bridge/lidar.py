@@ -130,21 +130,23 @@ def _ground_hits(o: np.ndarray, d: np.ndarray) -> np.ndarray:
 
 def _trunk_hits(o: np.ndarray, d: np.ndarray, cx, cy, radius, height) -> np.ndarray:
     """Per ray, the distance to the nearest hit on the trunks' sides or top discs (+inf if none): (n,) from
-    rays (3, n) and trunks (m,)."""
-    dx, dy, dz = (v[:, None] for v in d)  # (n, 1)
-    ox, oy = o[0] - cx, o[1] - cy  # (m,)
-    a = dx * dx + dy * dy  # (n, 1), > 0 unless the ray is vertical
-    b = 2.0 * (dx * ox + dy * oy)  # (n, m)
-    c = ox * ox + oy * oy - radius * radius  # (m,)
-    disc = b * b - 4.0 * a * c
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s_side = (-b - np.sqrt(disc)) / (2.0 * a)
-        s_side = np.where(c < 0.0, 0.0, s_side)  # the sensor inside a trunk: touching it
-        z = o[2] + s_side * dz
-        side_ok = (disc >= 0.0) & (s_side >= 0.0) & (z <= 0.0) & (z >= -height)
-        s_top = (-height - o[2]) / dz  # the top disc at z = −height
-        px, py = ox + s_top * dx, oy + s_top * dy
-        top_ok = np.isfinite(s_top) & (s_top >= 0.0) & (px * px + py * py <= radius * radius)
-    s = np.where(side_ok, s_side, math.inf)
-    s = np.where(top_ok & (s_top < s), s_top, s)
-    return np.min(s, axis=1)
+    rays (3, n) and trunks (m,). Arrays are (m, n): a trunk per row, so the minimum runs over contiguous rows."""
+    dx, dy, dz = d
+    ox, oy = (o[0] - cx)[:, None], (o[1] - cy)[:, None]  # (m, 1)
+    r2 = (radius * radius)[:, None]
+    a = dx * dx + dy * dy  # (n,), > 0 unless the ray is vertical
+    half_b = ox * dx + oy * dy  # (m, n)
+    c = ox * ox + oy * oy - r2  # (m, 1)
+    disc = half_b * half_b - a * c
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        s = (-half_b - np.sqrt(disc)) / a  # entering the side; NaN where the ray misses the circle
+        s = np.where(c < 0.0, 0.0, s)  # the sensor inside a trunk: touching it
+        z = o[2] + s * dz
+        s = np.where((s >= 0.0) & (z <= 0.0) & (z >= -height[:, None]), s, math.inf)  # NaN compares False
+        above = height < -o[2]  # the sensor above these trunks' tops: a ray going down may land on the top disc
+        if np.any(above):
+            s_top = (-height[above, None] - o[2]) / dz  # (k, n)
+            px, py = ox[above] + s_top * dx, oy[above] + s_top * dy
+            top_ok = (s_top >= 0.0) & (px * px + py * py <= r2[above])
+            s[above] = np.where(top_ok & (s_top < s[above]), s_top, s[above])
+    return np.min(s, axis=0)

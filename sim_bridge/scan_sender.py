@@ -22,12 +22,14 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 import time
 from typing import Any
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.mavlink_io.codec import send_payload
 from companion.zenoh_io import schema
 from sim_bridge.lidar import Lidar
 from sim_bridge.world import World, WorldArrays
@@ -39,6 +41,11 @@ UINT16_MAX = 65535
 PER_MESSAGE = 72  # OBSTACLE_DISTANCE's distances[72]
 SECTOR_DEG = 5.0  # the ``sectors`` layout: 72 × 5° = 360°
 LAYOUTS = ("split", "sectors")
+_ID = mavlink2.MAVLINK_MSG_ID_OBSTACLE_DISTANCE  # 330
+_CRC_EXTRA = mavlink2.MAVLink_obstacle_distance_message.crc_extra
+#: the wire order (pymavlink's native format): time_usec, distances[72], min, max, sensor_type, increment,
+#: increment_f, angle_offset, frame
+_PAYLOAD = struct.Struct("<Q72HHHBBffB")
 
 
 def to_cm(ranges_m: np.ndarray, range_min_m: float, range_max_m: float) -> tuple[list[int], int, int]:
@@ -134,10 +141,11 @@ class ScanSender:
             msgs = split_messages(ranges, c.step_deg, c.range_min_m, c.range_max_m)
         else:
             msgs = [sector_message(ranges, c.step_deg, c.range_min_m, c.range_max_m)]
-        for mav in mavs:
-            for dist, inc, off, lo, hi in msgs:
-                mav.obstacle_distance_send(t_us, mavlink2.MAV_DISTANCE_SENSOR_LASER, dist, round(inc), lo, hi,
-                                           inc, off, mavlink2.MAV_FRAME_BODY_FRD)
+        payloads = [_PAYLOAD.pack(t_us, *dist, lo, hi, mavlink2.MAV_DISTANCE_SENSOR_LASER, round(inc), inc, off,
+                                  mavlink2.MAV_FRAME_BODY_FRD) for dist, inc, off, lo, hi in msgs]
+        for mav in mavs:  # packed once, framed per link (its sequence numbers; signed by the link when on)
+            for p in payloads:
+                send_payload(mav, _ID, _CRC_EXTRA, p)
 
 
 class ZenohScanPublisher:

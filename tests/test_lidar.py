@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from sim_bridge.lidar import Lidar, LidarConfig
-from sim_bridge.scan_sender import UINT16_MAX, sector_message, split_messages, to_cm
+from sim_bridge.scan_sender import UINT16_MAX, ScanSender, sector_message, split_messages, to_cm
+from sim_bridge.world import World
 
 LEVEL = (0.0, 0.0, 0.0)
 AT_2M = (0.0, 0.0, -2.0)
@@ -122,3 +123,24 @@ def test_a_360_ray_scan_is_five_messages_of_72_and_sectors_one_of_72_by_5_degree
     assert dist[0] == 1201  # the ray at 359° (lost) shares the 0° sector with free rays
     coarse = split_messages(np.full(36, math.inf), 10.0, 0.1, 12.0)
     assert len(coarse) == 1 and coarse[0][0][36:] == [UINT16_MAX] * 36  # unused elements are unknown
+
+
+class _Buf:
+    def __init__(self) -> None:
+        self.frames: list[bytes] = []
+
+    def write(self, buf: bytes) -> None:
+        self.frames.append(bytes(buf))
+
+
+def test_the_packed_frames_are_those_pymavlink_packs():
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    r = Lidar(LidarConfig(dropout=0.1, seed=2)).scan(AT_2M, (0.1, -0.2, 1.0), *_trunks((3.0, 1.0, 0.3, 4.0)))
+    ours, ref = _Buf(), _Buf()
+    mine = mavlink2.MAVLink(ours, srcSystem=1, srcComponent=196)
+    ScanSender(Lidar(LidarConfig()), World("empty", ())).send(r, 123_456_789, [mine])
+    theirs = mavlink2.MAVLink(ref, srcSystem=1, srcComponent=196)
+    for dist, inc, off, lo, hi in split_messages(r, 1.0, 0.1, 12.0):
+        theirs.obstacle_distance_send(123_456_789, 0, dist, 1, lo, hi, inc, off, mavlink2.MAV_FRAME_BODY_FRD)
+    assert len(ours.frames) == 5 and ours.frames == ref.frames
