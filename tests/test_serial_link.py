@@ -288,7 +288,7 @@ def test_table2_forest_over_a_serial_pty_pair_flies_as_over_udp(tmp_path):
                           "--no-recording", "--planner", "safe", "--run-dir", str(tmp_path / "udp")],
                          capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert udp.returncode == 0, udp.stderr[-2000:]
-    with PtyPair(tmp_path / "fc", tmp_path / "cc") as pair:
+    with PtyPair(tmp_path / "fc", tmp_path / "cc"):
         sim = _start_vehicle(tmp_path, tmp_path / "fc", "--lockstep")
         try:
             fly = _fly(tmp_path / "serial", "--connect", f"serial://{tmp_path}/cc:921600", "--lockstep",

@@ -288,8 +288,8 @@ class MavlinkLink:
             self.rejected["garbage"] += framer.garbage_runs - runs - 1
             self._count("garbage", f"{framer.garbage_bytes - nbytes} bytes outside MAVLink frames on "
                         f"{self.transport.describe()}")
-        for frame in frames:
-            self._accept(frame, (peer, frame[5]))
+        for frame in frames:  # the sender's system id: byte 5 of MAVLink 2, byte 3 of MAVLink 1
+            self._accept(frame, (peer, frame[5] if frame[0] == _STX_V2 else frame[3]))
 
     def _on_datagram(self, data: bytes, addr: tuple[str, int]) -> None:
         if self._locked is not None and addr != self._locked:
