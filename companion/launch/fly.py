@@ -85,6 +85,8 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
     zt_holder: list[Any] = []
     runner: Runner | None = None
     error: BaseException | None = None
+    refusal: Any = None  # the autopilot's mission refused before take-off (fly --mission autopilot)
+    am_facts: dict[str, Any] | None = None
     view = spec.view(mission, run_dir) if spec.view is not None else None
     with contextlib.ExitStack() as sync_stack:
         async with contextlib.AsyncExitStack() as stack:
@@ -103,21 +105,41 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
                 setup = await _start_sitl(spec, setup, mission, run_dir, stack)
             if spec.narrate:
                 wiring.sinks.append(Narrator(lockstep=setup.lockstep))
+            if spec.autopilot_mission:  # before the pilot: its route and fence are what the autopilot holds
+                mission, refusal, am_facts = _fetch_autopilot_mission(spec, setup, mission, run_dir)
             pilot = Pilot(mission, setup)
             try:
                 if setup.lockstep:
                     runner = LockstepRunner(pilot, wiring)
-                    _run_blocking(runner)
+                    if refusal is None:
+                        _run_blocking(runner)
                 else:
                     runner = RealtimeRunner(pilot, wiring)
-                    await _run_async(runner)
+                    if refusal is None:
+                        await _run_async(runner)
             except Exception as exc:  # still write what we have, then re-raise
                 error = exc
     assert runner is not None
-    report = _write_report(runner, spec, mission, run_dir, zt_holder, view, time.monotonic() - wall0, error)
+    report = _write_report(runner, spec, mission, run_dir, zt_holder, view, time.monotonic() - wall0, error,
+                           refusal, am_facts)
     if error is not None:
         raise error
-    return FlyResult(runner.outcome, report, run_dir)
+    return FlyResult(runner.outcome if refusal is None else refusal.outcome, report, run_dir)
+
+
+def _fetch_autopilot_mission(spec: FlySpec, setup: Any, mission: Mission,
+                             run_dir: Path) -> tuple[Mission, Any, dict[str, Any]]:
+    """``--mission autopilot``: the mission to fly, the refusal (None when it can be flown) and the report's facts
+    (:mod:`companion.launch.autopilot_mission`)."""
+    from companion.launch.autopilot_mission import Refusal, fetch_autopilot_mission
+
+    bundled = spec.sitl or (setup.profile is not None and setup.profile.name == "bundled")
+    try:
+        flown, facts = fetch_autopilot_mission(setup, mission, bundled=bundled, run_dir=run_dir)
+    except Refusal as r:
+        log.error("the autopilot's mission is not flown: %s", r.detail)
+        return mission, r, {"refused": r.detail, **r.facts}
+    return flown, None, facts
 
 
 async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path,
@@ -214,11 +236,17 @@ def _scan_input(zt: Any, run: Runner, prefix: str, vid: str) -> Any:
 
 
 def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path, zt_holder: list[Any], view: Any,
-                  wall: float, error: BaseException | None) -> dict[str, Any]:
+                  wall: float, error: BaseException | None, refusal: Any = None,
+                  am_facts: dict[str, Any] | None = None) -> dict[str, Any]:
     extra = runner.run_facts()
     if error is not None:
         extra["outcome"] = "error"
         extra["outcome_detail"] = str(error)
+    elif refusal is not None:  # refused before take-off: nothing flown
+        extra["outcome"] = refusal.outcome
+        extra["outcome_detail"] = refusal.detail
+    if am_facts is not None:
+        extra["autopilot_mission"] = am_facts
     extra.update(run_options(runner, spec, run_dir, zt_holder))
     extra["wall_time_s"] = wall
     flog = runner.pilot.record.log
