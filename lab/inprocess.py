@@ -26,6 +26,7 @@ import numpy as np
 from companion.autopilots.profile import VehicleProfile
 from companion.control import ControllerConfig
 from companion.core.mission import Mission
+from companion.core.model import VehicleParams
 from companion.estimation.estimate import Estimate
 from companion.flight.core import FlightCore
 from companion.report.metrics import FlightLog
@@ -91,6 +92,7 @@ def fly_inprocess(
     link_delay_s: float = 0.0,
     link_jitter_s: float = 0.0,
     link_seed: int = 0,
+    true_vehicle: VehicleParams | None = None,
 ) -> FlightLog:
     """Fly ``mission`` from take-off to the end of the hold (or timeout); returns the flight log.
 
@@ -98,7 +100,9 @@ def fly_inprocess(
     ``swing_source`` overrides it: ``"cable_sensor"``, ``"none"`` or ``"estimate"`` (the swing estimator fed
     by ``estimator``, default :class:`~lab.swing_sim.EstimatorDriver` with its default sensors, seed 0).
     ``truth``: if given, every tick's true state, commanded thrust and specific force is appended to it.
-    With ``record`` False only the last tick is kept (for throughput measurements).
+    With ``record`` False only the last tick is kept (for throughput measurements). ``true_vehicle``: the vehicle
+    the physics flies when it differs from the mission's (a mis-declared payload: the companion flies
+    ``mission.vehicle``); the wind is the mission's ``[wind]``, eq. 49 or physical drag, never told to the core.
     """
     source = swing_source or ("cable_sensor" if swing_sensor else "none")
     if source not in ("cable_sensor", "none", "estimate"):
@@ -110,7 +114,7 @@ def fly_inprocess(
     n_sub = max(1, round(control_period_s / physics_dt_s))
     x0 = np.zeros(16)
     x0[0:2] = mission.start_ned_m[:2]
-    sim = VehicleSim(mission.vehicle, wind=mission.wind, dt_s=physics_dt_s, x0=x0)
+    sim = VehicleSim(true_vehicle or mission.vehicle, wind=mission.wind, dt_s=physics_dt_s, x0=x0)
     sim.armed = True
     core = FlightCore(mission, gains or ControllerConfig(), VehicleProfile(), period_s=control_period_s)
     link = SlowLink(link_delay_s, link_jitter_s, control_period_s, link_seed) if link_delay_s > 0.0 else None

@@ -187,3 +187,55 @@ def test_the_companion_is_never_told_the_wind():
                                    for a in node.names), f
                 if isinstance(node, ast.Attribute):
                     assert node.attr != "wind", f"{f}:{node.lineno} reads .wind"
+
+
+def test_mission_file_round_trip_keeps_the_whole_wind_table(tmp_path):
+    from companion.core.mission import load_mission, mission_to_toml
+
+    base = load_mission(ROOT / "config" / "missions" / "forest.toml")
+    wind = WindConfig("turbulence", mean_speed_mps=6.0, direction_deg=90.0, intensity="moderate", seed=12,
+                      gust_amplitude_mps=2.5, payload_drag_area_m2=0.02)
+    f = tmp_path / "m.toml"
+    f.write_text(mission_to_toml(base.with_(wind=wind)))
+    assert load_mission(f).wind == wind
+    f.write_text(mission_to_toml(base))
+    assert load_mission(f).wind == base.wind and "intensity" not in f.read_text()  # eq. 49 files as before
+
+
+def test_evaluate_wind_options_name_the_wind_and_seed_it_per_forest():
+    import argparse
+
+    from companion.errors import ConfigError
+    from lab.evaluate import add_evaluate_arguments
+    from lab.forests import ForestSpec, generate_forest
+    from lab.wind_options import wind_from_args, with_wind
+
+    p = argparse.ArgumentParser()
+    add_evaluate_arguments(p)
+    assert wind_from_args(p.parse_args([])) is None
+    assert wind_from_args(p.parse_args(["--wind", "calm"])) == WindConfig("none", 0.0)
+    assert wind_from_args(p.parse_args(["--wind", "paper", "--wind-scale", "2"])) == WindConfig("paper", 2.0)
+    w = wind_from_args(p.parse_args(["--wind", "moderate"]))
+    assert (w.model, w.intensity, w.mean_speed_mps, w.direction_deg) == ("turbulence", "moderate", 6.0, 90.0)
+    assert wind_from_args(p.parse_args(["--wind", "light", "--wind-mean-mps", "4"])).mean_speed_mps == 4.0
+    with pytest.raises(ConfigError, match="--wind-mean-mps"):
+        wind_from_args(p.parse_args(["--wind-mean-mps", "4"]))
+    with pytest.raises(ConfigError, match="mean_speed_mps"):
+        wind_from_args(p.parse_args(["--wind", "severe", "--wind-mean-mps", "99"]))
+    m = generate_forest(5, ForestSpec())
+    assert with_wind(m, w, 5).wind.seed == 5 and with_wind(m, w, 6).wind.seed == 6 and with_wind(m, None, 5) is m
+
+
+def test_inprocess_flies_the_true_payload_and_the_wind_without_telling_the_core():
+    from companion.core.mission import load_mission
+    from lab.inprocess import fly_inprocess
+
+    m = load_mission(ROOT / "config" / "missions" / "forest.toml")
+    m = m.with_(wind=WindConfig("turbulence", mean_speed_mps=3.0, direction_deg=90.0, intensity="light", seed=2),
+                timeout_s=8.0, hold_s=0.5)
+    heavy = VehicleParams(m=0.35)  # 40 % heavier than the 0.25 kg the core is told
+    a = fly_inprocess(m, true_vehicle=heavy)
+    b = fly_inprocess(m, true_vehicle=heavy)
+    assert np.array_equal(a.arr("pos"), b.arr("pos"))  # seeded turbulence: the same flight twice
+    c = fly_inprocess(m)  # the declared payload: another flight
+    assert not np.array_equal(a.arr("pos"), c.arr("pos"))

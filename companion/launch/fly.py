@@ -281,7 +281,8 @@ def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any])
         out["payload_declared"] = {"mass_kg": m.companion_params().m, "cable_length_m": m.companion_params().l}
         out["payload_true"] = true_payload
     if profile.name == "bundled":  # the mission's wind is the bundled vehicle's simulation; a real one has its own
-        out["wind"] = {"model": m.wind.model, "scale": m.wind.scale}
+        out["wind"] = dataclasses.asdict(m.wind) if m.wind.is_physical else {"model": m.wind.model,
+                                                                             "scale": m.wind.scale}
     if zt_holder:
         zt = zt_holder[0]
         prefix = spec.zenoh.prefix if spec.zenoh is not None else "slungpilot"
