@@ -1,0 +1,134 @@
+"""End to end: a ground station uploads a mission and a fence to the bundled vehicle, the companion downloads and
+flies them (``fly --mission autopilot``, lockstep).
+
+The ground station is a plain pymavlink client on the vehicle's GCS port (its mission protocol: MISSION_COUNT,
+MISSION_REQUEST_INT → MISSION_ITEM_INT, MISSION_ACK), as QGroundControl or MAVSDK's mission_raw would talk to it:
+a take-off, four waypoints through the paper's forest (one with a hold) and a landing, in
+MAV_FRAME_GLOBAL_RELATIVE_ALT_INT about the vehicle's own home; a fence with an inclusion polygon and an exclusion
+circle. The companion flies the route with the forest mission's planner and obstacles and never leaves the fence."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import socket
+import time
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as M
+
+from companion.autopilots.profile import profile_by_name
+from companion.config import shipped_missions
+from companion.core.autopilot_mission import earth_radii_m
+from companion.core.fence import Fence, FenceCircle, FencePolygon, fence_margin_m
+from companion.core.mission import load_mission
+from companion.flight.setup import FlightSetup
+from companion.launch.fly import fly_mission
+from companion.launch.sitl import SitlProcess
+from companion.launch.spec import FlySpec
+
+pytestmark = pytest.mark.slow
+
+ROUTE = [(2.0, 1.6, 2.0, 0.0), (5.5, 2.6, 2.5, 2.0), (9.0, 1.2, 2.0, 0.0), (10.0, 0.0, 2.0, 0.0)]  # n, e, alt, hold
+FENCE_SQUARE = [(-3.0, -4.0), (14.0, -4.0), (14.0, 5.0), (-3.0, 5.0)]
+KEEP_OUT = (7.5, 3.8, 0.5)  # north, east, radius (m): beside the leg from the clearing to the east gap
+
+
+class _Gcs:
+    """A ground station on the vehicle's GCS port (blocking pymavlink over UDP)."""
+
+    def __init__(self, port: int) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.05)
+        self.addr = ("127.0.0.1", port)
+        self.mav = M.MAVLink(self, srcSystem=255, srcComponent=190)
+        self.parser = M.MAVLink(None)
+
+    def write(self, buf: bytes) -> None:
+        self.sock.sendto(bytes(buf), self.addr)
+
+    def recv(self) -> list:
+        try:
+            data = self.sock.recv(65536)
+        except TimeoutError:
+            return []
+        return [m for m in self.parser.parse_buffer(data) or [] if m.get_srcSystem() == 1]
+
+    def home(self) -> tuple[float, float, float]:
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end:
+            self.mav.command_long_send(1, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, 242, 0, 0, 0, 0, 0, 0)
+            for m in self.recv() + self.recv():
+                if m.get_type() == "HOME_POSITION":
+                    return m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3
+        raise AssertionError("no HOME_POSITION from the vehicle")
+
+    def upload(self, mtype: int, items: list[tuple]) -> int:
+        """Upload ``items`` (frame, command, params, x, y, z) as ``mtype``; the vehicle's MISSION_ACK result."""
+        end = time.monotonic() + 20.0
+        last = 0.0
+        while time.monotonic() < end:
+            if time.monotonic() - last > 1.0:
+                self.mav.mission_count_send(1, 1, len(items), mtype)
+                last = time.monotonic()
+            for m in self.recv():
+                t = m.get_type()
+                if t in ("MISSION_REQUEST_INT", "MISSION_REQUEST") and m.mission_type == mtype:
+                    frame, cmd, params, x, y, z = items[m.seq]
+                    self.mav.mission_item_int_send(1, 1, m.seq, frame, cmd, 0, 1, *params, x, y, z, mtype)
+                    last = time.monotonic()
+                elif t == "MISSION_ACK" and m.mission_type == mtype:
+                    return m.type
+        raise AssertionError("the vehicle did not finish the upload")
+
+
+def _items(home: tuple[float, float, float]) -> tuple[list[tuple], list[tuple]]:
+    """The mission and fence items about ``home`` (the bundled vehicle's earth: WGS-84's local radii)."""
+    r_n, r_e = earth_radii_m("wgs84", home[0], home[2])
+
+    def ll(n: float, e: float) -> tuple[int, int]:
+        return (round((home[0] + math.degrees(n / r_n)) * 1e7),
+                round((home[1] + math.degrees(e / (r_e * math.cos(math.radians(home[0]))))) * 1e7))
+
+    rel = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+    mission = [(rel, M.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan), 0, 0, 2.0)]
+    mission += [(rel, M.MAV_CMD_NAV_WAYPOINT, (hold, 0, 0, math.nan), *ll(n, e), alt) for n, e, alt, hold in ROUTE]
+    mission.append((rel, M.MAV_CMD_NAV_LAND, (0, 0, 0, math.nan), 0, 0, 0.0))
+    fence = [(rel, M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, (4, 0, 0, 0), *ll(n, e), 0.0) for n, e in FENCE_SQUARE]
+    fence.append((rel, M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, (KEEP_OUT[2], 0, 0, 0), *ll(*KEEP_OUT[:2]), 0.0))
+    return mission, fence
+
+
+async def _fly(tmp_path):
+    base = load_mission(shipped_missions()["forest"])
+    async with SitlProcess(base, tmp_path / "sitl", lockstep=True, extra_args=["--control-period-ms", "4"]) as sitl:
+        gcs = _Gcs(sitl.gcs_port)
+        mission_items, fence_items = _items(gcs.home())
+        assert gcs.upload(M.MAV_MISSION_TYPE_MISSION, mission_items) == M.MAV_MISSION_ACCEPTED
+        assert gcs.upload(M.MAV_MISSION_TYPE_FENCE, fence_items) == M.MAV_MISSION_ACCEPTED
+        gcs.sock.close()
+        setup = FlightSetup(connect=sitl.companion_url, sock=sitl.companion_sock, lockstep=True,
+                            profile=profile_by_name("bundled"))
+        spec = FlySpec(setup=setup, run_dir=tmp_path / "run", plots=False, narrate=False, autopilot_mission=True)
+        return await fly_mission(spec, base)
+
+
+def test_a_ground_station_s_mission_and_fence_are_flown_through_the_forest(tmp_path):
+    result = asyncio.run(_fly(tmp_path))
+    report = result.report
+    assert result.outcome == "completed", report.get("outcome_detail")
+    am = report["autopilot_mission"]
+    assert am["items"] == 6 and am["fence_items"] == 5 and am["earth_model"] == "wgs84"
+    assert np.allclose(am["waypoints"], [[n, e, -alt] for n, e, alt, _ in ROUTE], atol=0.02)
+    data = np.load(result.run_dir / "flight_log.npz")
+    fence = Fence((FencePolygon(tuple(FENCE_SQUARE), True),), (FenceCircle(KEEP_OUT[:2], KEEP_OUT[2], False),))
+    pos, payload = data["pos_ned_m"], data["payload_pos_ned_m"]
+    margins = [fence_margin_m(fence, p[:2]) for p in pos] + \
+        [fence_margin_m(fence, p[:2]) for p in payload if np.all(np.isfinite(p))]
+    assert len(margins) > len(pos) and min(margins) > 0.0, min(margins)  # vehicle and payload stayed inside
+    assert report["collisions"] == 0 and report["reached_goal"]
+    legs = report["waypoints"]  # the multi-leg flight's report per waypoint
+    assert [w["name"] for w in legs] == ["item 1", "item 2", "item 3", "goal"]
+    assert all(w["reached_at_s"] is not None for w in legs) and legs[1]["closest_m"] < 0.3  # the held one too
