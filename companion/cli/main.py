@@ -63,6 +63,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                 r = run_fault_bench(Path(tmp), [name])[name]
                 print(f"  {name}: " + json.dumps(r, default=str))
         return 0
+    if args.target == "perception":
+        from lab.bench_perception import print_bench as bench_perception
+
+        return bench_perception()
     raise SlungpilotError(f"bench target {args.target!r} is not available in this build")
 
 
@@ -219,14 +223,15 @@ def _add_bench(sub: Any) -> None:
         description="Benchmarks that print numbers; nothing is asserted. Run on an idle machine.",
     )
     bench.add_argument(
-        "target", choices=["model", "sitl", "fly", "zenoh", "faults", "view"],
+        "target", choices=["model", "sitl", "fly", "zenoh", "faults", "view", "perception"],
         help="model: RK4 steps/s of the dynamics kernel; sitl: lockstep real-time factor of the bundled vehicle; "
              "fly: the forest mission end to end (real-time factor, tick p50/p99); zenoh: 250 Hz swing stream "
              "latency/loss between two processes and the cost per publish; faults: the fault suite's scenarios "
              "(vehicle killed, fuzz, tick exceptions, companion killed or paused, Zenoh flood, jitter) with their "
              "figures; "
              "view: the 3-D view's recording cost per tick and per minute of flight (--seconds of flight, "
-             "default 60)",
+             "default 60); perception: the cost per 360-ray scan of each stage (assembly, points, clusters, map) "
+             "with 5, 20 and 50 trunks in view",
     )
     bench.add_argument("--only", default="", help="faults: comma-separated scenario names (default: all)")
     bench.add_argument("--seconds", type=float, default=3.0, help="measuring time per benchmark (s)")
@@ -252,7 +257,7 @@ COMMANDS = {
     "fleet": "fly N bundled vehicles with N companions at once through one Zenoh router",
     "replay": "open a run folder's recording.rrd in Rerun's viewer (web viewer on 127.0.0.1 without a display)",
     "view": "show every vehicle on the Zenoh network live in Rerun's viewer",
-    "bench": "print performance numbers (model, sitl, fly, zenoh, faults, view)",
+    "bench": "print performance numbers (model, sitl, fly, zenoh, faults, view, perception)",
 }
 _ADDERS: dict[str, Callable[[Any], None]] = {
     "fly": _add_fly, "sitl": _add_sitl, "listen": _add_zenoh_tool("listen"),

@@ -70,20 +70,56 @@ def segments(pts: ScanPoints, jump_m: float = JUMP_M, jump_frac: float = JUMP_FR
     return out
 
 
+def _inv3(m: list[list[float]]) -> list[list[float]] | None:
+    """The inverse of a 3×3 matrix (nested lists), or None when singular (plain floats: a scan fits dozens of
+    circles, and numpy's per-call overhead on 3×3 is most of their cost)."""
+    (a, b, c), (d, e, f), (g, h, i) = m
+    co = [[e * i - f * h, c * h - b * i, b * f - c * e],
+          [f * g - d * i, a * i - c * g, c * d - a * f],
+          [d * h - e * g, b * g - a * h, a * e - b * d]]
+    det = a * co[0][0] + b * co[1][0] + c * co[2][0]
+    if not math.isfinite(det) or abs(det) < 1e-300:
+        return None
+    return [[v / det for v in row] for row in co]
+
+
+def _mul3(m: list[list[float]], v: tuple[float, float, float]) -> tuple[float, float, float]:
+    return (m[0][0] * v[0] + m[0][1] * v[1] + m[0][2] * v[2], m[1][0] * v[0] + m[1][1] * v[1] + m[1][2] * v[2],
+            m[2][0] * v[0] + m[2][1] * v[1] + m[2][2] * v[2])
+
+
 def kasa(xy: np.ndarray) -> tuple[float, float, float] | None:
     """The algebraic (Kåsa) circle through ``xy`` (N, 2): (cx, cy, r) in m, or None when degenerate."""
-    x, y = xy[:, 0], xy[:, 1]
-    a = np.stack([x, y, np.ones_like(x)], axis=1)
-    b = -(x * x + y * y)
-    try:
-        sol, *_ = np.linalg.lstsq(a, b, rcond=None)
-    except np.linalg.LinAlgError:
+    mx, my = float(xy[:, 0].mean()), float(xy[:, 1].mean())
+    x, y = xy[:, 0] - mx, xy[:, 1] - my  # centred: better conditioned
+    z = x * x + y * y
+    sxx, syy, sxy = float(x @ x), float(y @ y), float(x @ y)
+    inv = _inv3([[sxx, sxy, 0.0], [sxy, syy, 0.0], [0.0, 0.0, float(len(x))]])
+    if inv is None:
         return None
-    cx, cy = -sol[0] / 2.0, -sol[1] / 2.0
-    r2 = cx * cx + cy * cy - sol[2]
-    if not (np.isfinite(r2) and r2 > 0.0):
+    d, e, f = _mul3(inv, (-float(x @ z), -float(y @ z), -float(z.sum())))
+    cx, cy = -d / 2.0, -e / 2.0
+    r2 = cx * cx + cy * cy - f
+    if not (math.isfinite(r2) and r2 > 0.0):
         return None
-    return float(cx), float(cy), float(math.sqrt(r2))
+    return cx + mx, cy + my, math.sqrt(r2)
+
+
+def _normal(x: np.ndarray, y: np.ndarray, p: tuple[float, float, float], noise_m: float):
+    """Gauss-Newton's pieces at ``p`` = (cx, cy, r): JᵀJ (3×3 lists, J = ∂res/∂p, res = |xy − c| − r), Jᵀres and
+    the residuals' variance (m², at least ``noise_m``²); None when a point sits on the centre."""
+    dx, dy = x - p[0], y - p[1]
+    rho = np.sqrt(dx * dx + dy * dy)
+    if float(rho.min()) < 1e-9:
+        return None
+    ux, uy = dx / rho, dy / rho
+    res = rho - p[2]
+    n = len(x)
+    sux, suy = float(ux.sum()), float(uy.sum())
+    jtj = [[float(ux @ ux), float(ux @ uy), sux], [float(ux @ uy), float(uy @ uy), suy], [sux, suy, float(n)]]
+    jtr = (-float(ux @ res), -float(uy @ res), -float(res.sum()))
+    sigma2 = max(float(res @ res) / max(n - 2, 1), noise_m * noise_m)
+    return jtj, jtr, sigma2
 
 
 def fit_circle(xy: np.ndarray, sensor_xy: tuple[float, float], r0: float, r0_sigma: float,
@@ -91,58 +127,54 @@ def fit_circle(xy: np.ndarray, sensor_xy: tuple[float, float], r0: float, r0_sig
     """Centre and radius (cx, cy, r; m) of the trunk whose near side ``xy`` (N, 2; m) is, seen from
     ``sensor_xy``, with a radius prior ``r0`` ± ``r0_sigma`` (m); and their 3×3 covariance (m²). None when the fit
     fails (a line, a degenerate arc)."""
-    p = _start(xy, sensor_xy, r0)
-    if p is None:
+    start = _start(xy, sensor_xy, r0)
+    if start is None:
         return None
+    p = (float(start[0]), float(start[1]), float(start[2]))
+    x, y = xy[:, 0], xy[:, 1]
     w0 = 1.0 / (r0_sigma * r0_sigma)
     for _ in range(GN_STEPS):
-        d = xy - p[:2]
-        rho = np.hypot(d[:, 0], d[:, 1])
-        if (rho < 1e-9).any():
+        nrm = _normal(x, y, p, noise_m)
+        if nrm is None:
             return None
-        res = rho - p[2]
-        jac = np.column_stack([-d[:, 0] / rho, -d[:, 1] / rho, -np.ones(len(rho))])
-        sigma2 = max(float(res @ res) / max(len(res) - 2, 1), noise_m * noise_m)
-        h = jac.T @ jac / sigma2
-        h[2, 2] += w0
-        g = jac.T @ res / sigma2
-        g[2] += w0 * (p[2] - r0)
-        try:
-            step = np.linalg.solve(h, -g)
-        except np.linalg.LinAlgError:
+        jtj, jtr, s2 = nrm
+        h = [[v / s2 for v in row] for row in jtj]
+        h[2][2] += w0
+        inv = _inv3(h)
+        if inv is None:
             return None
-        p = p + step
-        if not np.isfinite(p).all() or p[2] <= 0.0:
+        g = (jtr[0] / s2, jtr[1] / s2, jtr[2] / s2 + w0 * (p[2] - r0))
+        step = _mul3(inv, g)
+        p = (p[0] - step[0], p[1] - step[1], p[2] - step[2])
+        if not all(map(math.isfinite, p)) or p[2] <= 0.0:
             return None
-        if float(step @ step) < 1e-10:
+        if step[0] ** 2 + step[1] ** 2 + step[2] ** 2 < 1e-10:
             break
-    d = xy - p[:2]
-    rho = np.hypot(d[:, 0], d[:, 1])
-    res = rho - p[2]
-    jac = np.column_stack([-d[:, 0] / rho, -d[:, 1] / rho, -np.ones(len(rho))])
-    sigma2 = max(float(res @ res) / max(len(res) - 2, 1), noise_m * noise_m)
-    h = jac.T @ jac / sigma2
-    h[2, 2] += w0
-    try:
-        cov = np.linalg.inv(h)
-    except np.linalg.LinAlgError:
+    nrm = _normal(x, y, p, noise_m)
+    if nrm is None:
         return None
-    return p, cov
+    jtj, _, s2 = nrm
+    h = [[v / s2 for v in row] for row in jtj]
+    h[2][2] += w0
+    cov = _inv3(h)
+    if cov is None:
+        return None
+    return np.array(p), np.array(cov)
 
 
 def _start(xy: np.ndarray, sensor_xy: tuple[float, float], r0: float) -> np.ndarray | None:
     """The starting (cx, cy, r): Kåsa's when its circle lies behind the arc and its radius is plausible, else the
     arc's centroid pushed away from the sensor by ``r0``."""
-    c = xy.mean(axis=0)
-    away = c - np.asarray(sensor_xy)
-    dist = float(np.hypot(*away))
+    cx, cy = float(xy[:, 0].mean()), float(xy[:, 1].mean())
+    ax, ay = cx - sensor_xy[0], cy - sensor_xy[1]
+    dist = math.hypot(ax, ay)
     if dist < 1e-6:
         return None
-    away /= dist
+    ax, ay = ax / dist, ay / dist
     k = kasa(xy) if len(xy) >= 5 else None
-    if k is not None and 0.02 < k[2] < MAX_RADIUS_M and (np.array(k[:2]) - c) @ away > 0.0:
+    if k is not None and 0.02 < k[2] < MAX_RADIUS_M and (k[0] - cx) * ax + (k[1] - cy) * ay > 0.0:
         return np.array(k)
-    return np.array([c[0] + away[0] * r0, c[1] + away[1] * r0, r0])
+    return np.array([cx + ax * r0, cy + ay * r0, r0])
 
 
 class Clusterer:
