@@ -249,3 +249,13 @@ def test_forest_over_tcp_through_a_serial_bridge(tmp_path, reset):
     la, lb = (np.load(tmp_path / d / "flight_log.npz") for d in ("udp", "tcp"))
     for k in la.files:
         assert np.array_equal(la[k], lb[k], equal_nan=True), k
+
+
+def test_fly_refuses_a_taken_tcpin_port_before_anything_starts(tmp_path):
+    with socket.create_server(("127.0.0.1", 0)) as taken:
+        port = taken.getsockname()[1]
+        proc = subprocess.run([sys.executable, "-m", "companion.cli", "fly", "--connect", f"tcpin://127.0.0.1:{port}",
+                               "--no-zenoh", "--run-dir", str(tmp_path / "run")],
+                              capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert proc.returncode == 3 and f"MAVLink port {port}" in proc.stderr and "is in use" in proc.stderr
+    assert "Traceback" not in proc.stderr

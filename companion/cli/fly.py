@@ -76,8 +76,9 @@ def check_ports_free(args: argparse.Namespace) -> None:
     checks: list[tuple[int, str, int, str]] = []
     if not args.sitl:
         url = LinkUrl.parse(args.connect)
-        if url.mode == "udpin":
-            checks.append((socket.SOCK_DGRAM, url.host, url.port, f"MAVLink port {url.port} ({args.connect})"))
+        if url.mode in ("udpin", "tcpin"):
+            kind = socket.SOCK_DGRAM if url.mode == "udpin" else socket.SOCK_STREAM
+            checks.append((kind, url.host, url.port, f"MAVLink port {url.port} ({args.connect})"))
     if not args.no_zenoh and args.zenoh_config is None:
         for ep in args.zenoh_listen:
             proto, _, hostport = ep.partition("/")

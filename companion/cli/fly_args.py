@@ -47,7 +47,9 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                         "fence (planner, controller, vehicle, payload, wind, obstacles; default: forest)")
     p.add_argument("--connect", default=None,
                    help="autopilot link: udpin://HOST:PORT (listen; default udpin://0.0.0.0:14540, PX4's onboard "
-                        "link, +N with --instance N) or udpout://HOST:PORT; not with --sitl (it picks free ports)")
+                        "link, +N with --instance N), udpout://HOST:PORT, serial:///dev/ttyACM0:921600 (a TELEM "
+                        "port), tcp://HOST:PORT (connect) or tcpin://HOST:PORT (listen; docs/companion.md, Links); "
+                        "not with --sitl (it picks free ports)")
     p.add_argument("--instance", type=int, default=0, metavar="N",
                    help="run the N-th of several companions on one machine: the default MAVLink port 14540+N and "
                         "Zenoh port 7447+N, and with --sitl the bundled vehicle's instance N (system id 1+N), "
