@@ -84,8 +84,10 @@ class _Gcs:
         raise AssertionError("the vehicle did not finish the upload")
 
 
-def _items(home: tuple[float, float, float]) -> tuple[list[tuple], list[tuple]]:
-    """The mission and fence items about ``home`` (the bundled vehicle's earth: WGS-84's local radii)."""
+def _items(home: tuple[float, float, float], keep_out: tuple[float, float, float] = KEEP_OUT
+           ) -> tuple[list[tuple], list[tuple]]:
+    """The mission and fence items about ``home`` (the bundled vehicle's earth: WGS-84's local radii), the fence's
+    exclusion circle at ``keep_out`` (north m, east m, radius m)."""
     r_n, r_e = earth_radii_m("wgs84", home[0], home[2])
 
     def ll(n: float, e: float) -> tuple[int, int]:
@@ -97,15 +99,16 @@ def _items(home: tuple[float, float, float]) -> tuple[list[tuple], list[tuple]]:
     mission += [(rel, M.MAV_CMD_NAV_WAYPOINT, (hold, 0, 0, math.nan), *ll(n, e), alt) for n, e, alt, hold in ROUTE]
     mission.append((rel, M.MAV_CMD_NAV_LAND, (0, 0, 0, math.nan), 0, 0, 0.0))
     fence = [(rel, M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, (4, 0, 0, 0), *ll(n, e), 0.0) for n, e in FENCE_SQUARE]
-    fence.append((rel, M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, (KEEP_OUT[2], 0, 0, 0), *ll(*KEEP_OUT[:2]), 0.0))
+    fence.append((rel, M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, (keep_out[2], 0, 0, 0), *ll(*keep_out[:2]), 0.0))
     return mission, fence
 
 
-async def _fly(tmp_path):
+async def _fly(tmp_path, keep_out_home: bool = False):
+    """Upload (``keep_out_home``: a fence whose exclusion circle covers home) and fly; the FlyResult."""
     base = load_mission(shipped_missions()["forest"])
     async with SitlProcess(base, tmp_path / "sitl", lockstep=True, extra_args=["--control-period-ms", "4"]) as sitl:
         gcs = _Gcs(sitl.gcs_port)
-        mission_items, fence_items = _items(gcs.home())
+        mission_items, fence_items = _items(gcs.home(), (0.0, 0.0, 1.0) if keep_out_home else KEEP_OUT)
         assert gcs.upload(M.MAV_MISSION_TYPE_MISSION, mission_items) == M.MAV_MISSION_ACCEPTED
         assert gcs.upload(M.MAV_MISSION_TYPE_FENCE, fence_items) == M.MAV_MISSION_ACCEPTED
         gcs.sock.close()
@@ -132,3 +135,13 @@ def test_a_ground_station_s_mission_and_fence_are_flown_through_the_forest(tmp_p
     legs = report["waypoints"]  # the multi-leg flight's report per waypoint
     assert [w["name"] for w in legs] == ["item 1", "item 2", "item 3", "goal"]
     assert all(w["reached_at_s"] is not None for w in legs) and legs[1]["closest_m"] < 0.3  # the held one too
+
+
+def test_a_fence_that_excludes_the_start_is_refused_before_take_off(tmp_path):
+    result = asyncio.run(_fly(tmp_path, keep_out_home=True))
+    report = result.report
+    assert result.outcome == "refused"
+    assert "the start (home at take-off altitude) (0.00, 0.00) m is inside the fence's exclusion circle 0" in \
+        report["outcome_detail"]
+    assert report["loop"]["ticks"] == 0 and not report["reached_goal"]  # nothing flown
+    assert report["autopilot_mission"]["fence_items"] == 5
