@@ -153,7 +153,7 @@ def test_shipped_worlds_are_the_table2_forest_and_a_crossing_trunk():
         (o.x_m, o.y_m, o.radius_m, o.height_m) for o in mission.obstacles]
     crossing = load_world("forest_crossing.toml")
     mover = next(o for o in crossing.trunks if o.vy_mps)
-    assert crossing.trunks[:5] == FOREST.trunks and mover.y_m + 8.0 * mover.vy_mps == 0.0  # on the route at 8 s
+    assert crossing.trunks[:5] == FOREST.trunks and mover.y_m + 10.0 * mover.vy_mps == 0.0  # on the line at 10 s
     assert world_from_dict({}, "empty.toml").trunks == ()
 
 
