@@ -1,5 +1,6 @@
-"""What a flight's pilot knows for the report: outcome, transitions, what the vehicle and the estimator did.
-The runner adds its own (loop timing, the link's counters, the journal)."""
+"""What a flight's pilot knows for the report: outcome, transitions, what the vehicle and the estimator did, and for
+a multi-leg mission the flight core's own record of each waypoint (``waypoints_flown``: when it was passed or
+reached, vehicle time in s). The runner adds its own (loop timing, the link's counters, the journal)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,8 @@ from companion.flight.pilot import Pilot
 def pilot_facts(p: Pilot) -> dict[str, Any]:
     """The pilot's part of the report."""
     st = p.state
-    return {
+    legs = p.core.legs
+    return ({} if legs is None else {"waypoints_flown": legs.facts()}) | {
         "outcome": p.outcome,
         "outcome_detail": p.seq.detail,
         "final_phase": p.phase,
@@ -64,6 +66,8 @@ def status_facts(p: Pilot) -> dict[str, Any]:
         progress = {"distance_to_goal_m": float(((st.pos_ned_m[0] - goal[0]) ** 2
                                                  + (st.pos_ned_m[1] - goal[1]) ** 2) ** 0.5),
                     "core_phase": p.core.phase}
+        if p.core.legs is not None:  # a multi-leg mission: the point it heads for (0-based; the goal is last)
+            progress |= {"target": p.core.legs.index, "target_name": p.core.legs.current.name}
     return {
         "mode": st.mode_name, "armed": st.armed, "phase": p.phase, "outcome": p.outcome,
         "progress": progress,
