@@ -113,6 +113,15 @@ def test_ardupilot_item_zero_is_home_and_not_flown():
     assert any("item 0 is the autopilot's home" in n for n in notes) and len(m.waypoints) == 3
 
 
+def test_a_leading_waypoint_on_the_ground_at_home_is_a_wpl_home_line_and_not_flown():
+    items = [_item(0, WP, 0.3, -0.2, 488.0, AMSL), *_four_waypoints()]
+    m, notes = mission_from_items(items, [], HOME, BASE)
+    assert len(m.waypoints) == 3 and any("WPL file's home line" in n for n in notes)
+    low = [*_four_waypoints()[:1], _item(1, WP, 0.3, -0.2, 0.0)]  # not first: a waypoint on the ground, refused
+    with pytest.raises(ValueError, match=r"item 1: altitude 0\.00 m above home is at or below the ground"):
+        mission_from_items(low, [], HOME, BASE)
+
+
 def test_each_autopilot_family_places_a_point_with_its_own_earth():
     it = [_item(0, WP, 1000.0, 1000.0, 3.0, model="px4")]
     px4, _ = mission_from_items(it, [], HOME, BASE, earth_model="px4")

@@ -182,10 +182,14 @@ def mission_from_items(items: Sequence[Any], fence_items: Sequence[Any], home: H
     for the report. ``skip_home_item``: item 0 is home (ArduPilot), not part of the route. Raises ValueError naming
     the item (or point) that cannot be flown: nothing is flown half-understood."""
     notes: list[str] = []
+    place = Placement(home, earth_model)
     if skip_home_item and items:
         notes.append("item 0 is the autopilot's home (ArduPilot), not flown")
         items = items[1:]
-    place = Placement(home, earth_model)
+    elif items and _is_home_item(items[0], place):
+        notes.append("item 0 is a waypoint on the ground at home (a WPL file's home line, as MAVProxy uploads it): "
+                     "not flown")
+        items = items[1:]
     route = _route(items, place)
     points = route.points or []
     if not points:
@@ -213,6 +217,18 @@ def mission_from_items(items: Sequence[Any], fence_items: Sequence[Any], home: H
                          fence=None if fence.empty else fence, timeout_s=timeout,
                          source_path=f"autopilot ({len(items)} items, {len(fence_items)} fence items)")
     return mission, notes
+
+
+def _is_home_item(it: Any, place: Placement) -> bool:
+    """Whether ``it`` is a NAV_WAYPOINT within 1 m of home and at most 0.5 m above it: the home line of a QGC WPL
+    file (ArduPilot's item 0), which MAVProxy uploads to any autopilot as item 0."""
+    if it.command != MAV_CMD_NAV_WAYPOINT:
+        return False
+    try:
+        p = place.ned(it)
+    except ValueError:
+        return False
+    return math.hypot(p[0], p[1]) <= 1.0 and p[2] >= -0.5
 
 
 def _check_points(named: list[tuple[str, np.ndarray]], fence: Fence, base: Mission) -> None:
