@@ -145,6 +145,17 @@ def test_the_vehicle_refuses_a_broken_world_or_lidar_flag_before_it_starts(tmp_p
         assert p.returncode == 2 and says in p.stderr and "SITL READY" not in p.stdout, (args, p.stderr)
 
 
+def test_fly_refuses_a_world_without_the_bundled_vehicle_or_a_broken_one(tmp_path):
+    bad = tmp_path / "w.toml"
+    bad.write_text("[[obstacles]]\nx_m = 1.0\n")
+    for args, says in ((["--world", "forest"], "--world: only with --sitl"),
+                       (["--sitl", "--world", str(bad)], "missing required key")):
+        p = subprocess.run([sys.executable, "-m", "companion.cli.main", "fly", "--no-zenoh", "--no-recording", *args,
+                            "--run-dir", str(tmp_path / "run")], capture_output=True, text=True, timeout=60, cwd=ROOT)
+        assert p.returncode == 2 and says in p.stderr, (args, p.stderr[-2000:])
+        assert not (tmp_path / "run").exists()  # refused before anything started
+
+
 def test_shipped_worlds_are_the_table2_forest_and_a_crossing_trunk():
     from companion.core.mission import load_mission
 
