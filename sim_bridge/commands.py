@@ -177,6 +177,12 @@ def _dispatch(v: Any, link: Any, cmd: int, p: list[float], after: list) -> tuple
     if cmd == M.MAV_CMD_GET_HOME_POSITION:  # deprecated in favour of REQUEST_MESSAGE(242); PX4 still answers
         after.append(lambda: v.send_message(M.MAVLINK_MSG_ID_HOME_POSITION, link))
         return ACCEPTED, ""
+    if cmd == M.MAV_CMD_DO_SET_MISSION_CURRENT:  # MAVSDK's mission_raw.set_current_mission_item
+        outs = v.missions.set_current(round(p[0]))
+        if outs is None:
+            return DENIED, f"Mission item {p[0]:g} not in the mission"
+        after.append(lambda: v.send_mission_outputs(outs))
+        return ACCEPTED, ""
     if cmd == M.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
         if round(p[0]) != 1:
             return DENIED, "Only autopilot reboot (param1=1) is simulated"

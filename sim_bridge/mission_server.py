@@ -124,6 +124,8 @@ class MissionServer:
         return handler(self, msg, peer, now_s)
 
     def _deny_if_busy(self, peer: Peer, mission_type: int) -> list[Out] | None:
+        if self.state == DOWNLOAD and self.next_seq >= self.count:
+            self.state = IDLE  # every item was sent, the client's ACK never came: done (PX4's "maybe completed")
         if self.state == IDLE or peer == self.partner:
             return None
         return [_ack(peer, M.MAV_MISSION_DENIED, mission_type),
@@ -254,12 +256,20 @@ class MissionServer:
         return [_ack(peer, M.MAV_MISSION_ACCEPTED, mtype), *self._current_changed(mtype)]
 
     def _on_set_current(self, msg: Any, peer: Peer, now_s: float) -> list[Out]:
-        seq = int(msg.seq)
-        if seq < len(self.stores[MISSION]):
+        outs = self.set_current(int(msg.seq))
+        if outs is None:
+            return [_text(M.MAV_SEVERITY_WARNING, f"MISSION_SET_CURRENT {msg.seq}: not in the mission"),
+                    *self._current_changed(MISSION)]
+        return outs
+
+    def set_current(self, seq: int) -> list[Out] | None:
+        """Make mission item ``seq`` the current one (−1: keep it, as MAV_CMD_DO_SET_MISSION_CURRENT's param1);
+        returns the MISSION_CURRENT to send, or None (and nothing changed) when ``seq`` is not in the mission."""
+        if seq != -1 and not 0 <= seq < len(self.stores[MISSION]):
+            return None
+        if seq != -1:
             self.current_seq = seq
-            return self._current_changed(MISSION)
-        return [_text(M.MAV_SEVERITY_WARNING, f"MISSION_SET_CURRENT {seq}: not in the mission"),
-                *self._current_changed(MISSION)]
+        return self._current_changed(MISSION)
 
     # ------------------------------------------------------------------ time
     def tick(self, now_s: float) -> list[Out]:

@@ -482,7 +482,7 @@ class SitlVehicle:
         if self.scanner is not None:  # a scan, when due, as part of this instant's telemetry
             self.scanner.on_step(self)
         if self.missions.busy:  # a mission transfer's retries and timeout
-            self._mission_out(self.missions.tick(time.monotonic()))
+            self.send_mission_outputs(self.missions.tick(time.monotonic()))
         if self.cfg.duration_s is not None and self.t_us >= self.cfg.duration_s * 1e6:
             self.stop_requested = True
 
@@ -585,10 +585,10 @@ class SitlVehicle:
         elif t == "TIMESYNC" and msg.tc1 == 0:
             link.mav.timesync_send(self.t_us * 1000, msg.ts1)
         elif t.startswith("MISSION_"):
-            self._mission_out(self.missions.handle(
+            self.send_mission_outputs(self.missions.handle(
                 msg, mission_server.Peer(link, msg.get_srcSystem(), msg.get_srcComponent()), time.monotonic()))
 
-    def _mission_out(self, outs: list) -> None:
+    def send_mission_outputs(self, outs: list) -> None:
         """Send the mission service's answers (its retries and timeouts run on the wall clock, as a ground
         station's do, also in lockstep)."""
         if outs:
@@ -647,7 +647,7 @@ class SitlVehicle:
         if now - self._last_marker_wall >= MARKER_RESEND_S:
             self._send_marker()
         if self.missions.busy:
-            self._mission_out(self.missions.tick(now))
+            self.send_mission_outputs(self.missions.tick(now))
         # While a client steps the simulation, HEARTBEATs come on simulated time only (a wall-clock one
         # would show the client a state change at a wall-time-dependent moment: lockstep runs must repeat bit
         # for bit). Only an idle vehicle (no step for 1 s) heartbeats on the wall clock, to be discovered and

@@ -94,6 +94,13 @@ def test_mission_raw_uploads_downloads_and_clears_a_four_waypoint_mission(drone)
             got = await mission.download_mission()
             assert len(got) == 6 and all(_same(g, s) for g, s in zip(got, items, strict=True)), got
             assert got[2].param1 == 2.0 and got[-1].command == end
+        progress = mission.subscribe_mission_progress()  # MISSION_CURRENT, reported when it changes
+        first = asyncio.ensure_future(anext(progress))
+        await asyncio.sleep(0.5)
+        await mission.set_current_mission_item(3)  # MAV_CMD_DO_SET_MISSION_CURRENT
+        p = await first
+        assert (p.current, p.total) == (3, 6)
+        await progress.aclose()
         await mission.clear_mission()
         assert await mission.download_mission() == []
         bad = operator_mission(M.MAV_CMD_NAV_LAND)

@@ -279,6 +279,9 @@ def test_mission_planner_component_set_current_and_home(client):
     client.mav.mission_set_current_send(1, 1, 9)
     assert "not in the mission" in next_of(client, ("STATUSTEXT",)).text
     assert next_of(client, ("MISSION_CURRENT",)).seq == 2
+    assert client.command(M.MAV_CMD_DO_SET_MISSION_CURRENT, 3) == M.MAV_RESULT_ACCEPTED
+    assert next_of(client, ("MISSION_CURRENT",)).seq == 3
+    assert client.command(M.MAV_CMD_DO_SET_MISSION_CURRENT, 4) == M.MAV_RESULT_DENIED
     assert client.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN) == M.MAV_RESULT_ACCEPTED
     o = next_of(client, ("GPS_GLOBAL_ORIGIN",))
     assert (o.latitude, o.longitude, o.altitude) == (round(HOME[0] * 1e7), round(HOME[1] * 1e7), 488000)
@@ -353,6 +356,12 @@ def test_a_download_that_stops_half_way_frees_the_machine_and_a_cancel_ends_an_u
     out = s.handle(_Msg("MISSION_COUNT", count=1, mission_type=MISSION), b, 2.0)
     assert out[0].fields["type"] == M.MAV_MISSION_DENIED
     assert [o.name for o in s.tick(1.0 + TIMEOUT_S + 0.1)] == ["statustext"] and not s.busy  # no ACK: PX4
+    s.handle(_Msg("MISSION_REQUEST_LIST", mission_type=MISSION), a, 5.0)
+    s.handle(_Msg("MISSION_REQUEST_INT", seq=0, mission_type=MISSION), a, 5.1)
+    assert s.busy  # every item sent, no ACK from the client: the next partner may start at once (PX4)
+    out = s.handle(_Msg("MISSION_REQUEST_LIST", mission_type=MISSION), b, 5.2)
+    assert [(o.name, o.fields["count"]) for o in out] == [("mission_count", 1)] and s.partner == b
+    s.handle(_Msg("MISSION_ACK", type=M.MAV_MISSION_ACCEPTED, mission_type=MISSION), b, 5.3)
     s.handle(_Msg("MISSION_COUNT", count=3, mission_type=MISSION), b, 10.0)
     s.handle(_Msg("MISSION_ACK", type=M.MAV_MISSION_OPERATION_CANCELLED, mission_type=MISSION), b, 10.1)
     assert not s.busy and len(s.items()) == 1
