@@ -46,6 +46,7 @@ from companion.control import (
     limit_force_xyz,
     make_position_controller,
 )
+from companion.control.adapt import adapt_to_payload
 from companion.core.envelope import full_cable_r_max_m, r_max_m
 from companion.core.mission import Mission
 from companion.core.obstacles import Obstacle
@@ -77,7 +78,8 @@ class FlightCore:
     def __init__(self, mission: Mission, gains: ControllerConfig | None = None, profile: VehicleProfile | None = None,
                  period_s: float = 0.004):
         self.mission = mission
-        self.cfg = gains or ControllerConfig()
+        # the swing-bounded accelerations follow the payload the companion believes it carries (issue 28)
+        self.cfg = adapt_to_payload(gains or ControllerConfig(), mission.companion_params())
         self.profile = profile or VehicleProfile()
         self.params = mission.vehicle
         self.period_s = period_s
