@@ -55,9 +55,10 @@ class Cell:
         return f"m{self.mass_kg:g}|l{self.cable_m:g}|{self.wind}"
 
 
-def wind_config(name: str, seed: int = 0) -> WindConfig:
-    """The wind of a grid column: ``calm``, ``paper`` (eq. 49) or a turbulence (mean wind along the corridor's
-    cross direction, Dryden turbulence of the named intensity, seeded per forest)."""
+def wind_config(name: str, seed: int = 0, altitude_m: float = 3.0) -> WindConfig:
+    """The wind of a grid column: ``calm``, ``paper`` (eq. 49) or a physical wind (:mod:`companion.core.turbulence`:
+    a mean wind across the corridor, from the east, with Dryden turbulence of the named intensity at the flight's
+    altitude, seeded per forest)."""
     if name == "calm":
         return WindConfig("none", 0.0)
     if name == "paper":
@@ -65,11 +66,10 @@ def wind_config(name: str, seed: int = 0) -> WindConfig:
     if name not in TURBULENCE:
         raise ValueError(f"wind: must be one of {', '.join(WINDS)}, got {name!r}")
     intensity, mean = TURBULENCE[name]
-    fields = WindConfig.__dataclass_fields__
-    if "intensity" not in fields:
-        raise ValueError(f"wind {name!r}: this build has no physical wind model (WindConfig has no turbulence)")
-    return WindConfig(model="turbulence", scale=1.0, mean_speed_mps=mean, direction_deg=90.0,  # type: ignore[call-arg]
-                      intensity=intensity, seed=seed)
+    w = WindConfig("turbulence", 1.0, mean_speed_mps=mean, direction_deg=90.0, intensity=intensity,
+                   altitude_m=altitude_m, seed=seed)
+    w.validate()
+    return w
 
 
 def cell_spec(cell: Cell, base: ForestSpec) -> ForestSpec:
@@ -80,10 +80,11 @@ def cell_spec(cell: Cell, base: ForestSpec) -> ForestSpec:
 
 def cell_mission(cell: Cell, seed: int, base: ForestSpec) -> Mission:
     """The forest of ``seed`` flown with the cell's payload and wind."""
-    m = generate_forest(seed, cell_spec(cell, base))
+    spec = cell_spec(cell, base)
+    m = generate_forest(seed, spec)
     vehicle = replace(m.vehicle, m=cell.mass_kg, l=cell.cable_m)
     vehicle.validate()
-    return m.with_(vehicle=vehicle, wind=wind_config(cell.wind, seed),
+    return m.with_(vehicle=vehicle, wind=wind_config(cell.wind, seed, spec.altitude_m),
                    name=f"{m.name}-m{cell.mass_kg:g}-l{cell.cable_m:g}-{cell.wind}")
 
 
