@@ -169,6 +169,7 @@ def download(setup: FlightSetup, *, tlog: Path | None = None, max_items: int = 1
     ``max_items`` per type at most, ``timeout_s`` (s) between ``retries`` re-sent requests; Refusal otherwise."""
     s = _Session(setup, tlog)
     s.link.open_blocking()
+    t0 = time.monotonic()
     try:
         _find_vehicle(s, setup.heartbeat_timeout_s)
         _get_home(s, home_timeout_s)
@@ -178,6 +179,7 @@ def download(setup: FlightSetup, *, tlog: Path | None = None, max_items: int = 1
                 s.got.items = items
             else:
                 s.got.fence_items = items
+        s.got.facts["wall_s"] = round(time.monotonic() - t0, 3)  # HEARTBEAT to the fence's ACK
         return s.got
     except Refusal as r:
         r.facts = _facts(s.got, bundled=False)
