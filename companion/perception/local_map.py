@@ -33,6 +33,8 @@ from companion.perception.points import ScanPoints
 CHI2_GATE_2DOF = 9.21  # 99 %
 GATE_M = 0.5  # Euclidean gate beyond the two radii (m)
 FREE_STEP_M = 0.05  # the free-distance march's step (m)
+PUBLISH_STEP_M = 0.03  # a published trunk is replaced when its estimate moved this much (m, m/s)
+VIEW_BAND_M = 0.5  # a ray this close (m, vertically) to where a trunk was seen would have seen it again
 MIN_HEIGHT_M = 1.0
 
 
@@ -70,7 +72,8 @@ class LocalMap:
         self.tracks: dict[int, Track] = {}
         self.counts: Counter[str] = Counter()  # born, confirmed, retired, full, ...
         self.obstacles: tuple[Obstacle, ...] = ()
-        self.obstacles_t_s = 0.0  # the time of the scan they were made from (s)
+        self._published: dict[int, tuple[Obstacle, float]] = {}  # track id → (obstacle, time published, s)
+        self._times: tuple[float, ...] = ()  # per obstacle: when it was published (s)
         self._moving = False
         self.version = 0
         self.last: ScanPoints | None = None
@@ -87,7 +90,7 @@ class LocalMap:
         unseen = [tr for tid, tr in self.tracks.items() if tid not in seen]
         if unseen:
             view = in_view_many(pts, np.array([tr.x[0] for tr in unseen]), np.array([tr.x[1] for tr in unseen]),
-                                np.array([tr.radius_m for tr in unseen]))
+                                np.array([tr.radius_m for tr in unseen]), np.array([tr.z_m for tr in unseen]))
             for tr, v in zip(unseen, view.tolist(), strict=True):
                 self._unseen(tr, pts, v)
         for k, det in enumerate(dets):
@@ -193,22 +196,39 @@ class LocalMap:
         self.counts[why] += 1
 
     def _publish(self) -> None:
-        out = []
+        """Rebuild :attr:`obstacles` from the confirmed tracks. A trunk's published obstacle changes only when its
+        estimate moved by :data:`PUBLISH_STEP_M` or more (centre, radius, or velocity in m/s): a still trunk keeps
+        the same obstacle, and while none changed the same tuple, so the planners' caches hold."""
+        t = self.last.t_s if self.last is not None else 0.0
+        out: list[Obstacle] = []
+        times: list[float] = []
+        changed = False
         for tr in self.tracks.values():
-            if tr.confirmed:
-                out.append(self._obstacle(tr))
-        self.obstacles = tuple(out)
-        self.obstacles_t_s = self.last.t_s if self.last is not None else 0.0
-        self._moving = any(o.vx_mps != 0.0 or o.vy_mps != 0.0 for o in out)
-        self.version += 1
+            if not tr.confirmed:
+                continue
+            cand = self._obstacle(tr)
+            old = self._published.get(tr.id)
+            if old is None or _moved(old[0], cand):
+                old = self._published[tr.id] = (cand, t)
+                changed = True
+            out.append(old[0])
+            times.append(old[1])
+        if len(self._published) != len(out):
+            live = {tr.id for tr in self.tracks.values() if tr.confirmed}
+            self._published = {k: v for k, v in self._published.items() if k in live}
+            changed = True
+        if changed:
+            self.obstacles = tuple(out)
+            self._times = tuple(times)
+            self._moving = any(o.vx_mps != 0.0 or o.vy_mps != 0.0 for o in out)
+            self.version += 1
 
     def obstacles_at(self, t_s: float) -> tuple[Obstacle, ...]:
-        """:attr:`obstacles` with the moving ones advanced from the last scan's time to ``t_s`` (s, vehicle time);
-        the same tuple while none moves."""
+        """:attr:`obstacles` with the moving ones advanced from the time each was published to ``t_s`` (s, vehicle
+        time); the same tuple while none moves."""
         if not self._moving:
             return self.obstacles
-        dt = max(0.0, t_s - self.obstacles_t_s)
-        return tuple(o.at_time(dt) for o in self.obstacles)
+        return tuple(o.at_time(max(0.0, t_s - t0)) for o, t0 in zip(self.obstacles, self._times, strict=True))
 
     def _obstacle(self, tr: Track) -> Obstacle:
         sig = math.sqrt(max(float(np.linalg.eigvalsh(tr.p[:2, :2])[-1]), 0.0) + tr.radius_var)
@@ -255,16 +275,33 @@ def seen_free(pts: ScanPoints, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return (d <= pts.free_m[k]) & ((off <= 1.5 * pts.increment_rad) | (d < 1e-6))
 
 
-def in_view_many(pts: ScanPoints, x: np.ndarray, y: np.ndarray, radius_m: np.ndarray) -> np.ndarray:
-    """Per trunk at (x, y) (m) of ``radius_m``: could the scan have seen it? Within range, and the ray towards it
-    saw free space beyond its near side (nothing in front of it: not occluded)."""
+def in_view_many(pts: ScanPoints, x: np.ndarray, y: np.ndarray, radius_m: np.ndarray,
+                 z_m: np.ndarray | None = None) -> np.ndarray:
+    """Per trunk at (x, y) (m) of ``radius_m``: could the scan have seen it? Within range, the ray towards it saw
+    free space beyond its near side (nothing in front of it: not occluded), and, when ``z_m`` (the NED height (m)
+    the trunk was seen at) is given, the ray passes the trunk within :data:`VIEW_BAND_M` of that height (a tilted
+    scan passing over its top or under it at the ground says nothing about it)."""
     dx, dy = x - pts.origin_m[0], y - pts.origin_m[1]
     d = np.hypot(dx, dy)
     k, off = _nearest_ray(pts, np.arctan2(dy, dx))
     near = d - radius_m
-    return (near <= pts.range_max_m) & (d > 1e-6) & (off <= 1.5 * pts.increment_rad) & (pts.free_m[k] > near + 0.05)
+    ok = (near <= pts.range_max_m) & (d > 1e-6) & (off <= 1.5 * pts.increment_rad) & (pts.free_m[k] > near + 0.05)
+    if z_m is not None and pts.slope is not None:
+        with np.errstate(invalid="ignore"):
+            ok &= np.abs(pts.origin_z_m + pts.slope[k] * near - z_m) <= VIEW_BAND_M
+    return ok
 
 
 def in_view(pts: ScanPoints, x: float, y: float, radius_m: float) -> bool:
     """:func:`in_view_many` for one trunk."""
     return bool(in_view_many(pts, np.array([x]), np.array([y]), np.array([radius_m]))[0])
+
+
+def _moved(old: Obstacle, new: Obstacle) -> bool:
+    """Whether ``new`` differs from ``old`` by :data:`PUBLISH_STEP_M` or more (centre, radius, velocity) or in
+    height."""
+    step = PUBLISH_STEP_M
+    return (math.hypot(new.x_m - old.x_m, new.y_m - old.y_m) >= step or abs(new.radius_m - old.radius_m) >= step
+            or math.hypot(new.vx_mps - old.vx_mps, new.vy_mps - old.vy_mps) >= step
+            or (new.vx_mps == 0.0 and new.vy_mps == 0.0) != (old.vx_mps == 0.0 and old.vy_mps == 0.0)
+            or abs(new.height_m - old.height_m) >= 0.5)

@@ -35,7 +35,8 @@ class ScanPoints:
     NED height (m), ``ray`` (N,) their ray index, ``range_m`` (N,) their range (m), sorted by ray; per ray of the
     scan ``bearing_rad`` (from north, clockwise, rad) and ``free_m`` (horizontal free distance, m); ``origin_m``
     the sensor's mission-frame (north, east) (m), ``range_max_m`` the sensor's limit (m), ``t_s`` the scan's time
-    (s), ``increment_rad`` the rays' spacing."""
+    (s), ``increment_rad`` the rays' spacing; ``origin_z_m`` the sensor's NED height (m) and ``slope`` per ray the
+    NED height it gains per metre of horizontal travel (a tilted scan climbs or dips)."""
 
     xy_m: np.ndarray
     z_m: np.ndarray
@@ -47,6 +48,8 @@ class ScanPoints:
     range_max_m: float
     t_s: float
     increment_rad: float
+    origin_z_m: float = 0.0
+    slope: np.ndarray | None = None
 
 
 def ray_directions(scan: Scan, pose: Pose) -> np.ndarray:
@@ -92,9 +95,11 @@ class PointFilter:
         self.dropped["below_band"] += int(below.sum())
         self.dropped["phantom"] += int(phantom.sum())
         idx = np.flatnonzero(keep)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            slope = np.where(horiz > 1e-9, d[:, 2] / horiz, np.inf)
         return ScanPoints(end[idx, :2], end[idx, 2], idx, r[idx], np.arctan2(d[:, 1], d[:, 0]), free,
                           (float(pose.pos_m[0]), float(pose.pos_m[1])), scan.range_max_m, scan.t_s,
-                          scan.increment_rad)
+                          scan.increment_rad, float(pose.pos_m[2]), slope)
 
     def _isolated(self, r: np.ndarray, keep: np.ndarray) -> np.ndarray:
         """Returns with no kept neighbour (previous or next ray, wrapping around) within the phantom gap."""
