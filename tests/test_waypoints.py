@@ -101,12 +101,16 @@ inclusion = false
     ("\n[[fence.circles]]\ncenter_ne_m = [5.0, 0.0]\nradius_m = 1.0\ninclusion = false\nheight_m = 3.0\n",
      r"\[\[fence.circles\]\] #0: unknown key 'height_m'"),
     ("\n[fence]\nlines = []\n", r"\[fence\]: unknown key 'lines'"),
+    ("\n[[fence.polygons]]\nvertices_ne_m = [[0.0, 0.0], [1.0, 1.0], [1.0, 0.0], [0.0, 1.0]]\ninclusion = false\n",
+     r"\[\[fence.polygons\]\] #0 vertices_ne_m: self-intersecting"),
+    ("\n[[fence.circles]]\ncenter_ne_m = [10.0, 0.5]\nradius_m = 0.4\ninclusion = false\n",
+     r"goal_ned_m \(10.00, 0.00\) m is within the margin of the fence's exclusion circle 0"),
     ("\n[[fence.circles]]\ncenter_ne_m = [0.0, 0.0]\nradius_m = 1.0\ninclusion = false\n",
-     r"\[mission\] start_ned_m \(0, 0\) is inside \[\[fence.circles\]\] #0 \(exclusion zone\)"),
+     r"\[mission\] start_ned_m \(0.00, 0.00\) m is inside the fence's exclusion circle 0"),
     ("\n[[fence.circles]]\ncenter_ne_m = [0.0, 0.0]\nradius_m = 5.0\ninclusion = true\n",
-     r"\[mission\] goal_ned_m \(10, 0\) is outside \[\[fence.circles\]\] #0 \(inclusion zone\)"),
+     r"\[mission\] goal_ned_m \(10.00, 0.00\) m is outside the fence's inclusion circle 0"),
     (WP + "\n[[fence.polygons]]\nvertices_ne_m = [[3.0, -3.0], [5.0, -3.0], [4.0, -1.0]]\ninclusion = false\n",
-     r"\[\[waypoints\]\] #0 ned_m \(4, -2\) is inside \[\[fence.polygons\]\] #0 \(exclusion zone\)"),
+     r"\[\[waypoints\]\] #0 ned_m \(4.00, -2.00\) m is inside the fence's exclusion polygon 0"),
 ])
 def test_bad_waypoints_and_fences_are_refused_naming_file_table_and_key(tmp_path, extra, match):
     with pytest.raises(ConfigError, match=match) as e:

@@ -273,10 +273,11 @@ def mission_from_dict(data: dict[str, Any], where: str) -> Mission:
     _check_clear(where, "goal_ned_m", goal, obs, vp)
     waypoints = _waypoints(data.get("waypoints", []), where, obs, vp)
     fence = parse_fence(data["fence"], where) if "fence" in data else None
-    check_fenced(where, "[mission] start_ned_m", start, fence)
-    check_fenced(where, "[mission] goal_ned_m", goal, fence)
+    airframe = vp.r_uav + vp.L_uav
+    check_fenced(where, "[mission] start_ned_m", start, fence, airframe)
+    check_fenced(where, "[mission] goal_ned_m", goal, fence, airframe)
     for i, wp in enumerate(waypoints):
-        check_fenced(where, f"[[waypoints]] #{i} ned_m", wp.pos_ned_m, fence)
+        check_fenced(where, f"[[waypoints]] #{i} ned_m", wp.pos_ned_m, fence, airframe)
     return Mission(
         name=mt.name, start_ned_m=start, goal_ned_m=goal, planner=mt.planner, controller=mt.controller,
         timeout_s=mt.timeout_s, wind=wind, vehicle=vp, obstacles=obs, hold_s=mt.hold_s, land=mt.land,

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from companion.core.fence import Fence, FenceCircle, FencePolygon
+from companion.core.fence import Fence, FenceCircle, FencePolygon, check_point, polygon_problem
 from companion.errors import ConfigError
 
 _MAX_COORD_M = 1.0e4
@@ -56,7 +56,11 @@ def parse_fence(raw: Any, where: str) -> Fence | None:
         verts = t.get("vertices_ne_m")
         if not isinstance(verts, list) or not 3 <= len(verts) <= MAX_FENCE_VERTICES:
             raise ConfigError(f"{w} vertices_ne_m: expected 3 to {MAX_FENCE_VERTICES} [north, east] pairs")
-        polys.append(FencePolygon(tuple(_ne(v, w, "vertices_ne_m") for v in verts), t["inclusion"]))
+        poly = FencePolygon(tuple(_ne(v, w, "vertices_ne_m") for v in verts), t["inclusion"])
+        problem = polygon_problem(poly)
+        if problem is not None:
+            raise ConfigError(f"{w} vertices_ne_m: {problem}")
+        polys.append(poly)
     for i, t in enumerate(_zones(raw.get("circles", []), f"{where}: [[fence.circles]]",
                                  {"center_ne_m", "radius_m", "inclusion"})):
         w = f"{where}: [[fence.circles]] #{i}"
@@ -68,31 +72,16 @@ def parse_fence(raw: Any, where: str) -> Fence | None:
     return None if fence.empty else fence
 
 
-def _inside_polygon(x: float, y: float, verts: tuple[tuple[float, float], ...]) -> bool:
-    """Whether (north x, east y) m lies inside the polygon (even-odd rule)."""
-    inside = False
-    n = len(verts)
-    for k in range(n):
-        (x1, y1), (x2, y2) = verts[k], verts[(k + 1) % n]
-        if (y1 > y) != (y2 > y) and x < x1 + (y - y1) * (x2 - x1) / (y2 - y1):
-            inside = not inside
-    return inside
-
-
-def check_fenced(where: str, what: str, p: np.ndarray, fence: Fence | None) -> None:
-    """ConfigError unless the point (its horizontal part, m) is inside every inclusion and outside every exclusion
-    zone (the point only: the planners keep the swing envelope inside, see companion.planning.fence_guard)."""
+def check_fenced(where: str, what: str, p: np.ndarray, fence: Fence | None, margin_m: float = 0.0) -> None:
+    """ConfigError unless the point's horizontal part (m) is inside every inclusion and outside every exclusion
+    zone by ``margin_m`` (m; the airframe's circle: the planners keep the swing envelope clear in flight, see
+    :mod:`companion.planning.fence_guard`)."""
     if fence is None:
         return
-    x, y = float(p[0]), float(p[1])
-    for i, z in enumerate(fence.polygons):
-        if _inside_polygon(x, y, z.vertices_ne_m) != z.inclusion:
-            raise ConfigError(f"{where}: {what} ({x:g}, {y:g}) is {'outside' if z.inclusion else 'inside'} "
-                              f"[[fence.polygons]] #{i} ({'inclusion' if z.inclusion else 'exclusion'} zone)")
-    for i, c in enumerate(fence.circles):
-        if (math.hypot(x - c.center_ne_m[0], y - c.center_ne_m[1]) < c.radius_m) != c.inclusion:
-            raise ConfigError(f"{where}: {what} ({x:g}, {y:g}) is {'outside' if c.inclusion else 'inside'} "
-                              f"[[fence.circles]] #{i} ({'inclusion' if c.inclusion else 'exclusion'} zone)")
+    try:
+        check_point(fence, what, (float(p[0]), float(p[1])), margin_m)
+    except ValueError as exc:
+        raise ConfigError(f"{where}: {exc}") from None
 
 
 def fence_toml(fence: Fence | None) -> list[str]:
