@@ -7,6 +7,7 @@ Real parts only: real ptys, real processes, real kill signals. A pty's baud rate
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import random
@@ -297,14 +298,52 @@ def test_table2_forest_over_a_serial_pty_pair_flies_as_over_udp(tmp_path):
         finally:
             assert _stop(sim) == 0  # the vehicle outlived the flight and stops cleanly
         assert fly.returncode == 0, err[-2000:]
-    a, b = (json.loads((tmp_path / d / "report.json").read_text()) for d in ("udp", "serial"))
-    assert a["outcome"] == b["outcome"] == "completed" and b["reached_goal"]
-    for k in ("time_to_goal_s", "max_swing_rad", "min_clearance_m", "path_length_m", "sim_time_s"):
-        assert a[k] == b[k], k
-    assert b["link"]["rejected"] == {} and b["link"]["lost"] == 0
-    la, lb = (np.load(tmp_path / d / "flight_log.npz") for d in ("udp", "serial"))
-    for k in la.files:
-        assert np.array_equal(la[k], lb[k], equal_nan=True), k
+    auto = subprocess.run([sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--serial", "--no-zenoh",
+                           "--no-plots", "--no-recording", "--planner", "safe", "--run-dir", str(tmp_path / "auto")],
+                          capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert auto.returncode == 0, auto.stderr[-2000:]
+    assert not (tmp_path / "auto" / "pty-companion").exists()  # the pair it made is gone with its links
+    a = json.loads((tmp_path / "udp" / "report.json").read_text())
+    la = np.load(tmp_path / "udp" / "flight_log.npz")
+    for run in ("serial", "auto"):  # wired by hand (sitl --serial + fly --connect serial://), and fly --sitl --serial
+        b = json.loads((tmp_path / run / "report.json").read_text())
+        assert a["outcome"] == b["outcome"] == "completed" and b["reached_goal"]
+        for k in ("time_to_goal_s", "max_swing_rad", "min_clearance_m", "path_length_m", "sim_time_s"):
+            assert a[k] == b[k], k
+        assert b["link"]["rejected"] == {} and b["link"]["lost"] == 0
+        lb = np.load(tmp_path / run / "flight_log.npz")
+        for k in la.files:
+            assert np.array_equal(la[k], lb[k], equal_nan=True), (run, k)
+
+
+@pytest.mark.slow
+def test_fly_sitl_serial_sigkilled_leaves_no_vehicle_and_no_pty_pair(tmp_path):
+    """``fly --sitl --serial`` SIGKILLed in flight: its vehicle and its pty pair (tied to it) are gone within 5 s."""
+    import psutil
+
+    fly = subprocess.Popen([sys.executable, "-m", "companion.cli", "-v", "fly", "--sitl", "--serial", "--realtime",
+                            "--no-zenoh", "--no-plots", "--no-recording", "--run-dir", str(tmp_path / "run")],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    kids: list = []
+    try:
+        assert fly.stderr is not None
+        for line in fly.stderr:
+            if "takeover → mission" in line:
+                break
+        kids = psutil.Process(fly.pid).children(recursive=True)
+        cmds = [" ".join(k.cmdline()) for k in kids]
+        assert any("sim_bridge" in c and "--serial" in c for c in cmds), cmds
+        assert any("socat" in c or "lab.pty_pair" in c for c in cmds), cmds
+        fly.kill()
+        fly.wait(5)
+        _gone, alive = psutil.wait_procs(kids, timeout=5)
+        assert alive == [], [k.cmdline() for k in alive]
+    finally:
+        for k in kids:
+            with contextlib.suppress(psutil.Error):
+                k.kill()
+        if fly.poll() is None:
+            fly.kill()
 
 
 @pytest.mark.slow

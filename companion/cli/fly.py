@@ -102,6 +102,8 @@ def apply_instance(args: argparse.Namespace) -> None:
     if args.sitl and args.connect is not None:
         raise ConfigError("--connect: not with --sitl (the bundled vehicle is started on free local ports; "
                           "to fly a vehicle you started yourself, leave out --sitl)")
+    if getattr(args, "serial", False) and not args.sitl:
+        raise ConfigError("--serial: only with --sitl (a serial autopilot: --connect serial://DEVICE:BAUD)")
     if args.connect is None:
         args.connect = f"udpin://0.0.0.0:{14540 + n}"
     if args.payload_sysid is None:
@@ -149,7 +151,8 @@ def spec_from_args(args: argparse.Namespace, mission: Mission) -> FlySpec:
     if getattr(args, "no_recording", False) and getattr(args, "view", None):
         raise ConfigError("--view needs the recording: drop --no-recording")
     return FlySpec(
-        setup=setup, sitl=args.sitl, sitl_args=tuple(sitl_args), run_dir=args.run_dir, report=args.report,
+        setup=setup, sitl=args.sitl, sitl_args=tuple(sitl_args), sitl_serial=getattr(args, "serial", False),
+        run_dir=args.run_dir, report=args.report,
         plots=not args.no_plots, narrate=not getattr(args, "quiet", False), zenoh=zspec,
         view=(lambda m, d: flight_view(args, m, d)) if not getattr(args, "no_recording", False) else None,
         config_facts=effective_config, autopilot_mission=args.mission == AUTOPILOT_MISSION, world=world,

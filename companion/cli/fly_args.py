@@ -57,6 +57,9 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sitl", action="store_true",
                    help="start the bundled SITL vehicle on free local ports (lockstep unless --realtime)")
     p.add_argument("--realtime", action="store_true", help="with --sitl: fly in real time to watch it live")
+    p.add_argument("--serial", action="store_true",
+                   help="with --sitl: the vehicle's onboard link over a pseudo-terminal pair (serial://, nominal "
+                        "921600 baud: a pty has no rate limit; socat if on PATH, else lab/pty_pair.py) instead of UDP")
     p.add_argument("--true-payload-mass-kg", type=float, default=None, metavar="KG",
                    help="with --sitl: the payload the bundled vehicle really carries, kg (the mission's is what the "
                         "companion is told; a mis-declared payload)")

@@ -102,6 +102,7 @@ class SitlProcess:
                 log.info("SITL ports taken by another process (attempt %d); choosing others", attempt + 1)
                 self.vehicle_port, self.gcs_port = free_udp_port(), free_udp_port()
         self.companion_sock.close()
+        await self._stop_pty_pair()
         raise LinkError("could not find free UDP ports for the SITL vehicle")
 
     async def _start(self) -> None:

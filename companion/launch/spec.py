@@ -49,6 +49,7 @@ class FlySpec:
     view: Callable[[Any, Path], Any] | None = None
     config_facts: Callable[[Any], dict[str, Any]] | None = None
     pin_lockstep: bool = True
+    sitl_serial: bool = False  #: with ``sitl``: the vehicle's onboard link over a pseudo-terminal pair, not UDP
     #: fly the mission the operator uploaded to the autopilot (``--mission autopilot``): downloaded before the
     #: flight, its route and fence replace the given mission's (:mod:`companion.launch.autopilot_mission`)
     autopilot_mission: bool = False
