@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import shutil
 import signal
 import socket
 import sys
@@ -19,6 +20,8 @@ from companion.core.mission import Mission
 from companion.errors import LinkError
 
 log = logging.getLogger(__name__)
+
+PTY_BAUD = 921600  # nominal on a pseudo-terminal (docs/companion.md, Links)
 
 
 def free_udp_port() -> int:
@@ -49,10 +52,13 @@ class SitlProcess:
         lockstep: bool = True,
         extra_args: list[str] | None = None,
         ready_timeout_s: float = 60.0,
+        serial: bool = False,
     ) -> None:
         self.mission = mission
         self.workdir = workdir
         self.lockstep = lockstep
+        self.serial = serial  # the onboard link over a pseudo-terminal pair instead of UDP (``fly --sitl --serial``)
+        self.pty_pair: asyncio.subprocess.Process | None = None
         self.extra_args = extra_args or []
         self.ready_timeout_s = ready_timeout_s
         # The companion's socket is bound here and handed to the link, so no other process can take the port
@@ -68,7 +74,10 @@ class SitlProcess:
 
     @property
     def companion_url(self) -> str:
-        """Where the companion listens for the vehicle: ``udpin://127.0.0.1:<port>``."""
+        """Where the companion listens for the vehicle: ``udpin://127.0.0.1:<port>`` (``serial``: its end of the pty
+        pair, ``serial://RUN_DIR/pty-companion:921600``)."""
+        if self.serial:
+            return f"serial://{self.workdir / 'pty-companion'}:{PTY_BAUD}"
         return f"udpin://127.0.0.1:{self.companion_port}"
 
     def argv(self) -> list[str]:
@@ -91,9 +100,13 @@ class SitlProcess:
             argv += ["--wind-file", str(wfile)]
         if self.lockstep:
             argv.append("--lockstep")
+        if self.serial:
+            argv += ["--serial", f"{self.workdir / 'pty-vehicle'}:{PTY_BAUD}"]
         return argv + self.extra_args
 
     async def __aenter__(self) -> SitlProcess:
+        if self.serial:
+            await self._start_pty_pair()
         for attempt in range(3):
             try:
                 await self._start()
@@ -144,6 +157,40 @@ class SitlProcess:
     async def __aexit__(self, *exc: object) -> None:
         await self._stop()
 
+    async def _start_pty_pair(self) -> None:
+        """The pseudo-terminal pair of ``serial`` at RUN_DIR/pty-vehicle and RUN_DIR/pty-companion: socat when it is
+        on PATH, else ``python -m lab.pty_pair`` (the same in Python); in its own session and tied to this process,
+        like the vehicle. A pty's baud rate is nominal (no rate limit)."""
+        a, b = self.workdir / "pty-vehicle", self.workdir / "pty-companion"
+        argv = (["socat", "-d", "-d", f"pty,raw,echo=0,link={a}", f"pty,raw,echo=0,link={b}"] if shutil.which("socat")
+                else [sys.executable, "-m", "lab.pty_pair", str(a), str(b)])
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        log.info("starting the pseudo-terminal pair: %s", " ".join(argv))
+        self.pty_pair = await asyncio.create_subprocess_exec(
+            *argv, stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.DEVNULL,
+            stderr=asyncio.subprocess.DEVNULL, start_new_session=True, preexec_fn=proclife.preexec())
+        for _ in range(1000):
+            if a.exists() and b.exists():
+                return
+            if self.pty_pair.returncode is not None:
+                break
+            await asyncio.sleep(0.01)
+        await self._stop_pty_pair()
+        raise LinkError(f"{argv[0]} made no pseudo-terminal pair at {a} and {b}")
+
+    async def _stop_pty_pair(self) -> None:
+        proc, self.pty_pair = self.pty_pair, None
+        if proc is not None and proc.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                proc.terminate()
+            try:
+                async with asyncio.timeout(2.0):
+                    await proc.wait()
+            except TimeoutError:
+                with contextlib.suppress(ProcessLookupError):
+                    proc.kill()
+                await proc.wait()
+
     async def _stop(self, graceful: bool = True) -> None:
         """Stop the vehicle: SIGINT and up to 5 s to exit, then SIGKILL; at once with ``graceful=False`` (a
         vehicle still starting, e.g. importing or compiling its model, may not act on SIGINT for seconds)."""
@@ -160,4 +207,5 @@ class SitlProcess:
                 await proc.wait()
         if getattr(self, "_stderr", None) is not None:
             self._stderr.close()
+        await self._stop_pty_pair()  # after the vehicle: its serial device stays until it is gone
         self.companion_sock.close()  # the link has its own reference while it is open
