@@ -93,6 +93,9 @@ def scanner_from_args(args: argparse.Namespace) -> ScanSender | None:
         return None
     lidar = Lidar(lidar_config_from_args(args))
     compid = LIDAR_COMPID if args.lidar_compid is None else args.lidar_compid
+    if compid == getattr(args, "compid", None):
+        raise ConfigError(f"--lidar-compid: {compid} is the autopilot's component id (--compid); the LiDAR numbers "
+                          "its own frames, so it needs a component of its own")
     try:
         sender = ScanSender(lidar, world, compid=compid, layout=args.lidar_mavlink or "split", gcs=args.lidar_gcs)
     except ValueError as exc:

@@ -140,6 +140,8 @@ def test_the_vehicle_refuses_a_broken_world_or_lidar_flag_before_it_starts(tmp_p
     for args, says in ((["--world", str(f)], "missing required key 'radius_m'"),
                        (["--world", "no_such_world"], "shipped: forest, forest_crossing"),
                        (["--world", "forest", "--lidar-step-deg", "7"], "--lidar-step-deg"),
+                       (["--world", "forest", "--lidar-compid", "1"], "--lidar-compid: 1 is the autopilot's"),
+                       (["--world", "forest", "--lidar-compid", "300"], "--lidar-compid"),
                        (["--lidar-range-m", "5"], "--lidar-range-m: needs --world")):
         p = subprocess.run([sys.executable, "-m", "sim_bridge", *args], capture_output=True, text=True, timeout=60)
         assert p.returncode == 2 and says in p.stderr and "SITL READY" not in p.stdout, (args, p.stderr)
