@@ -247,6 +247,28 @@ def test_an_upload_abandoned_half_way_times_out_and_the_old_mission_stays(client
     assert len(got) == 2 and all(same(g, s) for g, s in zip(got, old, strict=True))
 
 
+@pytest.mark.slow
+def test_in_real_time_too_an_abandoned_upload_is_retried_then_cancelled():
+    """The real-time runner drives the retries and the timeout from its control periods (lockstep: its
+    wall-clock duties, above)."""
+    proc, port, _ = spawn_vehicle("--wind", "none")
+    try:
+        with MavClient(port) as c:
+            c.heartbeat()
+            c.mav.mission_count_send(1, 1, 2, FENCE)
+            assert next_of(c, ("MISSION_REQUEST_INT",)).seq == 0
+            c.mav.mission_item_int_send(**fence_items()[0])
+            seen = []
+            kinds = ("MISSION_REQUEST_INT", "MISSION_ACK")
+            while (m := next_of(c, kinds, TIMEOUT_S + 3.0)).get_type() != "MISSION_ACK":
+                seen.append(m.seq)
+            assert m.type == M.MAV_MISSION_OPERATION_CANCELLED and m.mission_type == FENCE
+            assert len(seen) >= 3 and set(seen) == {1}
+            assert download(c, FENCE) == []
+    finally:
+        assert stop_vehicle(proc) == 0
+
+
 def test_a_second_client_is_denied_while_a_transfer_runs(vehicle, client):
     with MavClient(vehicle[1], sysid=254, compid=191) as other:  # the GCS link (its first peer)
         other.heartbeat()
