@@ -33,6 +33,7 @@ pytestmark = pytest.mark.slow
 ROUTE = [(2.0, 1.6, 2.0, 0.0), (5.5, 2.6, 2.5, 2.0), (9.0, 1.2, 2.0, 0.0), (10.0, 0.0, 2.0, 0.0)]  # n, e, alt, hold
 FENCE_SQUARE = [(-3.0, -4.0), (14.0, -4.0), (14.0, 5.0), (-3.0, 5.0)]
 KEEP_OUT = (7.5, 3.8, 0.5)  # north, east, radius (m): beside the leg from the clearing to the east gap
+DEFAULT_HOME = (47.397742, 8.545594, 488.0)  # the bundled vehicle's home without --home
 
 
 class _Gcs:
@@ -145,3 +146,67 @@ def test_a_fence_that_excludes_the_start_is_refused_before_take_off(tmp_path):
         report["outcome_detail"]
     assert report["loop"]["ticks"] == 0 and not report["reached_goal"]  # nothing flown
     assert report["autopilot_mission"]["fence_items"] == 5
+
+
+def _ll_deg(home: tuple[float, float, float], n: float, e: float) -> tuple[float, float]:
+    """Latitude and longitude (deg) of (north, east) m from ``home`` (the bundled vehicle's WGS-84 local radii)."""
+    r_n, r_e = earth_radii_m("wgs84", home[0], home[2])
+    return home[0] + math.degrees(n / r_n), home[1] + math.degrees(e / (r_e * math.cos(math.radians(home[0]))))
+
+
+async def _fly_mavsdk(tmp_path):
+    """MAVSDK as the ground station on the vehicle's GCS link: mission_raw uploads the mission, the geofence plugin
+    the fence; then the companion flies (MAVSDK stays connected, as a ground station would)."""
+    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.geofence import GeofenceAsync
+    from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
+    from mavsdk.plugins.geofence import Circle, FenceType, GeofenceData, Point, Polygon
+    from mavsdk.plugins.mission_raw import MissionItem
+
+    from companion.launch.sitl import free_udp_port
+
+    base = load_mission(shipped_missions()["forest"])
+    gcs_port = free_udp_port()
+    extra = ["--control-period-ms", "4", "--gcs-remote", f"127.0.0.1:{gcs_port}"]
+    async with SitlProcess(base, tmp_path / "sitl", lockstep=True, extra_args=extra) as sitl:
+        home = DEFAULT_HOME  # the vehicle's (its GCS link locks onto its first client: MAVSDK's, here)
+        drone = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        try:
+            await drone.add_any_connection(f"udpin://127.0.0.1:{gcs_port}")
+            system = None
+            async for _ in drone.on_new_system():
+                for s in await drone.get_systems():
+                    if await s.has_autopilot() and await s.is_connected():
+                        system = s
+                if system is not None:
+                    break
+            rel = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+            items = [MissionItem(0, rel, M.MAV_CMD_NAV_TAKEOFF, 1, 1, 0.0, 0.0, 0.0, math.nan, 0, 0, 2.0, 0)]
+            for k, (n, e, alt, hold) in enumerate(ROUTE):
+                lat, lon = _ll_deg(home, n, e)
+                items.append(MissionItem(k + 1, rel, M.MAV_CMD_NAV_WAYPOINT, 0, 1, hold, 0.0, 0.0, math.nan,
+                                         round(lat * 1e7), round(lon * 1e7), alt, 0))
+            items.append(MissionItem(5, rel, M.MAV_CMD_NAV_LAND, 0, 1, 0.0, 0.0, 0.0, math.nan, 0, 0, 0.0, 0))
+            await MissionRawAsync(system).upload_mission(items)
+            square = [Point(*_ll_deg(home, n, e)) for n, e in FENCE_SQUARE]
+            keep_out = Circle(Point(*_ll_deg(home, *KEEP_OUT[:2])), KEEP_OUT[2], FenceType.EXCLUSION)
+            await GeofenceAsync(system).upload_geofence(GeofenceData([Polygon(square, FenceType.INCLUSION)],
+                                                                     [keep_out]))
+            setup = FlightSetup(connect=sitl.companion_url, sock=sitl.companion_sock, lockstep=True,
+                                profile=profile_by_name("bundled"))
+            spec = FlySpec(setup=setup, run_dir=tmp_path / "run", plots=False, narrate=False, autopilot_mission=True)
+            return await fly_mission(spec, base)
+        finally:
+            drone.destroy()
+
+
+def test_mavsdk_as_the_ground_station_uploads_what_the_companion_flies(tmp_path):
+    pytest.importorskip("mavsdk.asyncio", reason="mavsdk (the test extra) is not installed")
+    result = asyncio.run(asyncio.wait_for(_fly_mavsdk(tmp_path), 120.0))
+    report = result.report
+    assert result.outcome == "completed", report.get("outcome_detail")
+    am = report["autopilot_mission"]
+    assert am["items"] == 6 and am["fence_items"] == 5
+    assert (am["home"]["lat_deg"], am["home"]["lon_deg"], am["home"]["alt_amsl_m"]) == pytest.approx(DEFAULT_HOME)
+    assert np.allclose(am["waypoints"], [[n, e, -alt] for n, e, alt, _ in ROUTE], atol=0.02)
+    assert report["collisions"] == 0 and [w["reached_at_s"] is not None for w in report["waypoints"]] == [True] * 4
