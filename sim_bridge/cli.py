@@ -93,6 +93,9 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--signing-key", metavar="FILE",
                    help="MAVLink 2 signing on both links with this key file (64 hex characters, or a passphrase "
                         "hashed with SHA-256 as MAVProxy does); unsigned, forged and replayed input is rejected")
+    g.add_argument("--no-prearm-checks", action="store_true",
+                   help="report SYS_STATUS as ArduCopter with ARMING_CHECK 0: the pre-arm bit present, not enabled, "
+                        "never healthy (arming itself is unchanged)")
     g.add_argument("--imu-noise-scale", type=float, default=1.0,
                    help="multiplier of the IMU noise and bias random walk (SIM_IMU_NSCALE; 0 = ideal)")
     g.add_argument("--imu-seed", type=int, default=0, help="seed of the IMU noise generator")
@@ -105,15 +108,6 @@ def _hostport(text: str, flag: str, shift: int) -> tuple[str, int]:
         return host or "127.0.0.1", int(port) + shift
     except ValueError:
         raise ConfigError(f"{flag}: expected HOST:PORT, got {text!r}") from None
-
-
-def _serial_spec(text: str) -> tuple[str, int]:
-    from sim_bridge.link import parse_serial_spec
-
-    try:
-        return parse_serial_spec(text)
-    except ValueError as exc:
-        raise ConfigError(f"--serial: {exc}") from None
 
 
 def _home(args: argparse.Namespace) -> tuple[float, float, float]:
@@ -138,6 +132,15 @@ def _wind_from_args(args: argparse.Namespace) -> WindConfig:
             raise ConfigError(f"{wind_file}: expected only a [wind] table, got {sorted(data)}")
         return dataclass_from_table(WindConfig, data.get("wind", {}), where=f"{wind_file}: [wind]")
     return dataclass_from_table(WindConfig, {"model": args.wind, "scale": args.wind_scale}, where="--wind-scale:")
+
+
+def _serial_spec(text: str) -> tuple[str, int]:
+    from sim_bridge.link import parse_serial_spec
+
+    try:
+        return parse_serial_spec(text)
+    except ValueError as exc:
+        raise ConfigError(f"--serial: {exc}") from None
 
 
 def config_from_args(args: argparse.Namespace) -> SitlConfig:
@@ -168,6 +171,7 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
         gcs_peer=_hostport(args.gcs_peer, "--gcs-peer", 0) if args.gcs_peer else None,
         onboard_serial=_serial_spec(args.serial) if getattr(args, "serial", None) else None,
         signing_key=key,
+        prearm_checks=not args.no_prearm_checks,
         imu=ImuNoise(scale=args.imu_noise_scale, seed=args.imu_seed),
         takeoff_alt_m=args.takeoff_alt,
         home=_home(args),

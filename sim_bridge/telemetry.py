@@ -335,7 +335,7 @@ def send_vehicle_message(msgid: int, mav: mavlink2.MAVLink, v: Any, snap: Snapsh
             mavlink2.MAV_STATE_ACTIVE if v.armed else mavlink2.MAV_STATE_STANDBY,
         )
     elif msgid == MSG_SYS_STATUS:
-        present, enabled, health = sys_status_bits(v.prearm_ok)
+        present, enabled, health = sys_status_bits(v.prearm_ok, v.cfg.prearm_checks)
         # no battery (PX4 without one: voltage UINT16_MAX, current -1, remaining -1); load 10 %
         mav.sys_status_send(present, enabled, health, 100, 65535, -1, -1, 0, min(v.counters.total, 65535),
                             0, 0, 0, 0)
@@ -403,8 +403,11 @@ SENSORS_REPORTED = (SENSORS_PRESENT | _S.MAV_SYS_STATUS_SENSOR_BATTERY | _S.MAV_
                     | _S.MAV_SYS_STATUS_SENSOR_RC_RECEIVER | _S.MAV_SYS_STATUS_SENSOR_DIFFERENTIAL_PRESSURE)
 
 
-def sys_status_bits(prearm_ok: bool) -> tuple[int, int, int]:
-    """(present, enabled, health) of SYS_STATUS for a healthy simulated vehicle."""
+def sys_status_bits(prearm_ok: bool, checks: bool = True) -> tuple[int, int, int]:
+    """(present, enabled, health) of SYS_STATUS for a healthy simulated vehicle; ``checks`` False: as ArduCopter
+    with ARMING_CHECK 0, the pre-arm bit present but neither enabled nor healthy."""
+    if not checks:
+        return SENSORS_PRESENT | _S.MAV_SYS_STATUS_PREARM_CHECK, SENSORS_PRESENT, SENSORS_REPORTED
     health = SENSORS_REPORTED | (_S.MAV_SYS_STATUS_PREARM_CHECK if prearm_ok else 0)
     enabled = SENSORS_PRESENT | (SENSORS_REPORTED & ~health)
     return SENSORS_PRESENT, enabled, health

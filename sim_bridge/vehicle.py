@@ -74,6 +74,7 @@ class SitlConfig:
     gcs_peer: tuple[str, int] | None = None
     onboard_serial: tuple[str, int] | None = None  # (device, baud bit/s): the onboard link on a serial device
     signing_key: bytes | None = None
+    prearm_checks: bool = True  # False: SYS_STATUS as ArduCopter's ARMING_CHECK 0 (pre-arm bit present, not enabled)
     imu: ImuNoise = field(default_factory=ImuNoise)
     #: the hover thrust (N) MPC_THR_HOVER was calibrated for: the declared vehicle's when the true payload differs
     #: (``--payload-mass-kg``: the autopilot was tuned with what it was told); None: the simulated vehicle's own

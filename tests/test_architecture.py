@@ -27,6 +27,7 @@ PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "c
                  "companion.flight.obstacle_view", "companion.flight.flight_record", "companion.flight.facts",
                  "companion.flight.loop_stats", "companion.flight.arrival", "companion.flight.command",
                  "companion.report.scoring", "companion.flight.legs",
+                 "companion.flight.operator",  # the ground station's commands, decided (issue 27)
                  "companion.perception")  # scans into a local map: sockets and sessions feed it from outside
 IO_FRAMEWORKS = ("asyncio", "pymavlink", "zenoh", "socket")
 #: What the bundled vehicle may use of the companion: the shared model and MAVLink helpers.

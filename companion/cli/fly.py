@@ -130,6 +130,7 @@ def spec_from_args(args: argparse.Namespace, mission: Mission) -> FlySpec:
         ready_timeout_s=args.ready_timeout, land_on_abort=not args.no_land_on_abort,
         allow_param_writes=not args.no_param_writes, start_here=args.start_here, rt_priority=args.rt_priority,
         signing_key=None if args.signing_key is None else load_key_file(args.signing_key),
+        accept_unsigned=tuple(args.accept_unsigned), gcs_sysid=args.gcs_sysid,
         inject_tick_error_at_s=_env_float("SLUNGPILOT_INJECT_TICK_ERROR_AT_S"),
     )
     setup.validate(RT_PRIORITY_MAX)

@@ -88,6 +88,12 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                         "does; `slungpilot keygen FILE` makes one): everything sent is signed, unsigned, forged and "
                         "replayed frames are dropped and counted; with --sitl the bundled vehicle gets the same key. "
                         "docs/companion.md: sharing it with PX4/ArduPilot (SETUP_SIGNING)")
+    p.add_argument("--accept-unsigned", type=int, action="append", default=[], metavar="SYSID",
+                   help="with --signing-key: read this system's unsigned frames all the same (repeatable; e.g. 2, "
+                        "ArduCopter SITL's slung payload, which ArduPilot forwards unsigned); the report counts them")
+    p.add_argument("--gcs-sysid", type=int, default=None, metavar="N",
+                   help="obey pause/resume/land/return commands from this ground station's system id only (others "
+                        "are answered DENIED and counted); with --signing-key, without it no GCS is obeyed")
     p.add_argument("--no-param-writes", action="store_true",
                    help="never change an autopilot parameter: refuse the vehicle instead (ArduCopter needs "
                         "GUID_OPTIONS bit 3, which the companion otherwise sets; see docs/autopilots.md)")

@@ -49,7 +49,10 @@ from typing import Any
 
 import numpy as np
 
-from companion.estimation import SWING_INPUTS  # noqa: F401  (re-exported: the inputs this state chooses from)
+from companion.estimation import (
+    SWING_INPUTS,  # noqa: F401  (re-exported: the inputs this state chooses from)
+    readiness,
+)
 from companion.estimation.estimate import Estimate, swing_from_payload
 from companion.mavlink_io import telemetry as tm
 
@@ -124,6 +127,7 @@ class VehicleState:
     att_wall_s: float | None = None
     sensors_present: int = 0
     sensors_health: int = 0
+    sensors_enabled: int = 0
     sys_status_seen: bool = False
     autopilot_version: dict | None = None  # from AUTOPILOT_VERSION, when the autopilot sent it
     home_ned_m: np.ndarray | None = None  # HOME_POSITION's local x, y, z (m, the autopilot's local NED frame)
@@ -172,13 +176,17 @@ class VehicleState:
         return self.statustext[-1] if self.statustext else ""
 
     def ready_to_arm(self, prearm_bit: bool = True) -> bool:
-        """The autopilot's own readiness. PX4 and ArduPilot set SYS_STATUS's pre-arm check bit in *health* once
-        arming is allowed (PX4 v1.15 never in *present*: streams/SYS_STATUS.hpp; MAVSDK reads health alone), so
-        with ``prearm_bit`` that bit decides (no SYS_STATUS yet: not ready); without it, the HEARTBEAT state
-        (STANDBY or ACTIVE)."""
-        if prearm_bit:
+        """The autopilot's own readiness (:mod:`companion.estimation.readiness`): SYS_STATUS's pre-arm bit in
+        *health* with ``prearm_bit`` (no SYS_STATUS yet: not ready); with the bit present but not enabled
+        (ArduCopter's ``ARMING_CHECK 0``) or without ``prearm_bit``, the HEARTBEAT state and the position
+        estimate."""
+        if prearm_bit and not self.sensors_present & MAV_SYS_STATUS_PREARM_CHECK:  # PX4, the bundled vehicle
             return self.sys_status_seen and bool(self.sensors_health & MAV_SYS_STATUS_PREARM_CHECK)
-        return self.system_status in (3, 4)
+        return not readiness.unmet(self, prearm_bit)
+
+    def unready(self, prearm_bit: bool = True) -> tuple[str, ...]:
+        """What keeps the autopilot from being ready to arm, in words (empty: ready)."""
+        return readiness.unmet(self, prearm_bit)
 
     # ------------------------------------------------------------------------------------------ ingest
     def _reject(self, kind: str) -> str:
@@ -307,6 +315,7 @@ class VehicleState:
         self.sys_status_seen = True
         self.sensors_present = ev.sensors_present
         self.sensors_health = ev.sensors_health
+        self.sensors_enabled = ev.sensors_enabled
         return ev.message
 
     def _on_estimator_status(self, ev: tm.EstimatorStatus, wall_s: float | None) -> str:

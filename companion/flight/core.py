@@ -89,6 +89,8 @@ class FlightCore:
         self.no_route = False
         self.t_no_route_s: float | None = None
         self._timed_stop = False  # hold_here / descend asked while a time-parameterised planner was flying
+        #: the mission phase a hold_here stopped and where it hovered then (resume goes back to both)
+        self._paused_from: tuple[CorePhase, np.ndarray] | None = None
         self.controller: PositionController = make_position_controller(mission.controller, self.cfg, self.params)
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
         self.loop_lag = LoopLagEstimator(period_s)
@@ -139,10 +141,28 @@ class FlightCore:
         With a time-parameterised planner flying, "now" is the planner's own stop: along its checked path at
         the swing-bounded deceleration (from 3.6 m/s a straight-line stop at the reference generator's limits
         overshoots by 6 m, through whatever is ahead, and flies back)."""
+        resumable = self.phase in (CorePhase.CLIMB, CorePhase.CRUISE, CorePhase.HOLD)
+        self._paused_from = (self.phase, self._hold_ned_m) if resumable else None
         if self.ref is not None:
             self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)
         self._stop_timed()
         self.phase = CorePhase.HOLD_HERE
+
+    @property
+    def resumable(self) -> bool:
+        """Whether :meth:`resume` can fly on after a hold (a time-parameterised planner needs a ``resume``)."""
+        return not self._timed or hasattr(self.planner, "resume")
+
+    def resume(self) -> bool:
+        """Fly the mission on from where :meth:`hold_here` stopped it, from the phase it stopped (a ground
+        station's pause ended); False when there is nothing to resume."""
+        if self.phase != CorePhase.HOLD_HERE or self._paused_from is None or not self.resumable:
+            return False
+        if self._timed_stop:
+            self.planner.resume()
+            self._timed_stop = False
+        (self.phase, self._hold_ned_m), self._paused_from = self._paused_from, None
+        return True
 
     def descend(self) -> None:
         """Stop the mission and descend at :data:`DESCENT_MPS` over where the reference is now (the

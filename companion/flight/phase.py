@@ -45,6 +45,7 @@ class CoreOrder(StrEnum):
 
     HOLD_HERE = "hold_here"
     DESCEND = "descend"
+    RESUME = "resume"  # the ground station's pause ended: fly the mission on (companion.flight.operator)
 
 
 class FinalPhase(StrEnum):

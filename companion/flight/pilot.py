@@ -37,7 +37,8 @@ from companion.flight.flight_record import FlightRecord
 from companion.flight.health import LinkHealth, LockstepClock, RealtimeClock
 from companion.flight.mission_frame import MissionFrame
 from companion.flight.obstacle_view import ObstacleView
-from companion.flight.phase import CoreOrder, Phase, flight_phase
+from companion.flight.operator import Answer, OperatorDesk
+from companion.flight.phase import CoreOrder, Phase, State, flight_phase
 from companion.flight.requests import Request
 from companion.flight.sequence import FlightSequence
 from companion.flight.sequence_types import Observation, SequenceConfig, Stream, Transition
@@ -103,6 +104,9 @@ class Pilot:
         if self.swing_feed.wants_estimator:
             self.core.swing_wait_s = SWING_WAIT_S
         self.seq = FlightSequence(self._sequence_config())
+        #: the ground station's pause/resume/land/return, answered (companion.flight.operator)
+        self.desk = OperatorDesk(setup.gcs_sysid, signing=setup.signing_key is not None)
+        self.orders_log: list[dict] = []  # its orders as carried out: vehicle time t_s, monotonic wall_s (s)
         self.health = LinkHealth(period_s=self.period_s)
         self.record = FlightRecord(mission, self.state)
         self.frame = MissionFrame(mission.start_ned_m, setup.start_here)
@@ -258,6 +262,14 @@ class Pilot:
         else:
             self.seq.answer(key, value)
 
+    def on_command(self, ev: TelemetryEvent) -> Answer | None:
+        """A COMMAND_LONG/COMMAND_INT: what to answer when it is addressed to the companion (None otherwise); an
+        accepted order goes to the sequence, carried out at the next tick."""
+        ans = self.desk.on_command(ev, self.state.vehicle_sysid, self.seq.state, self.seq.paused, self.core.resumable)
+        if ans is not None and ans.order is not None:
+            self.seq.order(ans.order, f"{ans.order} ordered by the ground station (system {ev.src_system})")
+        return ans
+
     def request_abort(self, reason: str = "operator abort (Ctrl-C)") -> None:
         """Stop the mission: hold, land if configured, finish. Safe to call from a signal handler."""
         if self.abort_reason is None:
@@ -292,6 +304,7 @@ class Pilot:
             estimate_ok=est is not None, core_result=self.core.result, tick_errors_in_row=self.tick_errors_in_row,
             abort=self.abort_reason, mission_timeout_s=self.mission.timeout_s, last_words=st.last_words,
             start_error_m=start_error_m, tracking_error_m=self._tracking_error_m,
+            unready=st.unready(self.profile.family.prearm_bit) if self.seq.state is State.WAIT_READY else (),
         )
 
     def tick(self, wall_s: float) -> TickOut:
@@ -305,6 +318,9 @@ class Pilot:
         try:
             est = self.state.estimate()
             step = self.seq.step(self._observe(est, wall_s))
+            if len(self.seq.orders_done) != len(self.orders_log):  # a ground station's order carried out
+                self.orders_log += [{"order": str(o), "t_s": self.state.t_s, "wall_s": wall_s}
+                                    for _, o in self.seq.orders_done[len(self.orders_log):]]
             if est is not None:
                 self.swing_feed.maybe_start(self.state)
                 est = self.frame.to_mission(self.swing_feed.choose(est))
@@ -315,6 +331,8 @@ class Pilot:
                 self.core.hold_here()
             elif step.core is CoreOrder.DESCEND:
                 self.core.descend()
+            elif step.core is CoreOrder.RESUME and not self.core.resume():
+                log.warning("the ground station's resume found nothing to resume (core phase %s)", self.core.phase)
             setpoint, cmd = self._setpoint(stream, est, wall_s)
             self.tick_errors_in_row = 0
         except Exception as exc:  # the loop boundary: count, log once a second, keep the vehicle safe

@@ -28,7 +28,8 @@ from companion.flight.sequence_types import Transition
 from companion.mavlink_io.codec import send_set_attitude_target
 from companion.mavlink_io.commands import RequestLink
 from companion.mavlink_io.link import MavlinkLink
-from companion.mavlink_io.telemetry import TelemetryEvent, decode, decode_frame
+from companion.mavlink_io.statustext import StatusTextOut
+from companion.mavlink_io.telemetry import CommandInt, CommandLong, TelemetryEvent, decode, decode_frame
 from companion.report.journal import Journal
 
 log = logging.getLogger(__name__)
@@ -97,6 +98,7 @@ class Runner:
         self.link = MavlinkLink(s.connect, self._on_message, tlog=s.tlog_path, sock=s.sock, signing_key=s.signing_key,
                                 accept_unsigned=s.accept_unsigned)
         self.link.frame_handler = self._on_frame
+        self.texts = StatusTextOut(self.link.mav)  # our phases, failsafes and answers, to the ground station
         st = pilot.state
         self.requests = RequestLink(self.link.mav, lambda: (st.vehicle_sysid, st.vehicle_compid),
                                     lambda what: pilot.profile.mode_params(what))
@@ -164,6 +166,19 @@ class Runner:
         ans = self.requests.answer_of(ev)
         if ans is not None:
             self.pilot.on_answer(*ans)
+        elif ev.__class__ is CommandLong or ev.__class__ is CommandInt:
+            self._answer_command(ev)
+
+    def _answer_command(self, ev: CommandLong) -> None:
+        """A ground station's command addressed to us: COMMAND_ACK to its sender, and a STATUSTEXT saying why."""
+        answer = self.pilot.on_command(ev)
+        if answer is None:
+            return
+        log.info("ground station (system %d): command %d answered %d %s", ev.src_system, ev.command, answer.result,
+                 answer.text)
+        self.link.mav.command_ack_send(answer.command, answer.result, 0, 0, answer.to_system, answer.to_component)
+        if answer.text:
+            self.texts.say(answer.severity, answer.text, time.monotonic())
 
     # ------------------------------------------------------------------ the tick
     def _tick(self, watchdog: bool = False) -> None:
@@ -233,12 +248,24 @@ class Runner:
                                      st.vehicle_compid, TICK_ONLY_MASK, _LEVEL_Q, 0.0, 0.0, 0.0, 0.0)
 
     def _tell_transitions(self) -> None:
+        if self.texts.waiting:
+            self.texts.pump(time.monotonic())
         for t in self.pilot.take_transitions():
+            self._say_transition(t)
             for sink in self.sinks:
                 try:
                     sink.on_transition(t, self)
                 except Exception:
                     log.exception("telemetry sink %s failed; continuing", type(sink).__name__)
+
+    def _say_transition(self, t: Transition) -> None:
+        """A phase change as STATUSTEXT for the ground station (holds and failsafes as warnings)."""
+        if t.to_state == "done":
+            ok = self.pilot.outcome == "completed"
+            text, sev = f"slungpilot done: {self.pilot.outcome}: {self.pilot.seq.detail}", 5 if ok else 4
+        else:
+            text, sev = f"slungpilot {t.to_state}: {t.reason}", 4 if t.to_state in ("hold", "descend") else 6
+        self.texts.say(sev, text, time.monotonic())
 
     def _between_ticks(self) -> None:
         """After a tick's setpoint is out: obstacle input (its own time budget, timed apart from the tick; its
@@ -308,6 +335,9 @@ class Runner:
                      **self.pilot.health.summary(),
                      "signing": link.verifier.summary() if link.verifier is not None else None},
             "journal": self.journal.summary() if self.journal is not None else None,
+            "operator": self.pilot.desk.summary() | {"orders": self.pilot.orders_log,
+                                                     "statustext_sent": self.texts.sent,
+                                                     "statustext_dropped": self.texts.dropped},
         }
 
     def provisional_facts(self) -> dict[str, Any]:

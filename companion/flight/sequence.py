@@ -49,6 +49,7 @@ from dataclasses import dataclass, field, replace
 
 from companion.flight.failsafes import STREAMING_STATES, FailureKind, FailureWatch
 from companion.flight.mode_goal import MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS, GoalStatus, ModeGoal
+from companion.flight.operator import OperatorReactions
 from companion.flight.phase import CoreOrder, FinalPhase, State
 from companion.flight.requests import Request, RequestTracker
 from companion.flight.sequence_types import OUTCOMES, Observation, SequenceConfig, Step, Stream, Transition
@@ -57,8 +58,8 @@ __all__ = ["OUTCOMES", "FlightSequence", "Observation", "SequenceConfig", "State
 
 
 @dataclass
-class FlightSequence:
-    """The state machine; :meth:`step` it, read ``state``, ``outcome``, ``transitions``."""
+class FlightSequence(OperatorReactions):
+    """The state machine; :meth:`step` it, read ``state``, ``outcome``, ``transitions``; :meth:`order` it."""
 
     cfg: SequenceConfig = field(default_factory=SequenceConfig)
     state: State = State.CONNECT
@@ -130,6 +131,8 @@ class FlightSequence:
             self._airborne = True
         if self.state is not State.DONE:
             self._check_failures(obs)
+        if self._orders and self.state is not State.DONE:
+            self._apply_orders(obs)
         if self.state is not State.DONE:
             self._handlers[self.state](obs, send)
         configured = None
@@ -281,9 +284,14 @@ class FlightSequence:
                 self._armed_seen = True
             self._go(obs, State.PRESTREAM, "telemetry flowing, autopilot ready")
         elif self._in_state_wall_s(obs) > self.cfg.ready_timeout_s:
-            why = "no position/attitude telemetry" if not obs.telemetry_ready else "the autopilot is not ready to arm"
-            said = f" (vehicle said: {obs.last_words!r})" if obs.last_words else ""
-            self._finish(obs, "not_ready", State.WAIT_READY, f"{why} after {self.cfg.ready_timeout_s:.0f} s{said}")
+            why = ["no position/attitude telemetry" if not obs.telemetry_ready else
+                   f"telemetry older than {self.cfg.stale_s:g} s"] if not (obs.telemetry_ready and fresh) else []
+            if not obs.vehicle_ready:
+                why += [f"the autopilot is not ready to arm: {w}" for w in obs.unready] or [
+                    "the autopilot is not ready to arm"]
+            said = f"; vehicle said: {obs.last_words!r}" if obs.last_words else "; the vehicle said nothing"
+            self._finish(obs, "not_ready", State.WAIT_READY,
+                         f"after {self.cfg.ready_timeout_s:.0f} s: {'; '.join(why)}{said}")
 
     def _on_prestream(self, obs: Observation, send: list[Request]) -> None:
         if self._in_state_s(obs) < self.cfg.prestream_s:

@@ -106,6 +106,7 @@ class Observation:
     last_words: str = ""
     start_error_m: float = 0.0  # horizontal distance of the vehicle from the mission start (mission frame)
     tracking_error_m: float = 0.0  # the vehicle's distance from the reference of the last command (m)
+    unready: tuple[str, ...] = ()  # while waiting: the autopilot's readiness conditions still unmet, in words
 
 
 @dataclass(frozen=True, slots=True)

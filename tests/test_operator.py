@@ -1,0 +1,95 @@
+"""The ground station's commands to the companion, decided and carried out (issue 27; pure: no sockets): who may
+command, what each command means in each phase and what is answered, and the flight sequence's reactions (pause
+holds the core, continue resumes it, land lands where it is, return holds then lands)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from companion.core.mission import load_mission
+from companion.flight import operator as op
+from companion.flight.core import FlightCore
+from companion.flight.phase import CoreOrder, CorePhase, State
+from companion.flight.sequence import FlightSequence, Observation
+from companion.mavlink_io.telemetry import CommandInt, CommandLong
+
+PAUSE, CONTINUE = 0.0, 1.0
+
+
+def _cmd(command: int, param1: float = 0.0, src: int = 255, target: tuple[int, int] = (1, 191)) -> CommandLong:
+    return CommandLong(src, 190, 0, command, target[0], target[1], (param1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+
+
+def test_who_may_command_and_what_is_answered_in_each_phase():
+    desk = op.OperatorDesk()
+    pause = _cmd(op.MAV_CMD_DO_PAUSE_CONTINUE, PAUSE)
+    assert desk.on_command(pause, 1, State.MISSION, False).order is op.Order.PAUSE
+    assert desk.on_command(_cmd(op.MAV_CMD_DO_PAUSE_CONTINUE, CONTINUE), 1, State.MISSION, True).order is \
+        op.Order.RESUME
+    # not ours: another component, another system, the broadcast component (the autopilot answers those)
+    for target in ((1, 1), (2, 191), (1, 0)):
+        assert desk.on_command(_cmd(op.MAV_CMD_NAV_LAND, target=target), 1, State.MISSION, False) is None
+    assert desk.on_command(_cmd(op.MAV_CMD_NAV_LAND, target=(0, 191)), 1, State.MISSION, False).result == op.ACCEPTED
+    # phases where it makes no sense: temporarily rejected, saying the phase
+    ans = desk.on_command(pause, 1, State.ARM, False)
+    assert ans.result == op.TEMPORARILY_REJECTED and ans.order is None and "arm" in ans.text
+    assert desk.on_command(_cmd(op.MAV_CMD_NAV_LAND), 1, State.LAND, False).order is None  # already landing
+    assert desk.on_command(_cmd(op.MAV_CMD_NAV_RETURN_TO_LAUNCH), 1, State.HOLD, False).order is op.Order.RETURN
+    assert desk.on_command(_cmd(400), 1, State.MISSION, False).result == op.UNSUPPORTED
+    assert desk.on_command(pause, 1, State.MISSION, False, resumable=False).result == op.DENIED
+    ci = CommandInt(255, 190, 0, op.MAV_CMD_NAV_LAND, 1, 191, (0.0,) * 7, 6)  # COMMAND_INT alike
+    assert desk.on_command(ci, 1, State.MISSION, False).order is op.Order.LAND
+    # --gcs-sysid: that system only; others denied, said and counted by sender
+    strict = op.OperatorDesk(gcs_sysid=255)
+    ans = strict.on_command(_cmd(op.MAV_CMD_NAV_LAND, src=200), 1, State.MISSION, False)
+    assert ans.result == op.DENIED and ans.to_system == 200 and "255" in ans.text and ans.order is None
+    assert strict.on_command(_cmd(op.MAV_CMD_NAV_LAND), 1, State.MISSION, False).result == op.ACCEPTED
+    # signing on and no GCS named: nobody is obeyed
+    assert op.OperatorDesk(signing=True).on_command(pause, 1, State.MISSION, False).result == op.DENIED
+    assert strict.summary()["denied_by_sender"] == {"200/190": 1}
+
+
+def _obs(t: float, **kw) -> Observation:
+    return Observation(now_s=t, wall_s=t, heartbeat_wall_s=t, telemetry_wall_s=t, telemetry_ready=True,
+                       vehicle_ready=True, armed=True, mode="offboard", on_ground=False, heartbeats=int(t * 10) + 1,
+                       estimate_ok=True, **kw)
+
+
+def _in_mission() -> FlightSequence:
+    seq = FlightSequence()
+    seq.state = State.MISSION
+    seq._armed_seen = True
+    return seq
+
+
+def test_pause_holds_continue_resumes_land_lands_return_holds_then_lands():
+    seq = _in_mission()
+    seq.order(op.Order.PAUSE, "pause ordered")
+    step = seq.step(_obs(1.0))
+    assert seq.paused and step.core is CoreOrder.HOLD_HERE and seq.state is State.MISSION
+    seq.order(op.Order.RESUME, "resume ordered")
+    step = seq.step(_obs(2.0))
+    assert not seq.paused and step.core is CoreOrder.RESUME and seq.outcome == "running"
+    assert [o for _, o in seq.orders_done] == [op.Order.PAUSE, op.Order.RESUME]
+    seq.order(op.Order.LAND, "land ordered by the ground station (system 255)")
+    step = seq.step(_obs(3.0))
+    assert seq.state is State.LAND and step.core is CoreOrder.HOLD_HERE
+    assert seq.outcome == "aborted" and "ground station" in seq.detail
+    ret = _in_mission()
+    ret.order(op.Order.RETURN, "return ordered")
+    step = ret.step(_obs(1.0))
+    assert ret.state is State.HOLD and step.core is CoreOrder.HOLD_HERE and ret.outcome == "aborted"
+
+
+def test_the_core_resumes_where_it_paused_and_still_holds_at_the_goal():
+    mission = load_mission("config/missions/forest.toml")
+    core = FlightCore(mission)
+    core.phase = CorePhase.CRUISE
+    goal_hold = core._hold_ned_m.copy()
+    core.hold_here()
+    assert core.phase is CorePhase.HOLD_HERE and core.resumable
+    assert core.resume() and core.phase is CorePhase.CRUISE
+    assert np.array_equal(core._hold_ned_m, goal_hold)  # at the goal it hovers at the goal, not where it paused
+    assert not core.resume()  # nothing to resume now
+    core.descend()
+    assert not core.resume()
