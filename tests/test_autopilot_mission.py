@@ -75,6 +75,11 @@ def test_global_relative_alt_take_off_four_waypoints_and_land():
     assert m.timeout_s >= 30.0 + 16.0 / 0.5 and notes == []
 
 
+def test_no_land_holds_where_the_autopilot_s_mission_would_land():
+    m, notes = mission_from_items([*_four_waypoints(), _item(5, LAND, z=0.0)], [], HOME, BASE.with_(land=False))
+    assert not m.land and any("MAV_CMD_NAV_LAND, but the flight is not to land" in n for n in notes)
+
+
 def test_global_amsl_altitudes_are_relative_to_home():
     items = [_item(0, TAKEOFF, z=488.0 + 2.5, frame=AMSL), _item(1, WP, 5.0, 0.0, 488.0 + 4.0, AMSL)]
     m, notes = mission_from_items(items, [], HOME, BASE)

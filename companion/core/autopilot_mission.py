@@ -179,8 +179,9 @@ def mission_from_items(items: Sequence[Any], fence_items: Sequence[Any], home: H
                        earth_model: str = "px4", skip_home_item: bool = False) -> tuple[Mission, list[str]]:
     """The mission to fly: ``base`` (the flight's mission file: planner, controller, vehicle, payload, wind,
     obstacles, timeout) with the route of the autopilot's ``items`` and the fence of its ``fence_items``; and notes
-    for the report. ``skip_home_item``: item 0 is home (ArduPilot), not part of the route. Raises ValueError naming
-    the item (or point) that cannot be flown: nothing is flown half-understood."""
+    for the report. It lands when the route ends with a landing or a return and ``base.land`` (False with
+    ``--no-land``) allows it. ``skip_home_item``: item 0 is home (ArduPilot), not part of the route. Raises
+    ValueError naming the item (or point) that cannot be flown: nothing is flown half-understood."""
     notes: list[str] = []
     place = Placement(home, earth_model)
     if skip_home_item and items:
@@ -208,12 +209,16 @@ def mission_from_items(items: Sequence[Any], fence_items: Sequence[Any], home: H
     _check_points(named, fence, base)
     if not route.end:
         notes.append("the mission ends without MAV_CMD_NAV_LAND or RETURN_TO_LAUNCH: the vehicle holds at the end")
+    elif not base.land:
+        notes.append(f"the mission ends with {command_name(items[-1].command)}, but the flight is not to land "
+                     "(--no-land or the base mission's land = false): the vehicle holds at the end")
     wps = tuple(Waypoint(p, hold_s=h, name=f"item {s}") for s, p, h in points[:-1])
     path_m = sum(float(np.linalg.norm(b[1] - a[1])) for a, b in zip([(0, start, 0.0), *points], points,
                                                                       strict=False))
     timeout = min(3600.0, max(base.timeout_s, 30.0 + path_m / 0.5 + sum(h for _, _, h in points)))
     mission = base.with_(name="autopilot", start_ned_m=start, goal_ned_m=points[-1][1].copy(),
-                         hold_s=points[-1][2] if not route.end else 1.0, land=bool(route.end), waypoints=wps,
+                         hold_s=points[-1][2] if not route.end else 1.0, land=bool(route.end) and base.land,
+                         waypoints=wps,
                          fence=None if fence.empty else fence, timeout_s=timeout,
                          source_path=f"autopilot ({len(items)} items, {len(fence_items)} fence items)")
     return mission, notes
