@@ -112,6 +112,21 @@ def test_a_trunk_hidden_behind_another_or_out_of_range_is_kept():
     for k in range(20):
         _scan(p, 5.0 + k * DT, [], pos=(-30.0, 0.0, -2.0))
     assert len(p.obstacles) == 2
+    # unseen for 4 s its filter's uncertainty has grown, but its inflation is bounded (2 × 0.15 m at most)
+    assert all(o.radius_m <= r + 0.05 + 0.3 for o, (_, _, r) in zip(sorted(p.obstacles, key=lambda o: o.x_m),
+                                                                   trunks, strict=True))
+
+
+def test_one_trunk_seen_as_two_overlapping_detections_is_one_track():
+    from companion.perception.clusters import Detection
+
+    p = Perception(1)
+    _scan(p, 1.0, [(4.0, 0.0, 0.3)])
+    assert len(p.map.tracks) == 1
+    cov = np.eye(2) * 1e-4
+    twice = [Detection(6.0, 3.0, 0.3, cov, 0.02, 8, 1.0, -2.0), Detection(6.1, 3.05, 0.3, cov, 0.02, 8, 1.0, -2.0)]
+    p.map.update(twice, p.last_points)
+    assert len(p.map.tracks) == 2 and p.map.counts["merged"] == 1
 
 
 def test_a_moving_trunk_gets_its_velocity_and_a_still_one_none():
@@ -249,7 +264,8 @@ def test_bad_scans_wrong_vehicles_floods_and_late_scans_are_refused_and_counted(
 
 def test_still_trunks_keep_the_same_obstacles_once_settled():
     """With 1 cm noise the estimates wander by millimetres: the published set is replaced only when an estimate
-    moved by 3 cm, so after settling the tuple the planner is given stays the same object in most scans (its caches hold)."""
+    moved by 3 cm, so after settling the tuple the planner is given stays the same object in most scans (its
+    caches hold)."""
     p = Perception(1)
     trunks = [(4.0, 1.0, 0.3), (-3.0, -2.0, 0.2), (2.0, -5.0, 0.25)]
     for k in range(10):

@@ -33,6 +33,7 @@ from companion.perception.points import ScanPoints
 CHI2_GATE_2DOF = 9.21  # 99 %
 GATE_M = 0.5  # Euclidean gate beyond the two radii (m)
 FREE_STEP_M = 0.05  # the free-distance march's step (m)
+MAX_SIGMA_M = 0.15  # the 1σ an inflation uses at most (m): a trunk unseen for long keeps growing in its filter
 PUBLISH_STEP_M = 0.03  # a published trunk is replaced when its estimate moved this much (m, m/s)
 VIEW_BAND_M = 0.5  # a ray this close (m, vertically) to where a trunk was seen would have seen it again
 MIN_HEIGHT_M = 1.0
@@ -96,8 +97,26 @@ class LocalMap:
         for k, det in enumerate(dets):
             if k not in used:
                 self._birth(det, t)
+        self._merge_overlaps()
         self.last = pts
         self._publish()
+
+    def _merge_overlaps(self) -> None:
+        """Two tracks whose trunks would overlap are one trunk seen twice (an arc split in two, a detection that
+        missed its gate): the one with fewer hits goes (counted ``merged``)."""
+        if len(self.tracks) < 2:
+            return
+        trs = list(self.tracks.values())
+        xy = np.array([tr.x[:2] for tr in trs])
+        r = np.array([tr.radius_m for tr in trs])
+        d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+        over = np.triu(d < np.maximum(r[:, None], r[None, :]), 1)
+        for i, j in zip(*np.nonzero(over), strict=True):
+            a, b = trs[int(i)], trs[int(j)]
+            if a.id not in self.tracks or b.id not in self.tracks:
+                continue
+            loser = b if (a.hits, -a.id) >= (b.hits, -b.id) else a
+            self._retire(loser, "merged")
 
     def _predict(self, tr: Track, t: float) -> None:
         dt = t - tr.t_s
@@ -232,7 +251,7 @@ class LocalMap:
 
     def _obstacle(self, tr: Track) -> Obstacle:
         sig = math.sqrt(max(float(np.linalg.eigvalsh(tr.p[:2, :2])[-1]), 0.0) + tr.radius_var)
-        r = min(tr.radius_m + self.inflate_k * sig, Obstacle.MAX_RADIUS_M)
+        r = min(tr.radius_m + self.inflate_k * min(sig, MAX_SIGMA_M), Obstacle.MAX_RADIUS_M)
         vn, ve = float(tr.x[2]), float(tr.x[3])
         pv = tr.p[2:, 2:]
         v2 = vn * vn + ve * ve

@@ -132,4 +132,8 @@ class Perception:
             "segments_skipped": dict(self.clusterer.skipped), "map": dict(self.map.counts),
             "tracks": len(self.map.tracks), "trunks": len(self.map.obstacles),
             "pose_samples_ignored": self.poses.ignored, "restamped": self.restamped,
+            # the map as it ended (mission frame; at most 64): what an evaluation scores against the truth
+            "trunks_final": [{"x_m": round(o.x_m, 4), "y_m": round(o.y_m, 4), "radius_m": round(o.radius_m, 4),
+                              "vx_mps": round(o.vx_mps, 3), "vy_mps": round(o.vy_mps, 3)}
+                             for o in self.map.obstacles[:64]],
         }
