@@ -14,6 +14,11 @@ Signing (optional, :mod:`companion.mavlink_io.signing`): every outgoing frame is
 frames are *unsigned* (except RADIO_STATUS, ADSB_VEHICLE and COLLISION, as PX4), bad signatures
 *bad_signature*, old timestamps *replay*. With signing on, a datagram from another address is accepted when
 its frames verify (a peer that restarted on a new port); the first verified frame re-targets the link.
+
+Serial (``sitl --serial DEVICE:BAUD``, :class:`SerialPort`): the onboard link on a serial device (a TELEM port, or
+one end of a pseudo-terminal pair). The stream is cut into frames by the companion's
+:class:`~companion.mavlink_io.framing.StreamFramer` (garbage counted as *garbage*), and the frames of each read
+are handled as one datagram from :data:`SERIAL_PEER`, the link's peer from the start.
 """
 
 from __future__ import annotations
