@@ -211,6 +211,15 @@ def test_the_mission_carries_the_fence_and_refuses_points_outside_it():
         mission_from_items(into, _fence_items(), HOME, BASE)
 
 
+def test_a_straight_leg_through_an_exclusion_zone_is_noted_not_refused():
+    fence = [_item(0, 5004, 6.0, 0.0, 0.0, params=(0.5, 0, 0, 0), mtype=1)]  # on the leg item 1 -> item 2
+    m, notes = mission_from_items(_four_waypoints(), fence, HOME, BASE)
+    assert m.fence is not None and len(m.waypoints) == 3
+    assert [n for n in notes if "straight leg" in n] == [
+        "the straight leg from item 1 to item 2 would come within 0.28 m of the fence's boundary (or cross it): "
+        "the planner must route around it"]
+
+
 def test_a_fence_that_excludes_the_start_is_refused_naming_the_start():
     circle = [_item(0, 5004, 0.0, 0.0, 0.0, params=(2.0, 0, 0, 0), mtype=1)]
     with pytest.raises(ValueError, match=r"the start \(home at take-off altitude\) \(0.00, 0.00\) m is inside"):

@@ -30,11 +30,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import Any
 
 import numpy as np
 
-from companion.core.fence import Fence, check_point, fence_from_items
+from companion.core.fence import Fence, check_point, fence_from_items, segment_clear
 from companion.core.mission import Mission, Waypoint
 
 MAV_FRAME_GLOBAL, MAV_FRAME_LOCAL_NED, MAV_FRAME_MISSION, MAV_FRAME_GLOBAL_RELATIVE_ALT = 0, 1, 2, 3
@@ -207,6 +208,7 @@ def mission_from_items(items: Sequence[Any], fence_items: Sequence[Any], home: H
     notes += fence_notes
     named = [("the start (home at take-off altitude)", start)] + [(f"item {s}", p) for s, p, _ in points]
     _check_points(named, fence, base)
+    notes += _legs_near_the_fence(named, fence, base.vehicle.r_uav + base.vehicle.L_uav)
     if not route.end:
         notes.append("the mission ends without MAV_CMD_NAV_LAND or RETURN_TO_LAUNCH: the vehicle holds at the end")
     elif not base.land:
@@ -234,6 +236,19 @@ def _is_home_item(it: Any, place: Placement) -> bool:
     except ValueError:
         return False
     return math.hypot(p[0], p[1]) <= 1.0 and p[2] >= -0.5
+
+
+def _legs_near_the_fence(named: list[tuple[str, np.ndarray]], fence: Fence, margin_m: float) -> list[str]:
+    """Notes for the straight legs that would not keep ``margin_m`` (m, the airframe) inside the fence: the planners
+    route around its keep-out discs, so such a leg is flown bent (or ends no_route), not refused."""
+    if fence.empty:
+        return []
+    out = []
+    for (wa, a), (wb, b) in pairwise(named):
+        if not segment_clear(fence, (float(a[0]), float(a[1])), (float(b[0]), float(b[1])), margin_m):
+            out.append(f"the straight leg from {wa} to {wb} would come within {margin_m:.2f} m of the fence's "
+                       "boundary (or cross it): the planner must route around it")
+    return out
 
 
 def _check_points(named: list[tuple[str, np.ndarray]], fence: Fence, base: Mission) -> None:
