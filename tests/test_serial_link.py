@@ -207,26 +207,38 @@ def test_a_vanished_device_is_link_closed_then_reopened_when_it_is_back(tmp_path
         pair.stop()
 
 
-def test_the_asyncio_reader_sees_frames_and_a_dead_device(tmp_path):
-    """The real-time runner's path: ``loop.add_reader`` on the device; the device killed is counted, not raised."""
+async def _until(cond, timeout_s: float = 5.0) -> None:
+    end = time.monotonic() + timeout_s
+    while not cond() and time.monotonic() < end:
+        await asyncio.sleep(0.01)
+
+
+def test_the_asyncio_reader_sees_frames_a_dead_device_and_its_return(tmp_path):
+    """The real-time runner's path: ``loop.add_reader`` on the device; the device killed is counted, not raised;
+    a new device at the path is reopened by the loop's own timer and read."""
     got: list = []
+    seen: dict = {}
 
     async def main() -> MavlinkLink:
+        nonlocal pair
         link = MavlinkLink(f"serial://{tmp_path}/cc:921600", got.append)
         async with link:
             fc = _open_raw(tmp_path / "fc")
             os.write(fc, b"".join(_vehicle_frames(5)))
-            for _ in range(100):
-                if len(got) == 15:
-                    break
-                await asyncio.sleep(0.01)
+            await _until(lambda: len(got) == 15)
             os.close(fc)
             pair.stop(signal.SIGKILL)
-            for _ in range(100):
-                if link.rejected["link_closed"]:
-                    break
-                await asyncio.sleep(0.01)
+            await _until(lambda: link.rejected["link_closed"] == 1)
             await asyncio.sleep(0.2)
+            seen["down"] = (len(got), link.rejected["link_closed"], link.connected)
+            for p in (tmp_path / "fc", tmp_path / "cc"):
+                p.unlink(missing_ok=True)
+            pair = PtyPair(tmp_path / "fc", tmp_path / "cc").start()
+            await _until(lambda: link.connected)
+            fc = _open_raw(tmp_path / "fc")
+            os.write(fc, b"".join(_vehicle_frames(1)))
+            await _until(lambda: len(got) == 18)
+            os.close(fc)
         return link
 
     pair = PtyPair(tmp_path / "fc", tmp_path / "cc").start()
@@ -234,7 +246,8 @@ def test_the_asyncio_reader_sees_frames_and_a_dead_device(tmp_path):
         link = asyncio.run(main())
     finally:
         pair.stop()
-    assert len(got) == 15 and link.rejected["link_closed"] == 1 and not link.connected
+    assert seen["down"] == (15, 1, False)
+    assert len(got) == 18 and link.rejected["link_closed"] == 1
 
 
 def test_a_device_in_use_is_refused(tmp_path):
