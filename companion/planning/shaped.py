@@ -52,7 +52,7 @@ from companion.planning.params import PlannerParams
 from companion.planning.route import find_route
 from companion.planning.shaping import box_widths, pendulum_omega_rad_s
 from companion.planning.timeline import Timeline
-from companion.planning.timing import Profile, sample_motion, state_at, stop_along
+from companion.planning.timing import Profile, brake_rows, sample_motion, state_at, stop_along
 
 LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps ahead of now
 
@@ -197,26 +197,6 @@ class ShapedPlanner:
         pos, vel, acc = sample_motion(prof, times)
         return np.concatenate([pos, vel, acc], axis=1)
 
-    def _brake_rows(self, p0: np.ndarray, v0: np.ndarray) -> np.ndarray:
-        """Unshaped rows of a straight stop from (p0, v0) at ``shaped_brake_mps2`` (or just rest)."""
-        h = self.params.shaped_step_s
-        b = self.params.shaped_brake_mps2
-        speed = math.hypot(float(v0[0]), float(v0[1]))
-        if speed < 1e-6:
-            row = np.zeros((1, 6))
-            row[0, 0:2] = p0
-            return row
-        u = v0 / speed
-        tt = np.arange(0.0, speed / b + h, h)
-        tt = np.minimum(tt, speed / b)
-        s = speed * tt - 0.5 * b * tt * tt
-        sp = np.maximum(speed - b * tt, 0.0)
-        rows = np.zeros((len(tt), 6))
-        rows[:, 0:2] = p0[None, :] + s[:, None] * u[None, :]
-        rows[:, 2:4] = sp[:, None] * u[None, :]
-        rows[:, 4:6] = np.where(sp[:, None] > 0.0, -b * u[None, :], 0.0)
-        return rows
-
     # ------------------------------------------------------------------------------------------------
     def _replan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> None:
         tl = self.tl
@@ -344,6 +324,13 @@ class ShapedPlanner:
         self.stop_requested = True
         self.next_replan_s = -math.inf
 
+    def resume(self) -> None:
+        """Fly on after :meth:`stop` (a ground station's pause ended): the next :meth:`plan` searches a route from
+        where the stop left the plan."""
+        self.stop_requested = False
+        self.plan_reaches_goal = False
+        self.next_replan_s = -math.inf
+
     def _hold(self, k_r: int, k_now: int, p0: np.ndarray, v0: np.ndarray, cur_ok: bool, mode: str) -> None:
         """Stop and hold there: when the current plan still heads for the goal, or when the stop already under
         way is no longer clear (a new one from the state at k_r). The stop follows the current plan's path
@@ -364,7 +351,7 @@ class ShapedPlanner:
                 rows = np.concatenate([pos, vel, acc], axis=1)
                 rows[0, 0:4] = np.r_[p0, v0]  # exactly continuous with the state being replaced
         if rows is None:
-            rows = self._brake_rows(p0, v0)
+            rows = brake_rows(p0, v0, self.params.shaped_brake_mps2, self.params.shaped_step_s)
         tl.splice(k_r, rows, k_now)
         self.plan_end_k = k_r + len(rows) - 1
         self.plan_reaches_goal = False

@@ -237,3 +237,23 @@ def stop_along(prof: Profile, s0_m: float, v0_mps: float, a_dec_mps2: float, h_s
     ev = prof.curve(s)
     at = np.where(sd > 0.0, -a_dec_mps2, 0.0)
     return ev[:, 0:2], ev[:, 2:4] * sd[:, None], ev[:, 4:6] * (sd * sd)[:, None] + ev[:, 2:4] * at[:, None]
+
+
+def brake_rows(p0: np.ndarray, v0: np.ndarray, b_mps2: float, h_s: float) -> np.ndarray:
+    """Unshaped rows [p, v, a] ((k, 6), every ``h_s``) of a straight stop from (p0 m, v0 m/s) at ``b_mps2``
+    (or just rest when not moving)."""
+    speed = math.hypot(float(v0[0]), float(v0[1]))
+    if speed < 1e-6:
+        row = np.zeros((1, 6))
+        row[0, 0:2] = p0
+        return row
+    u = v0 / speed
+    tt = np.arange(0.0, speed / b_mps2 + h_s, h_s)
+    tt = np.minimum(tt, speed / b_mps2)
+    s = speed * tt - 0.5 * b_mps2 * tt * tt
+    sp = np.maximum(speed - b_mps2 * tt, 0.0)
+    rows = np.zeros((len(tt), 6))
+    rows[:, 0:2] = p0[None, :] + s[:, None] * u[None, :]
+    rows[:, 2:4] = sp[:, None] * u[None, :]
+    rows[:, 4:6] = np.where(sp[:, None] > 0.0, -b_mps2 * u[None, :], 0.0)
+    return rows
