@@ -106,3 +106,86 @@ def test_accept_unsigned_needs_signing_and_an_obeyed_gcs_must_sign():
     with pytest.raises(ConfigError, match=r"1\.\.255"):
         FlightSetup(signing_key=KEY, accept_unsigned=(0,)).validate()
     FlightSetup(signing_key=KEY, accept_unsigned=(2,), gcs_sysid=255).validate()
+
+
+class _Relay:
+    """A UDP relay between a vehicle and the companion that also injects frames of its own towards the companion,
+    from the same address (as ArduPilot forwards its payload's stream on the companion's link)."""
+
+    def __init__(self, companion_port: int) -> None:
+        self.vside = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.vside.bind(("127.0.0.1", 0))
+        self.cside = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.cside.bind(("127.0.0.1", 0))
+        self.companion = ("127.0.0.1", companion_port)
+        self.vehicle: tuple[str, int] | None = None
+        self.injected = 0
+        self.stop = False
+
+    def run(self, inject) -> None:
+        import select
+
+        next_inject = time.monotonic()
+        while not self.stop:
+            ready, _, _ = select.select((self.vside, self.cside), (), (), 0.01)
+            for s in ready:
+                data, addr = s.recvfrom(65536)
+                if s is self.vside:
+                    self.vehicle = addr
+                    self.cside.sendto(data, self.companion)
+                elif self.vehicle is not None:
+                    self.vside.sendto(data, self.vehicle)
+            if self.vehicle is not None and time.monotonic() >= next_inject:
+                next_inject += 0.1
+                for f in inject():
+                    self.cside.sendto(f, self.companion)
+                    self.injected += 1
+
+
+@pytest.mark.slow
+def test_signed_flight_with_an_unsigned_payload_sender(tmp_path):
+    """The bundled vehicle signing (lockstep) behind a relay that adds, from the vehicle's address, an unsigned
+    sender the user lets in (system 7, ``--accept-unsigned 7``), an unsigned one not let in (9) and one signing
+    with another key (4): the flight completes, and the report counts each by sender."""
+    import json
+    import subprocess
+    import sys
+    import threading
+    from pathlib import Path
+
+    from lab.faults import free_udp_port
+
+    root = Path(__file__).resolve().parents[1]
+    key = tmp_path / "key.hex"
+    key.write_text(KEY.hex() + "\n")
+    comp = free_udp_port()
+    relay = _Relay(comp)
+    sim = subprocess.Popen([sys.executable, "-m", "sim_bridge", "--lockstep", "--signing-key", str(key),
+                            "--onboard-port", str(free_udp_port()), "--onboard-remote",
+                            f"127.0.0.1:{relay.vside.getsockname()[1]}", "--gcs-port", str(free_udp_port()),
+                            "--gcs-remote", f"127.0.0.1:{free_udp_port()}"],
+                           cwd=root, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    thread = threading.Thread(target=relay.run, args=(lambda: [_frame(7, 35, "gpi"), _frame(9, 1, "heartbeat"),
+                                                               _frame(4, 1, "heartbeat", WRONG)],), daemon=True)
+    try:
+        assert sim.stdout is not None and sim.stdout.readline().startswith("SITL READY")
+        thread.start()
+        run = tmp_path / "run"
+        out = subprocess.run([sys.executable, "-m", "companion.cli", "-q", "fly", "--connect",
+                              f"udpin://127.0.0.1:{comp}", "--lockstep", "--profile", "bundled", "--signing-key",
+                              str(key), "--accept-unsigned", "7", "--no-zenoh", "--no-recording", "--no-plots",
+                              "--run-dir", str(run)], capture_output=True, text=True, timeout=300, cwd=root)
+    finally:
+        relay.stop = True
+        sim.terminate()
+        sim.wait(10)
+        thread.join(5)
+    rep = json.loads((run / "report.json").read_text())
+    assert out.returncode == 0 and rep["outcome"] == "completed", (rep["outcome"], out.stderr[-2000:])
+    sig = rep["link"]["signing"]
+    print(json.dumps(sig, indent=1), relay.injected)
+    assert sig["accept_unsigned_systems"] == [7] and sig["accepted_unsigned"]["7"] > 50
+    dropped = sig["dropped_by_sender"]
+    assert set(dropped["9/1"]) == {"unsigned"} and dropped["9/1"]["unsigned"] > 50
+    assert dropped["4/1"]["bad_signature"] > 50
+    assert "1/1" not in dropped  # nothing of the vehicle's own was dropped
