@@ -250,6 +250,43 @@ def test_the_asyncio_reader_sees_frames_a_dead_device_and_its_return(tmp_path):
     assert len(got) == 18 and link.rejected["link_closed"] == 1
 
 
+def test_signing_on_a_serial_link(tmp_path):
+    """Signed frames in odd pieces are read; unsigned ones from the same wire are dropped and counted; what the
+    companion writes is signed."""
+    from companion.mavlink_io import signing as sg
+
+    key = bytes(range(32))
+    signer = M.MAVLink(_Frames(), srcSystem=1, srcComponent=1)
+    signer.signing.secret_key = key
+    signer.signing.link_id = 0
+    signer.signing.timestamp = sg.timestamp_from_unix(time.time())
+    signer.signing.sign_outgoing = True
+    for k in range(10):
+        signer.attitude_send(k, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0)
+    signed = signer.file.frames
+    unsigned = _vehicle_frames(1)[1]  # an ATTITUDE, unsigned
+    got: list = []
+    with PtyPair(tmp_path / "fc", tmp_path / "cc"):
+        link = MavlinkLink(f"serial://{tmp_path}/cc:921600", got.append, signing_key=key)
+        link.open_blocking()
+        fc = _open_raw(tmp_path / "fc")
+        try:
+            blob = b"".join(signed[:5]) + unsigned + b"".join(signed[5:])
+            for i in range(0, len(blob), 29):
+                os.write(fc, blob[i : i + 29])
+            end = time.monotonic() + 5
+            while len(got) < 10 and time.monotonic() < end:
+                link.poll(0.05)
+            assert [m.time_boot_ms for m in got] == list(range(10)) and link.rejected["unsigned"] == 1
+            link.mav.heartbeat_send(M.MAV_TYPE_ONBOARD_CONTROLLER, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+            time.sleep(0.2)
+            (back,) = StreamFramer().feed(os.read(fc, 4096))
+            assert back[2] & sg.IFLAG_SIGNED and sg.SigningVerifier(key).check(back) is None
+        finally:
+            os.close(fc)
+            link.close()
+
+
 def test_a_device_in_use_is_refused(tmp_path):
     with PtyPair(tmp_path / "fc", tmp_path / "cc"):
         first = MavlinkLink(f"serial://{tmp_path}/cc:921600", print)
@@ -327,6 +364,26 @@ def test_table2_forest_over_a_serial_pty_pair_flies_as_over_udp(tmp_path):
         lb = np.load(tmp_path / run / "flight_log.npz")
         for k in la.files:
             assert np.array_equal(la[k], lb[k], equal_nan=True), (run, k)
+
+
+@pytest.mark.slow
+def test_a_signed_flight_over_serial(tmp_path):
+    """``fly --sitl --serial --signing-key``: both ends sign over the pty; the forest completes, nothing rejected."""
+    key = tmp_path / "link.key"
+    from companion.mavlink_io import signing as sg
+
+    sg.write_new_key_file(key)
+    proc = subprocess.run([sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--serial", "--signing-key",
+                           str(key), "--no-zenoh", "--no-plots", "--no-recording", "--run-dir", str(tmp_path / "run")],
+                          capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rep = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert rep["outcome"] == "completed" and rep["reached_goal"]
+    assert not {k: v for k, v in rep["link"]["rejected"].items() if v}, rep["link"]
+    from companion.mavlink_io.tlog import tlog_frames
+
+    frames = [f for _, f in tlog_frames(tmp_path / "run" / "flight.tlog")]
+    assert len(frames) > 1000 and all(f[2] & sg.IFLAG_SIGNED for f in frames)  # in and out, every frame signed
 
 
 @pytest.mark.slow
