@@ -32,9 +32,12 @@ REPORT_KEYS = (
 )
 
 
-def fly_spec(run_dir: Path, plots: bool, gains: Path | None = None, swing_input: str | None = None) -> FlySpec:
+def fly_spec(run_dir: Path, plots: bool, gains: Path | None = None, swing_input: str | None = None,
+             world: Any = None) -> FlySpec:
     """What ``slungpilot fly --sitl --no-zenoh --no-recording -q --run-dir RUN_DIR [--no-plots] [--gains FILE]
-    [--swing-input S]`` flies (lockstep, no narration), built in code.
+    [--swing-input S] [--world FILE]`` flies (lockstep, no narration), built in code. ``world``: a
+    :class:`companion.core.world.World` the vehicle is started in (its LiDAR sees its trunks; the report scores
+    against them), None for none.
 
     No Zenoh: batch flights run side by side and would all want the default listen port. No 3-D recording: it costs
     ~1 s of import and its CPU per flight, and a batch has its own figures."""
@@ -43,7 +46,7 @@ def fly_spec(run_dir: Path, plots: bool, gains: Path | None = None, swing_input:
 
     setup = FlightSetup(lockstep=True, gains=load_gains(gains or DEFAULT_GAINS),
                         swing_input=swing_input or "auto", profile=profile_by_name("bundled"))
-    return FlySpec(setup=setup, sitl=True, run_dir=run_dir, plots=plots, narrate=False)
+    return FlySpec(setup=setup, sitl=True, run_dir=run_dir, plots=plots, narrate=False, world=world)
 
 
 LOST_CONTROL_SWING_RAD = math.pi / 2  # the model's own bound on the swing angles (eq. 1)
@@ -68,7 +71,7 @@ def classify(rep: dict[str, Any]) -> str:
 @dataclass(frozen=True)
 class Job:
     """One flight for a worker: the mission, where its run folder goes, which mode, whether to plot, and (MAVLink
-    mode only) the companion's ``--swing-input``."""
+    mode only) the companion's ``--swing-input`` and the world it flies in."""
 
     key: str
     mission: Mission
@@ -78,12 +81,14 @@ class Job:
     keep_run_dir: bool = True
     gains: Path | None = None
     swing_input: str | None = None
+    #: MAVLink mode only: the simulated world (:class:`companion.core.world.World`) the vehicle flies in, None: none
+    world: Any = None
 
 
 def _fly_mavlink(job: Job) -> dict[str, Any]:
     from companion.launch.fly import fly_mission_sync
 
-    result = fly_mission_sync(fly_spec(job.run_dir, job.plots, job.gains, job.swing_input), job.mission)
+    result = fly_mission_sync(fly_spec(job.run_dir, job.plots, job.gains, job.swing_input, job.world), job.mission)
     rep = dict(result.report)
     rep["outcome"] = result.outcome
     return rep

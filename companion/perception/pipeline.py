@@ -136,4 +136,21 @@ class Perception:
             "trunks_final": [{"x_m": round(o.x_m, 4), "y_m": round(o.y_m, 4), "radius_m": round(o.radius_m, 4),
                               "vx_mps": round(o.vx_mps, 3), "vy_mps": round(o.vy_mps, 3)}
                              for o in self.map.obstacles[:64]],
+            # the confirmed tracks as estimated (radius as fitted, not inflated; 1σ of centre and radius in m,
+            # velocity m/s, hits, last seen s vehicle time) at the last scan's time map_t_s (s): for centre and
+            # radius errors against the truth
+            "map_t_s": None if self.map.last is None else round(self.map.last.t_s, 3),
+            "tracks_final": [_track_fact(tr) for tr in self.map.tracks.values() if tr.confirmed][:64],
         }
+
+
+def _track_fact(tr: Any) -> dict[str, Any]:
+    """One confirmed :class:`~companion.perception.local_map.Track` for the report (m, m/s, s)."""
+    import math
+
+    sig = math.sqrt(max(float(tr.p[0, 0] + tr.p[1, 1]) / 2.0, 0.0))
+    return {"id": tr.id, "x_m": round(float(tr.x[0]), 4), "y_m": round(float(tr.x[1]), 4),
+            "radius_m": round(tr.radius_m, 4), "sigma_xy_m": round(sig, 4),
+            "sigma_r_m": round(math.sqrt(max(tr.radius_var, 0.0)), 4), "vx_mps": round(float(tr.x[2]), 3),
+            "vy_mps": round(float(tr.x[3]), 3), "hits": tr.hits, "last_seen_s": round(tr.last_seen_s, 3),
+            "source": "perception"}
