@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.core.fence import Fence, FenceCircle
+from companion.core.fence import Fence, FenceCircle, FencePolygon
 from companion.core.mission import MAX_WAYPOINTS, Mission, Waypoint, load_mission, mission_to_toml
 from companion.errors import ConfigError
 from companion.estimation.estimate import Estimate
@@ -212,15 +212,45 @@ def test_a_legs_speed_limit_is_kept(planner):
     assert rep["reached_goal"]
 
 
+# ------------------------------------------------------------------------------------------------ shaped's path
+def test_shaped_plans_one_path_through_the_waypoints_each_leg_under_its_cap():
+    from companion.planning.legs_route import PIN_M, remaining_vias, timed_through
+    from companion.planning.params import PlannerParams
+
+    c = np.array([[3.0, 0.2], [6.0, 3.0]])
+    ring = np.array([0.9, 0.9])
+    vias = (np.array([6.0, 0.0]), np.array([6.0, 6.0]))
+    cands = timed_through(np.zeros(2), np.zeros(2), vias, (math.inf, 1.0, math.inf), np.array([0.0, 6.0]),
+                          c, ring, ring, 1.85, PlannerParams(), [0.0, 0.2])
+    assert cands
+    prof, _ = cands[0]
+    t = np.arange(0.0, prof.duration_s, 0.01)
+    from companion.planning.timing import sample_motion
+    pos, vel, _acc = sample_motion(prof, t)
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    near = [int(np.argmin(np.hypot(*(pos - v).T))) for v in vias]
+    for k, v in zip(near, vias, strict=True):
+        assert float(np.hypot(*(pos[k] - v))) < PIN_M + 0.1  # through each waypoint, the corner cut a little
+        assert speed[k] > 0.3  # and not stopped there
+    assert near[0] < near[1]
+    assert float(np.max(speed[near[0] + 20:near[1] - 20])) <= 1.03  # the middle leg's limit (3 %: stations 0.1 m apart)
+    assert float(np.max(speed[:near[0] - 50])) > 1.5 and float(np.max(speed[near[1] + 50:])) > 1.3
+    assert float(np.min(np.hypot(pos[:, None, 0] - c[None, :, 0], pos[:, None, 1] - c[None, :, 1]) - ring)) > -0.05
+    # a waypoint the plan state is already beyond is dropped from the next search (with its leg's cap)
+    assert remaining_vias(np.array([6.5, 0.4]), vias, np.array([0.0, 6.0]), (2.0, 1.0, 3.0)) == ((vias[1],), (1.0, 3.0))
+    assert remaining_vias(np.array([5.0, 0.0]), vias, np.array([0.0, 6.0]), ())[0] == vias
+
+
 # ------------------------------------------------------------------------------------------------ the fence
 def _fenced(planner: str) -> Mission:
-    fence = Fence(circles=(FenceCircle((5.0, 0.3), 1.0, False),))
+    box = FencePolygon(((-3.0, -4.0), (13.0, -4.0), (13.0, 4.0), (-3.0, 4.0)), True)  # walls 0.5 m into it
+    fence = Fence(polygons=(box,), circles=(FenceCircle((5.0, 0.3), 1.0, False),))
     return Mission("fence", np.array([0.0, 0.0, -2.0]), np.array([10.0, 0.0, -2.0]), planner, "smc_ff", 40.0,
                    hold_s=1.0, fence=fence)
 
 
 @pytest.mark.parametrize("planner", ["safe", "shaped"])
-def test_an_exclusion_circle_on_the_straight_line_is_flown_around_envelope_included(planner):
+def test_an_exclusion_circle_on_the_straight_line_is_flown_around_inside_the_fence_envelope_included(planner):
     m = _fenced(planner)
     log = fly_inprocess(m)
     rep = compute_metrics(log, m)
@@ -236,7 +266,6 @@ def test_an_exclusion_circle_on_the_straight_line_is_flown_around_envelope_inclu
 
 def test_fence_zones_become_keep_out_discs_that_cover_their_boundary():
     square = ((0.0, 0.0), (20.0, 0.0), (20.0, 10.0), (0.0, 10.0))
-    from companion.core.fence import FencePolygon
     for inclusion in (True, False):
         obs = fence_obstacles(Fence(polygons=(FencePolygon(square, inclusion),)))
         edge = np.array([(x, 0.0) for x in np.linspace(0.0, 20.0, 81)] + [(20.0, y) for y in np.linspace(0, 10, 41)])
