@@ -209,3 +209,35 @@ def test_scans_from_zenoh_reach_the_pilots_map_between_ticks():
         # newest pose
         assert p is not None and p.scans_mapped == 3 and p.refused == {"no_pose": 1} and p.restamped == 1
         assert len(p.obstacles) == 2
+
+
+def test_in_real_time_a_scan_is_mapped_between_ticks_a_slice_at_a_time():
+    """A real-time pilot defers a scan that passed the gate: nothing is mapped on arrival; each ``work`` call with
+    a deadline already passed does one slice (points, then a few circle fits, then the map); the scan is mapped
+    after a few calls, and a newer scan before the older is done replaces it (counted)."""
+    from companion.mavlink_io import telemetry as tm
+    from companion.perception.scan import Scan
+
+    pilot = Pilot(load_mission(resolve_mission("forest")), FlightSetup(lockstep=False, perception=True))
+    pilot.on_telemetry(tm.Heartbeat(1, 1, 0, 2, 12, 0, 0, 3), 0.0)
+    ang = np.radians(np.arange(360.0))
+    trunks = [(3.0 + k, 2.0 * (-1) ** k, 0.25) for k in range(6)]
+    for k in range(3):
+        t = 1.0 + 0.1 * k
+        for dt in (-0.01, 0.01):
+            pilot.on_telemetry(tm.Attitude(1, 1, 0, t + dt, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), 0.0)
+            pilot.on_telemetry(tm.LocalPositionNed(1, 1, 0, t + dt, (0.0, 0.0, -2.0), (0.0, 0.0, 0.0)), 0.0)
+        rays = raycast((0.0, 0.0), 0.0, trunks, noise_m=0.01, rng=np.random.default_rng(k))
+        pilot.on_scan(Scan(t, ang, rays, 0.1, 12.0, math.radians(1.0), source="zenoh"))
+        p = pilot.perception
+        assert p is not None and p.pending and p.scans_mapped == k
+        slices = 0
+        while not p.work(-math.inf, lambda: 0.0):  # every slice overruns the deadline: one slice per call
+            slices += 1
+        assert slices >= 2 and p.scans_mapped == k + 1 and not p.pending  # points | 4 fits | 2 fits, map
+    assert len(p.obstacles) == 6
+    for t in (2.0, 2.1):
+        pilot.on_telemetry(tm.Attitude(1, 1, 0, t, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)), 0.0)
+        pilot.on_telemetry(tm.LocalPositionNed(1, 1, 0, t, (0.0, 0.0, -2.0), (0.0, 0.0, 0.0)), 0.0)
+        pilot.on_scan(Scan(t, ang, raycast((0.0, 0.0), 0.0, trunks), 0.1, 12.0, math.radians(1.0), source="zenoh"))
+    assert p.superseded == 1

@@ -198,7 +198,9 @@ class Pilot:
         return Arrival(found, marker)
 
     def _start_perception(self) -> None:
-        self.perception = Perception(self.state.vehicle_sysid)
+        # lockstep: each scan mapped on arrival (same steps every run); real time: mapped between ticks, a slice at
+        # a time within the runner's budget (a scan costs milliseconds: more than a control period has to spare)
+        self.perception = Perception(self.state.vehicle_sysid, defer=not self.setup.lockstep)
         p = self.perception
         self.obstacles.perceived = p.obstacles_at
         log.info("perception on: trunks mapped from the vehicle's range scans")

@@ -44,6 +44,7 @@ ATT_TYPE_MASK = (
 TICK_ONLY_MASK = ATT_TYPE_MASK | mavlink2.ATTITUDE_TARGET_TYPEMASK_THROTTLE_IGNORE | \
     mavlink2.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE
 _LEVEL_Q = np.array([1.0, 0.0, 0.0, 0.0])
+PERCEPTION_BUDGET_S = 1.0e-3  # mapping a deferred scan after a tick (plus one slice: a stage or a few circle fits)
 
 
 class TelemetrySink(Protocol):
@@ -269,7 +270,8 @@ class Runner:
 
     def _between_ticks(self) -> None:
         """After a tick's setpoint is out: obstacle input (its own time budget, timed apart from the tick; its
-        failures counted, never raised into the loop), then any garbage collection that is due."""
+        failures counted, never raised into the loop), a slice of a deferred scan's mapping (real time), then any
+        garbage collection that is due."""
         if self.obstacle_ingest is not None:
             start = time.perf_counter()
             try:
@@ -280,6 +282,15 @@ class Runner:
                     log.exception("obstacle input failed (%d times); flying with the obstacles adopted so far",
                                   self.stats.ingest_errors)
             self.stats.ingest_s.append(time.perf_counter() - start)
+        perception = self.pilot.perception
+        if perception is not None and perception.pending:  # real time: a deferred scan, a slice at a time
+            try:
+                perception.work(time.perf_counter() + PERCEPTION_BUDGET_S, time.perf_counter)
+            except Exception:  # counted with the pilot's perception errors; that scan is dropped
+                perception.drop_pending()
+                self.pilot.perception_errors += 1
+                if self.pilot.record.error_log_due(time.monotonic()):
+                    log.exception("perception failed (%d times)", self.pilot.perception_errors)
         self.gc_pacer.step()
 
     def _finished(self) -> None:

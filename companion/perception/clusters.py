@@ -192,12 +192,13 @@ class Clusterer:
         """The trunks one placed scan shows."""
         out: list[Detection] = []
         for seg in segments(pts):
-            det = self._one(pts, seg)
+            det = self.fit_segment(pts, seg)
             if det is not None:
                 out.append(det)
         return out
 
-    def _one(self, pts: ScanPoints, seg: np.ndarray) -> Detection | None:
+    def fit_segment(self, pts: ScanPoints, seg: np.ndarray) -> Detection | None:
+        """The trunk one segment (indices into ``pts``' returns) shows, or None (counted in ``skipped``)."""
         if len(seg) < MIN_POINTS:
             self.skipped["few_points"] += 1
             return None

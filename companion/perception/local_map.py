@@ -110,7 +110,7 @@ class LocalMap:
         xy = np.array([tr.x[:2] for tr in trs])
         r = np.array([tr.radius_m for tr in trs])
         d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
-        over = np.triu(d < np.maximum(r[:, None], r[None, :]), 1)
+        over = np.triu(d < np.minimum(r[:, None], r[None, :]) + 0.05, 1)  # a centre inside the other trunk
         for i, j in zip(*np.nonzero(over), strict=True):
             a, b = trs[int(i)], trs[int(j)]
             if a.id not in self.tracks or b.id not in self.tracks:

@@ -12,24 +12,30 @@ the bench (:attr:`~Perception.stage_s`).
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from typing import Any
 
 from companion.core.obstacles import Obstacle
-from companion.perception.clusters import Clusterer, Detection
+from companion.perception.clusters import Clusterer, Detection, segments
 from companion.perception.local_map import LocalMap
 from companion.perception.points import PointFilter, ScanPoints
-from companion.perception.pose_history import PoseHistory
+from companion.perception.pose_history import Pose, PoseHistory
 from companion.perception.scan import ObstacleDistanceAssembler, Scan, ScanGate, ScanPart
+
+FITS_PER_SLICE = 4  # circle fits in one slice of deferred work
 
 
 class Perception:
     """Scans into the local map of trunks (mission frame). ``vehicle_sysid``: whose scans are taken (None: any,
-    until :attr:`vehicle_sysid` is set). ``timer``: a clock for the stage timings (s; None: not timed)."""
+    until :attr:`vehicle_sysid` is set). ``timer``: a clock for the stage timings (s; None: not timed).
+    ``defer``: a scan that passes the gate and has its pose is mapped later, a slice at a time, by :meth:`work`
+    (the real-time runner's between-ticks slot, within a budget) instead of on arrival (lockstep: arrival, so
+    every run maps the same scans at the same step)."""
 
     def __init__(self, vehicle_sysid: int | None = None, *, local_map: LocalMap | None = None,
                  clusterer: Clusterer | None = None, points: PointFilter | None = None,
-                 gate: ScanGate | None = None, timer: Any = None) -> None:
+                 gate: ScanGate | None = None, timer: Any = None, defer: bool = False) -> None:
         self.vehicle_sysid = vehicle_sysid
         self.poses = PoseHistory()
         self.assembler = ObstacleDistanceAssembler()
@@ -44,6 +50,9 @@ class Perception:
         self.last_detections: list[Detection] = []
         self.timer = timer
         self.stage_s: dict[str, float] = {}
+        self.defer = defer
+        self.superseded = 0  # deferred scans replaced by a newer one before they were mapped
+        self._work: Iterator[None] | None = None
 
     @property
     def obstacles(self) -> tuple[Obstacle, ...]:
@@ -74,23 +83,67 @@ class Perception:
         return sum(self.on_scan(s) for s in scans)
 
     def on_scan(self, scan: Scan) -> bool:
-        """One whole scan; True if it was mapped."""
+        """One whole scan; True if it was taken (mapped now, or with ``defer`` by the next :meth:`work` calls)."""
         if not self.gate.check(scan, self.vehicle_sysid if scan.system_id is not None else None):
             return False
         pose = self.poses.at(scan.t_s)
         if isinstance(pose, str):
             self.refused[pose] += 1
             return False
+        work = self._process(scan, pose)
+        if not self.defer:
+            for _ in work:
+                pass
+            return True
+        if self._work is not None:
+            self.superseded += 1  # a newer scan came before the last one was done: the newer one wins
+        self._work = work
+        return True
+
+    @property
+    def pending(self) -> bool:
+        """A deferred scan is still being processed."""
+        return self._work is not None
+
+    def work(self, deadline_s: float, clock: Callable[[], float]) -> bool:
+        """Go on with a deferred scan until it is mapped (True) or ``clock()`` passes ``deadline_s`` (False: call
+        again). A slice is one stage or :data:`FITS_PER_SLICE` circle fits."""
+        while self._work is not None:
+            try:
+                next(self._work)
+            except StopIteration:
+                self._work = None
+                return True
+            if clock() > deadline_s:
+                return False
+        return True
+
+    def drop_pending(self) -> None:
+        """Give up the deferred scan (its processing failed)."""
+        self._work = None
+
+    def _process(self, scan: Scan, pose: Pose) -> Iterator[None]:
+        """Generator: points, clusters (a few fits a slice), map; yields between slices."""
         t0 = self._now()
         pts = self.points.place(scan, pose)
         t1 = self._took("points", t0)
-        dets = self.clusterer.detect(pts)
-        t2 = self._took("clusters", t1)
+        yield
+        dets: list[Detection] = []
+        fit_s = 0.0
+        for k, seg in enumerate(segments(pts)):
+            det = self.clusterer.fit_segment(pts, seg)
+            if det is not None:
+                dets.append(det)
+            if k % FITS_PER_SLICE == FITS_PER_SLICE - 1:
+                fit_s += self._now() - t1
+                yield
+                t1 = self._now()
+        self.stage_s["clusters"] = fit_s + self._now() - t1
+        t2 = self._now()
         self.map.update(dets, pts)
         self._took("map", t2)
         self.last_points, self.last_detections = pts, dets
         self.scans_mapped += 1
-        return True
 
     def on_foreign_scan(self, scan: Scan) -> bool:
         """A whole scan whose stamp may be on another clock than the vehicle's (ROS time): placed at its stamp when
@@ -131,7 +184,7 @@ class Perception:
             "refused_total": sum(refused.values()), "returns_dropped": dict(self.points.dropped),
             "segments_skipped": dict(self.clusterer.skipped), "map": dict(self.map.counts),
             "tracks": len(self.map.tracks), "trunks": len(self.map.obstacles),
-            "pose_samples_ignored": self.poses.ignored, "restamped": self.restamped,
+            "pose_samples_ignored": self.poses.ignored, "restamped": self.restamped, "superseded": self.superseded,
             # the map as it ended (mission frame; at most 64): what an evaluation scores against the truth
             "trunks_final": [{"x_m": round(o.x_m, 4), "y_m": round(o.y_m, 4), "radius_m": round(o.radius_m, 4),
                               "vx_mps": round(o.vx_mps, 3), "vy_mps": round(o.vy_mps, 3)}
