@@ -212,6 +212,17 @@ def test_a_legs_speed_limit_is_kept(planner):
     assert rep["reached_goal"]
 
 
+def test_a_flight_that_ends_before_its_waypoints_reports_them_never_reached():
+    m = _square("safe").with_(timeout_s=4.0)  # climb ~2.5 s, then 1.5 s towards the first waypoint
+    rep = compute_metrics(fly_inprocess(m), m)
+    assert [w["name"] for w in rep["waypoints"]] == ["a", "b", "goal"]
+    assert all(w["reached_at_s"] is None for w in rep["waypoints"]) and not rep["reached_goal"]
+    first, *rest = rep["waypoints"]
+    assert first["closest_m"] > 0.6 and first["leg_max_swing_rad"] is not None  # the leg it was flying
+    assert all(w["closest_m"] is None and w["leg_max_swing_rad"] is None for w in rest)  # legs never flown
+    assert "reached never" in "\n".join(waypoint_lines(rep))
+
+
 # ------------------------------------------------------------------------------------------------ shaped's path
 def test_shaped_plans_one_path_through_the_waypoints_each_leg_under_its_cap():
     from companion.planning.legs_route import PIN_M, remaining_vias, timed_through

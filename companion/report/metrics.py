@@ -319,7 +319,8 @@ def waypoint_metrics(log: FlightLog, mission, i_cruise: int, swing_abs: np.ndarr
 
     The passages are replayed from the log's cruise rows with the flight's own rule
     (:class:`companion.flight.legs.Legs`: pass-through within 0.6 m or past the corner, a hold waypoint by the
-    arrival tolerance and dwell); the goal's leg ends where the vehicle was first within the arrival tolerance."""
+    arrival tolerance and dwell); the goal's leg ends where the vehicle was first within the arrival tolerance after
+    the last waypoint. Points after one never reached have None everywhere (their legs were not flown)."""
     from companion.estimation.estimate import Estimate
     from companion.flight.legs import Legs
 
@@ -336,13 +337,18 @@ def waypoint_metrics(log: FlightLog, mission, i_cruise: int, swing_abs: np.ndarr
             reach_i[k] = int(np.searchsorted(t, legs.reached_t_s[k]))
     goal = np.asarray(mission.goal_ned_m, dtype=np.float64)
     d_goal = np.hypot(pos[:, 0] - goal[0], pos[:, 1] - goal[1])
-    after = reach_i[-1] if reach_i and reach_i[-1] is not None else i_cruise
-    i_goal = _first_index((d_goal < log.goal_tol_m) & (np.arange(len(t)) >= after))
+    after = reach_i[-1] if reach_i else i_cruise
+    i_goal = None if after is None else _first_index((d_goal < log.goal_tol_m) & (np.arange(len(t)) >= after))
     names = [f["name"] for f in legs.facts()] + ["goal"]
     ends = [*reach_i, i_goal]
     vp = mission.vehicle
-    out, start = [], i_cruise
+    out: list[dict] = []
+    start: int | None = i_cruise
     for k, (name, end) in enumerate(zip(names, ends, strict=True)):
+        if start is None:  # an earlier point was never reached: this leg was never flown
+            out.append({"name": name} | dict.fromkeys(("reached_at_s", "closest_m", "leg_max_swing_rad",
+                                                        "leg_min_clearance_m")))
+            continue
         stop = len(t) if end is None else end + 1
         # the closest approach: over this leg and the next (the passage counts on entering the radius)
         far = len(t) if k + 1 >= len(ends) or ends[k + 1] is None else ends[k + 1] + 1
@@ -354,8 +360,6 @@ def waypoint_metrics(log: FlightLog, mission, i_cruise: int, swing_abs: np.ndarr
                     "closest_m": round(float(np.min(d)), 3) if d.size else None,
                     "leg_max_swing_rad": float(np.max(sw)) if sw.size else None,
                     "leg_min_clearance_m": _leg_clearance(log, start, stop, obstacles, vp.r_uav + vp.L_uav)})
-        if end is None:
-            break
         start = end
     return out
 
