@@ -212,6 +212,19 @@ def test_a_legs_speed_limit_is_kept(planner):
     assert rep["reached_goal"]
 
 
+@pytest.mark.parametrize("planner", ["safe", "shaped"])
+def test_a_pass_through_waypoint_is_a_horizontal_gate_its_altitude_the_legs(planner):
+    up = Waypoint(np.array([6.0, 0.0, -4.0]), name="up")  # 2 m above the start and the goal
+    m = _square(planner).with_(waypoints=(up,))
+    log = fly_inprocess(m)
+    rep = compute_metrics(log, m)
+    assert rep["reached_goal"] and rep["waypoints"][0]["reached_at_s"] is not None
+    t, pos = log.arr("t"), log.arr("pos")
+    t0 = float(t[np.flatnonzero(np.array(log.phase) == "cruise")[0]])
+    i_up = int(np.searchsorted(t, t0 + rep["waypoints"][0]["reached_at_s"]))
+    assert pos[i_up, 2] < -3.0 and float(np.min(pos[:, 2])) > -4.3  # climbing towards it, not waiting there
+
+
 def test_a_flight_that_ends_before_its_waypoints_reports_them_never_reached():
     m = _square("safe").with_(timeout_s=4.0)  # climb ~2.5 s, then 1.5 s towards the first waypoint
     rep = compute_metrics(fly_inprocess(m), m)

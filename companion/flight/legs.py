@@ -3,7 +3,9 @@ reached, and the hold at a waypoint. Pure; times are the estimates' (s), positio
 
 The targets are the mission's waypoints in order, then the goal. A waypoint without a hold is *passed* without
 stopping: within :data:`PASS_RADIUS_M` horizontally (the reference turns the corner there), or within twice that
-once the vehicle is beyond the corner's bisector (a path that cut the corner a little wider). A waypoint with
+once the vehicle is beyond the corner's bisector (a path that cut the corner a little wider); horizontally only:
+its altitude is where the vertical channel heads on the leg that ends there, and the flight does not wait for it
+(waiting let a planner that had passed the point fly on while the core still waited). A waypoint with
 ``hold_s`` > 0 is *reached* by the goal's rule (:class:`~companion.flight.arrival.ArrivalRule`: the arrival
 tolerance for a dwell) and hovered ``hold_s`` before the flight leaves it. The goal itself stays the flight
 core's own business (its arrival rule and hold).
@@ -25,7 +27,7 @@ from companion.control import feedforward_acc
 from companion.control.params import FeedForwardGains
 from companion.core.mission import Mission
 from companion.estimation.estimate import Estimate
-from companion.flight.arrival import ARRIVE_VERT_M, ArrivalRule
+from companion.flight.arrival import ArrivalRule
 from companion.planning import PlanOutput
 
 PASS_RADIUS_M = 0.6  # a pass-through waypoint counts as passed this close (m, horizontally)
@@ -140,8 +142,6 @@ class Legs:
             if arrived is not None:
                 self.reached_t_s[i] = arrived
                 self.hold_until_s = arrived + t.hold_s
-            return False
-        if abs(float(pos[2]) - t.pos_ned_m[2]) > max(ARRIVE_VERT_M, PASS_RADIUS_M):
             return False
         u_in, u_out = self._turn()
         bis = u_in + u_out
