@@ -106,6 +106,11 @@ def test_land_at_a_position_flies_there_at_the_previous_altitude():
     assert np.allclose(m.goal_ned_m, [20.0, 5.0, -3.0], atol=0.02) and m.land and len(m.waypoints) == 4
 
 
+def test_land_at_the_last_waypoint_s_position_adds_no_leg():
+    m, _ = mission_from_items([*_four_waypoints(), _item(5, LAND, 16.2, 0.1, z=0.0)], [], HOME, BASE)
+    assert len(m.waypoints) == 3 and np.allclose(m.goal_ned_m, [16.0, 0.0, -3.0], atol=0.02) and m.land
+
+
 def test_without_take_off_the_first_waypoint_gives_the_start_altitude():
     m, notes = mission_from_items([_item(0, WP, 5.0, 0.0, 4.0)], [], HOME, BASE)
     assert m.start_ned_m[2] == pytest.approx(-4.0) and any("no MAV_CMD_NAV_TAKEOFF" in n for n in notes)

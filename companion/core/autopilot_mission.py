@@ -59,6 +59,7 @@ EARTH_MODELS: dict[str, tuple[float, float] | str] = {
     "ardupilot": (6_378_100.0, 6_378_100.0),  # ArduPilot's LOCATION_SCALING_FACTOR (m per 1e-7 degree)
     "wgs84": "wgs84",  # the bundled vehicle: WGS-84's meridian and prime-vertical radii at home
 }
+LAND_HERE_M = 0.5  # a landing this close (m) to the previous point lands there (no leg of its own)
 MAX_DISTANCE_M = 1.0e4  # from home: farther is refused (the flat-earth formula's range)
 _WGS84_A, _WGS84_E2 = 6_378_137.0, 6.69437999014e-3
 
@@ -171,8 +172,9 @@ def _route(items: Sequence[Any], place: Placement) -> _Route:
             r.end, r.end_seq = ("land" if cmd == MAV_CMD_NAV_LAND else "rtl"), it.item_seq
             if cmd == MAV_CMD_NAV_LAND and (it.x != 0 or it.y != 0):
                 p = place.ned(it)
-                prev_z = r.points[-1][1][2] if r.points else -(r.takeoff_alt_m or 0.0)
-                r.points.append((it.item_seq, np.array([p[0], p[1], prev_z]), 0.0))
+                prev = r.points[-1][1] if r.points else np.array([0.0, 0.0, -(r.takeoff_alt_m or 0.0)])
+                if math.hypot(p[0] - prev[0], p[1] - prev[1]) > LAND_HERE_M:  # else: where the previous point is
+                    r.points.append((it.item_seq, np.array([p[0], p[1], prev[2]]), 0.0))
     return r
 
 
