@@ -317,8 +317,9 @@ def summary_markdown(s: dict[str, Any], png: Path | None = None, cmp_png: Path |
 def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
     """The ``evaluate`` options."""
     p.add_argument("--n", type=int, default=100, help="missions per planner and density (default 100)")
-    p.add_argument("--planners", default="shaped,safe,traditional,improved",
-                   help="comma-separated planner names (default: all four; the same seeds for each)")
+    p.add_argument("--planners", default=None,
+                   help="comma-separated planner names (default: all four; with --perception shaped,safe; the "
+                        "same seeds for each)")
     p.add_argument("--scenarios", default="static",
                    help="comma-separated scenarios, each reported as its own class: static (the forest), moving "
                         "(plus --movers trunks crossing the path at 0.5-1.5 m/s), fenced (goal ringed: no route)")
@@ -352,6 +353,10 @@ def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
                    help="fly the payload envelope instead: payload mass x cable length x wind over --n random forests "
                         "per cell (4 trunks/100 m2, 6 m corridor unless --density/--width say otherwise; first "
                         "planner of --planners, default shaped); writes envelope.md/.json/.png (lab/envelope.py)")
+    p.add_argument("--perception", action="store_true",
+                   help="fly each forest blind (LiDAR only, the vehicle in a world of its trunks) and mapped; report "
+                        "clean rates, time blind/mapped, the map's precision/recall and centre error "
+                        "(8 trunks/100 m2 unless --density says otherwise; lab/perception_eval.py)")
     p.add_argument("--envelope-masses", default=None, metavar="KG,..", help="grid masses (default 0.1,0.25,0.5,0.8)")
     p.add_argument("--envelope-cables", default=None, metavar="M,..", help="grid cable lengths (default 0.5,1,2,3)")
     p.add_argument("--envelope-winds", default=None, metavar="NAME,..",
@@ -384,7 +389,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
     partial summary written and printed)."""
     from companion.errors import ConfigError
 
-    planners = [p.strip() for p in args.planners.split(",") if p.strip()]
+    if args.perception:
+        from lab.perception_eval import run_perception
+
+        return run_perception(args)
+    planners = [p.strip() for p in (args.planners or ",".join(PLANNERS)).split(",") if p.strip()]
     bad = [p for p in planners if p not in KNOWN_PLANNERS]
     if bad or not planners:
         raise ConfigError(f"--planners: unknown planner {bad[0] if bad else '(none given)'!r}")
