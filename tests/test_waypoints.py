@@ -161,6 +161,16 @@ def test_the_planner_is_given_the_waypoints_in_order(planner):
     assert [f["name"] for f in core.legs.facts()] == ["a", "b"]
 
 
+def test_a_waypoint_a_timed_plan_flew_past_counts_even_with_the_vehicle_off():
+    from companion.flight.legs import Legs
+
+    legs = Legs(_square("shaped"), 2.0)
+    far = _est(1.0, [4.0, -1.3, -2.0])  # 2.4 m from "a" (6, 0): neither rule of the vehicle's holds
+    assert not legs.update(far) and legs.index == 0
+    assert not legs.update(far, (5.6, -0.3)) and legs.index == 0  # the plan is not beyond it yet
+    assert legs.update(far, (6.3, 0.5)) and legs.index == 1 and legs.reached_t_s[0] == 1.0
+
+
 def test_a_mission_without_waypoints_has_no_legs():
     m = _square().with_(waypoints=())
     assert FlightCore(m).legs is None

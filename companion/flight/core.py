@@ -91,6 +91,7 @@ class FlightCore:
         self._timed_stop = False  # hold_here / descend asked while a time-parameterised planner was flying
         #: the mission phase a hold_here stopped and where it hovered then (resume goes back to both)
         self._paused_from: tuple[CorePhase, np.ndarray] | None = None
+        self._braking = False  # a pause: the reference brakes at its own limits, the hold is where it stops
         self.controller: PositionController = make_position_controller(mission.controller, self.cfg, self.params)
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
         self.loop_lag = LoopLagEstimator(period_s)
@@ -135,8 +136,10 @@ class FlightCore:
             return "no_route"
         return "timeout" if self.timed_out else "completed"
 
-    def hold_here(self) -> None:
-        """Stop the mission and hover where the reference is now (a hold the flight sequence asked for).
+    def hold_here(self, brake: bool = False) -> None:
+        """Stop the mission and hover where the reference is now (a hold the flight sequence asked for);
+        ``brake`` (a ground station's pause, velocity planners): where the reference stops braking at its own
+        acceleration and jerk limits, without coming back (from 2 m/s a hold at "now" overshot 1.1 m and flew back).
 
         With a time-parameterised planner flying, "now" is the planner's own stop: along its checked path at
         the swing-bounded deceleration (from 3.6 m/s a straight-line stop at the reference generator's limits
@@ -146,6 +149,7 @@ class FlightCore:
         if self.ref is not None:
             self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)
         self._stop_timed()
+        self._braking = brake and not self._timed_stop
         self.phase = CorePhase.HOLD_HERE
 
     @property
@@ -162,6 +166,7 @@ class FlightCore:
             self.planner.resume()
             self._timed_stop = False
         (self.phase, self._hold_ned_m), self._paused_from = self._paused_from, None
+        self._braking = False
         return True
 
     def descend(self) -> None:
@@ -219,7 +224,8 @@ class FlightCore:
             ) < 0.02 and self._swing_ready(est):
                 self.phase = CorePhase.CRUISE
         elif self.phase == CorePhase.CRUISE:
-            arrived = self._arrival.arrived(est) if legs_done(self.legs, est) else None
+            plan_xy = (self.ref.p[0], self.ref.p[1]) if self._timed and self.ref is not None else None
+            arrived = self._arrival.arrived(est) if legs_done(self.legs, est, plan_xy) else None
             if arrived is not None:
                 self.phase = CorePhase.HOLD
                 self.t_arrived_s = arrived
@@ -360,6 +366,9 @@ class FlightCore:
             f_att, f_rep, plan_mode = out.force_att, out.force_rep, out.mode
         else:  # hold / done: hover at the goal; hold_here / descend: at the point where they were asked for
             ka = self.cfg.planner.ka
+            if self._braking:  # desired velocity 0 until the reference stands, then hold there
+                self._hold_ned_m = np.array(ref.p, dtype=np.float64)
+                self._braking = self.phase == CorePhase.HOLD_HERE and math.hypot(ref.v[0], ref.v[1]) > 0.02
             hold = self._hold_ned_m
             vdx = ka * (float(hold[0]) - ref.p[0])
             vdy = ka * (float(hold[1]) - ref.p[1])

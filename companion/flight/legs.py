@@ -29,6 +29,7 @@ from companion.core.mission import Mission
 from companion.estimation.estimate import Estimate
 from companion.flight.arrival import ArrivalRule
 from companion.planning import PlanOutput
+from companion.planning.legs_route import PLAN_PASS_M
 
 PASS_RADIUS_M = 0.6  # a pass-through waypoint counts as passed this close (m, horizontally)
 
@@ -122,8 +123,12 @@ class Legs:
         return v * cos_half
 
     # ------------------------------------------------------------------------------------------------
-    def update(self, est: Estimate) -> bool:
-        """Advance past, or hold at, the current waypoint; True when a waypoint was passed or left this tick."""
+    def update(self, est: Estimate, plan_xy: tuple[float, float] | None = None) -> bool:
+        """Advance past, or hold at, the current waypoint; True when a waypoint was passed or left this tick.
+        ``plan_xy``: a time-parameterised plan's reference (m): the point also counts as passed once the plan
+        has dropped it (:func:`companion.planning.legs_route.remaining_vias`: the reference within
+        PLAN_PASS_M and beyond it along the next leg), so that the core never waits for a point its planner
+        has flown past."""
         if self.at_goal:
             return False
         i, t = self.index, self.current
@@ -146,11 +151,18 @@ class Legs:
         u_in, u_out = self._turn()
         bis = u_in + u_out
         beyond = (float(pos[0]) - t.pos_ned_m[0]) * bis[0] + (float(pos[1]) - t.pos_ned_m[1]) * bis[1] >= 0.0
-        if d < PASS_RADIUS_M or (beyond and d < 2.0 * PASS_RADIUS_M):
+        if d < PASS_RADIUS_M or (beyond and d < 2.0 * PASS_RADIUS_M) or self._plan_passed(plan_xy, u_out):
             self.reached_t_s[i] = est.t_s
             self._next()
             return True
         return False
+
+    def _plan_passed(self, plan_xy: tuple[float, float] | None, u_out: np.ndarray) -> bool:
+        """Whether the plan's reference is past the current waypoint by the planner's own rule."""
+        if plan_xy is None:
+            return False
+        rx, ry = plan_xy[0] - self.current.pos_ned_m[0], plan_xy[1] - self.current.pos_ned_m[1]
+        return math.hypot(rx, ry) < PLAN_PASS_M and rx * u_out[0] + ry * u_out[1] > 0.0
 
     def _next(self) -> None:
         self._prev_xy = self.current.pos_ned_m[:2].copy()
@@ -170,12 +182,12 @@ class Legs:
 _NO_LEGS: dict[str, object] = {}
 
 
-def legs_done(legs: Legs | None, est: Estimate) -> bool:
-    """Advance a multi-leg mission's waypoints (:meth:`Legs.update`); True once the goal is the target (always
-    for a mission without waypoints)."""
+def legs_done(legs: Legs | None, est: Estimate, plan_xy: tuple[float, float] | None = None) -> bool:
+    """Advance a multi-leg mission's waypoints (:meth:`Legs.update`, ``plan_xy`` a timed plan's reference (m));
+    True once the goal is the target (always for a mission without waypoints)."""
     if legs is None:
         return True
-    legs.update(est)
+    legs.update(est, plan_xy)
     return legs.at_goal
 
 

@@ -324,7 +324,8 @@ def waypoint_metrics(log: FlightLog, mission, i_cruise: int, swing_abs: np.ndarr
     from companion.estimation.estimate import Estimate
     from companion.flight.legs import Legs
 
-    t, pos = log.arr("t"), log.arr("pos")
+    t, pos, ref = log.arr("t"), log.arr("pos"), log.arr("ref_pos")
+    timed = (log.planner or mission.planner) == "shaped"  # its reference passes points too (Legs.update)
     legs = Legs(mission, 0.0)
     reach_i: list[int | None] = [None] * len(mission.waypoints)
     zero = np.zeros(3)
@@ -332,7 +333,8 @@ def waypoint_metrics(log: FlightLog, mission, i_cruise: int, swing_abs: np.ndarr
         if log.phase[i] != "cruise" or legs.at_goal:
             continue
         k = legs.index
-        legs.update(Estimate(float(t[i]), pos[i], zero, zero, zero, None, "none"))
+        legs.update(Estimate(float(t[i]), pos[i], zero, zero, zero, None, "none"),
+                    (float(ref[i, 0]), float(ref[i, 1])) if timed else None)
         if legs.reached_t_s[k] is not None and reach_i[k] is None:
             reach_i[k] = int(np.searchsorted(t, legs.reached_t_s[k]))
     goal = np.asarray(mission.goal_ned_m, dtype=np.float64)
