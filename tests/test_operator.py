@@ -66,7 +66,7 @@ def test_pause_holds_continue_resumes_land_lands_return_holds_then_lands():
     seq = _in_mission()
     seq.order(op.Order.PAUSE, "pause ordered")
     step = seq.step(_obs(1.0))
-    assert seq.paused and step.core is CoreOrder.HOLD_HERE and seq.state is State.MISSION
+    assert seq.paused and step.core is CoreOrder.PAUSE and seq.state is State.MISSION
     seq.order(op.Order.RESUME, "resume ordered")
     step = seq.step(_obs(2.0))
     assert not seq.paused and step.core is CoreOrder.RESUME and seq.outcome == "running"
@@ -86,9 +86,9 @@ def test_the_core_resumes_where_it_paused_and_still_holds_at_the_goal():
     core = FlightCore(mission)
     core.phase = CorePhase.CRUISE
     goal_hold = core._hold_ned_m.copy()
-    core.hold_here()
+    core.hold_here(brake=True)
     assert core.phase is CorePhase.HOLD_HERE and core.resumable
-    assert core.resume() and core.phase is CorePhase.CRUISE
+    assert core.resume() and core.phase is CorePhase.CRUISE and not core._braking
     assert np.array_equal(core._hold_ned_m, goal_hold)  # at the goal it hovers at the goal, not where it paused
     assert not core.resume()  # nothing to resume now
     core.descend()

@@ -8,8 +8,9 @@ flight and what to answer (COMMAND_ACK, with a STATUSTEXT saying why when it is 
 ===========================================  ===========================================================
 command                                      what the companion does
 ===========================================  ===========================================================
-MAV_CMD_DO_PAUSE_CONTINUE, param1 = 0        pause: hold where the reference is, the swing-aware way (the
-                                             flight core's ``hold_here``); the mission clock runs on
+MAV_CMD_DO_PAUSE_CONTINUE, param1 = 0        pause: the reference brakes at its acceleration and jerk limits
+                                             (no step for the payload) and holds where it stops (the core's
+                                             ``hold_here(brake=True)``); the mission clock runs on
 MAV_CMD_DO_PAUSE_CONTINUE, param1 = 1        continue: fly the mission on from where it paused
 MAV_CMD_NAV_LAND                             abort: land where it is (the autopilot's land mode; the core
                                              holds its reference until the mode is confirmed)
@@ -164,7 +165,7 @@ class OperatorReactions:
             if order in (Order.PAUSE, Order.RESUME):
                 if s.state is State.MISSION and self.paused is (order is Order.RESUME):
                     self.paused = order is Order.PAUSE
-                    s._core_order = CoreOrder.HOLD_HERE if self.paused else CoreOrder.RESUME
+                    s._core_order = CoreOrder.PAUSE if self.paused else CoreOrder.RESUME
                     self.orders_done = (*self.orders_done, (obs.now_s, order))
                 continue
             if s.state not in (State.MISSION, State.HOLD):

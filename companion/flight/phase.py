@@ -45,6 +45,7 @@ class CoreOrder(StrEnum):
 
     HOLD_HERE = "hold_here"
     DESCEND = "descend"
+    PAUSE = "pause"  # the ground station's pause: brake at the reference's limits, hold where it stops
     RESUME = "resume"  # the ground station's pause ended: fly the mission on (companion.flight.operator)
 
 

@@ -333,6 +333,8 @@ class Pilot:
                 self.core.hold_here()
             elif step.core is CoreOrder.DESCEND:
                 self.core.descend()
+            elif step.core is CoreOrder.PAUSE:
+                self.core.hold_here(brake=True)
             elif step.core is CoreOrder.RESUME and not self.core.resume():
                 log.warning("the ground station's resume found nothing to resume (core phase %s)", self.core.phase)
             setpoint, cmd = self._setpoint(stream, est, wall_s)
