@@ -100,7 +100,8 @@ class MavlinkLink:
         self._reopen_timer: asyncio.TimerHandle | None = None
         self._remote: tuple[str, int] | None = None if self.url.mode in ("udpin", "serial", "tcp", "tcpin") \
             else (self.url.host, self.url.port)
-        self._locked: tuple[Any, Any] | None = None
+        self._locked: tuple[Any, Any] | None = None  # UDP: the vehicle's address (datagrams from others dropped)
+        self._stream_lock: tuple[Any, Any] | None = None  # stream: (the other end, the autopilot's system id)
         self.last_sender: tuple[Any, Any] | None = None  # UDP: (host, port); stream: (peer, system id) of the frame
         self.last_rx_wall = 0.0  # monotonic time of the last datagram accepted from the vehicle's address
         self._tlog = TlogWriter(tlog) if tlog else None
@@ -228,10 +229,11 @@ class MavlinkLink:
         docstring: nothing is dropped by sender on a stream)."""
         if self.last_sender is None:
             return
-        self._locked = self.last_sender
         if self._stream:
-            log.info("locked onto the autopilot (system %d) on %s", self._locked[1], self.transport.describe())
+            self._stream_lock = self.last_sender
+            log.info("locked onto the autopilot (system %d) on %s", self.last_sender[1], self.transport.describe())
             return
+        self._locked = self.last_sender
         if self.url.mode == "udpin":
             self._remote = self.last_sender
         log.info("locked onto the vehicle at %s:%d", *self._locked)
@@ -239,7 +241,7 @@ class MavlinkLink:
     @property
     def locked(self) -> tuple[Any, Any] | None:
         """UDP: the vehicle's address once locked on; stream: (the other end, the autopilot's system id)."""
-        return self._locked
+        return self._stream_lock if self._stream else self._locked
 
     @property
     def connected(self) -> bool:
@@ -289,16 +291,13 @@ class MavlinkLink:
             self._count("garbage", f"{framer.garbage_bytes - nbytes} bytes outside MAVLink frames on "
                         f"{self.transport.describe()}")
         for frame in frames:  # the sender's system id: byte 5 of MAVLink 2, byte 3 of MAVLink 1
-            self._accept(frame, (peer, frame[5] if frame[0] == _STX_V2 else frame[3]))
+            self._on_datagram(frame, (peer, frame[5] if frame[0] == _STX_V2 else frame[3]))
 
-    def _on_datagram(self, data: bytes, addr: tuple[str, int]) -> None:
+    def _on_datagram(self, data: bytes, addr: tuple[Any, Any]) -> None:
+        """Handle the frames of a datagram (or of one stream frame: never locked out, a stream has one other end)."""
         if self._locked is not None and addr != self._locked:
             self._count("foreign_sender", f"from {addr[0]}:{addr[1]}")
             return
-        self._accept(data, addr)
-
-    def _accept(self, data: bytes, addr: tuple[Any, Any]) -> None:
-        """Handle the frames of a datagram from the peer (or of one stream frame)."""
         self.last_sender = addr
         self.last_rx_wall = time.monotonic()
         msgs = self._split_signed(data) if self.verifier is not None else self._split_fast(data)
