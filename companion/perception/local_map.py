@@ -32,6 +32,7 @@ from companion.perception.points import ScanPoints
 
 CHI2_GATE_2DOF = 9.21  # 99 %
 GATE_M = 0.5  # Euclidean gate beyond the two radii (m)
+MAX_GATE_M = 1.0  # never further (m): an uncertain track (unseen for long) must not take a neighbour's detection
 FREE_STEP_M = 0.05  # the free-distance march's step (m)
 MAX_SIGMA_M = 0.15  # the 1σ an inflation uses at most (m): a trunk unseen for long keeps growing in its filter
 PUBLISH_STEP_M = 0.03  # a published trunk is replaced when its estimate moved this much (m, m/s)
@@ -84,6 +85,9 @@ class LocalMap:
     def update(self, dets: list[Detection], pts: ScanPoints) -> None:
         """Fold one scan's detections in (``pts``: the same scan, for what it saw free)."""
         t = pts.t_s
+        n = len(dets)
+        dets = _distinct(dets)
+        self.counts["duplicate_detections"] += n - len(dets)
         for tr in self.tracks.values():
             self._predict(tr, t)
         used = self._associate(dets)
@@ -125,7 +129,8 @@ class LocalMap:
         f = np.eye(4)
         f[0, 2] = f[1, 3] = dt
         g = np.array([[0.5 * dt * dt, 0.0], [0.0, 0.5 * dt * dt], [dt, 0.0], [0.0, dt]])
-        tr.x = f @ tr.x
+        if _significant(tr):  # a still trunk's velocity is noise: it must not walk away while unseen
+            tr.x = f @ tr.x
         tr.p = f @ tr.p @ f.T + self.q * (g @ g.T)
         tr.t_s = t
 
@@ -148,7 +153,7 @@ class LocalMap:
             m2 = (c * dz[..., 0] ** 2 - 2.0 * b * dz[..., 0] * dz[..., 1] + a * dz[..., 1] ** 2) / det
         m2 = np.where(det > 0.0, m2, np.inf)
         dist = np.hypot(dz[..., 0], dz[..., 1])
-        ok = (m2 <= CHI2_GATE_2DOF) | (dist <= GATE_M + 0.5 * (tr_r[:, None] + d_r[None, :]))
+        ok = ((m2 <= CHI2_GATE_2DOF) | (dist <= GATE_M + 0.5 * (tr_r[:, None] + d_r[None, :]))) & (dist <= MAX_GATE_M)
         ti, di = np.nonzero(ok)
         order = np.lexsort((dist[ti, di], m2[ti, di]))
         used: dict[int, int] = {}
@@ -253,9 +258,7 @@ class LocalMap:
         sig = math.sqrt(max(float(np.linalg.eigvalsh(tr.p[:2, :2])[-1]), 0.0) + tr.radius_var)
         r = min(tr.radius_m + self.inflate_k * min(sig, MAX_SIGMA_M), Obstacle.MAX_RADIUS_M)
         vn, ve = float(tr.x[2]), float(tr.x[3])
-        pv = tr.p[2:, 2:]
-        v2 = vn * vn + ve * ve
-        if v2 <= 4.0 * float(np.trace(pv)) or math.sqrt(v2) > Obstacle.MAX_SPEED_MPS:  # not significant
+        if not _significant(tr) or math.hypot(vn, ve) > Obstacle.MAX_SPEED_MPS:
             vn = ve = 0.0
         height = min(max(-tr.z_m + 1.0, MIN_HEIGHT_M), Obstacle.MAX_HEIGHT_M)
         return Obstacle(float(tr.x[0]), float(tr.x[1]), max(r, 0.01), height, self.safe_distance_m, vn, ve,
@@ -324,3 +327,19 @@ def _moved(old: Obstacle, new: Obstacle) -> bool:
             or math.hypot(new.vx_mps - old.vx_mps, new.vy_mps - old.vy_mps) >= step
             or (new.vx_mps == 0.0 and new.vy_mps == 0.0) != (old.vx_mps == 0.0 and old.vy_mps == 0.0)
             or abs(new.height_m - old.height_m) >= 0.5)
+
+
+def _significant(tr: Track) -> bool:
+    """Whether a track's velocity stands out of its uncertainty (above 2σ)."""
+    v2 = float(tr.x[2]) ** 2 + float(tr.x[3]) ** 2
+    return v2 > 4.0 * float(tr.p[2, 2] + tr.p[3, 3])
+
+
+def _distinct(dets: list[Detection]) -> list[Detection]:
+    """One detection per trunk: of two whose centres lie inside each other's circle (one arc split in two
+    segments), the one with more returns."""
+    out: list[Detection] = []
+    for d in sorted(dets, key=lambda d: -d.n_points):
+        if all(math.hypot(d.x_m - o.x_m, d.y_m - o.y_m) >= min(d.radius_m, o.radius_m) + 0.05 for o in out):
+            out.append(d)
+    return out
