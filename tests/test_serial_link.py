@@ -453,3 +453,35 @@ def test_serial_link_loss_mid_flight_is_link_lost(tmp_path, victim, realtime):
     else:  # silence, as on UDP (socat also ends 0.5 s after the vehicle's side closed: may or may not be seen)
         assert closed == (closed if pair.tool == "socat" else 0) <= 1, rep["link"]
     assert sim.wait(10) is not None and pair.proc.poll() is not None
+
+
+MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not MAVPROXY.exists(), reason="MAVProxy is not installed in this environment")
+def test_a_router_shares_the_serial_port_mavproxy(tmp_path):
+    """The usual bench wiring: the autopilot on a serial TELEM port owned by a router (MAVProxy, master on the pty at
+    921600 baud), the companion on one of its UDP outputs; real time. The forest completes."""
+    from lab.faults import free_udp_port as udp_port
+
+    comp = udp_port()
+    pair = PtyPair(tmp_path / "fc", tmp_path / "cc").start()
+    procs: list[subprocess.Popen] = []
+    try:
+        procs.append(_start_vehicle(tmp_path, tmp_path / "fc"))
+        procs.append(subprocess.Popen(
+            [sys.executable, str(MAVPROXY), "--master", f"{tmp_path / 'cc'},921600", "--out", f"udp:127.0.0.1:{comp}",
+             "--non-interactive", "--daemon", "--nowait", "--default-modules", "", "--state-basedir", str(tmp_path)],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path))
+        fly = _fly(tmp_path / "run", "--connect", f"udpin://127.0.0.1:{comp}", "--profile", "bundled",
+                   "--planner", "safe")
+        procs.append(fly)
+        _out, err = fly.communicate(timeout=300)
+        assert fly.returncode == 0, err[-2000:]
+    finally:
+        for p in reversed(procs):
+            _stop(p)
+        pair.stop()
+    rep = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert rep["outcome"] == "completed" and rep["reached_goal"] and rep["collisions"] == 0
