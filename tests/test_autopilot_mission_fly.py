@@ -125,6 +125,7 @@ def test_a_ground_station_s_mission_and_fence_are_flown_through_the_forest(tmp_p
     assert result.outcome == "completed", report.get("outcome_detail")
     am = report["autopilot_mission"]
     assert am["items"] == 6 and am["fence_items"] == 5 and am["earth_model"] == "wgs84"
+    assert am["home_shift_m"] == [0.0, 0.0, 0.0]  # the flight's frame is the home the route was placed about
     assert np.allclose(am["waypoints"], [[n, e, -alt] for n, e, alt, _ in ROUTE], atol=0.02)
     data = np.load(result.run_dir / "flight_log.npz")
     fence = Fence((FencePolygon(tuple(FENCE_SQUARE), True),), (FenceCircle(KEEP_OUT[:2], KEEP_OUT[2], False),))

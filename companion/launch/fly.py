@@ -8,6 +8,7 @@ import asyncio
 import contextlib
 import dataclasses
 import logging
+import math
 import signal
 import time
 from dataclasses import dataclass, replace
@@ -248,6 +249,7 @@ def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path
         extra["outcome_detail"] = refusal.detail
     if am_facts is not None:
         extra["autopilot_mission"] = am_facts
+        _home_shift(am_facts, runner)
     extra.update(run_options(runner, spec, run_dir, zt_holder))
     extra["wall_time_s"] = wall
     flog = runner.pilot.record.log
@@ -261,6 +263,21 @@ def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path
     if view is not None:
         extra["recording"] = view.stats()
     return write_run(flog, mission, extra, run_dir, spec.report, plots=spec.plots)
+
+
+def _home_shift(am_facts: dict[str, Any], runner: Runner) -> None:
+    """``--mission autopilot``: how far (m, the autopilot's local NED) the mission frame the flight fixed lies from
+    the home its route was placed about (``home_shift_m``; the autopilot moved home in between: the route flew
+    shifted by that much), warned about above 0.5 m."""
+    home = (am_facts.get("home") or {}).get("local_ned_m")
+    frame = runner.pilot.frame
+    if home is None or not frame.fixed:
+        return
+    shift = [float(o - h) for o, h in zip(frame.origin_ned_m, home, strict=True)]
+    am_facts["home_shift_m"] = shift
+    if math.hypot(*shift) > 0.5:
+        log.warning("the autopilot moved home %.2f m after its mission was downloaded: the route flew shifted by "
+                    "that much (report: autopilot_mission.home_shift_m)", math.hypot(*shift))
 
 
 def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any]) -> dict[str, Any]:
