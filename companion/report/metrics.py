@@ -319,8 +319,8 @@ def waypoint_metrics(log: FlightLog, mission, i_cruise: int, swing_abs: np.ndarr
 
     The passages are replayed from the log's cruise rows with the flight's own rule
     (:class:`companion.flight.legs.Legs`: pass-through within 0.6 m or past the corner, a hold waypoint by the
-    arrival tolerance and dwell); the goal's leg ends where the vehicle was first within the arrival tolerance after
-    the last waypoint. Points after one never reached have None everywhere (their legs were not flown)."""
+    flight's arrival tolerance ``goal_tol_m`` and dwell); the goal's leg ends where the vehicle was first within
+    that tolerance after the last waypoint. Points after one never reached have None everywhere (legs not flown)."""
     from companion.estimation.estimate import Estimate
     from companion.flight.legs import Legs
 
@@ -333,7 +333,7 @@ def waypoint_metrics(log: FlightLog, mission, i_cruise: int, swing_abs: np.ndarr
         if log.phase[i] != "cruise" or legs.at_goal:
             continue
         k = legs.index
-        legs.update(Estimate(float(t[i]), pos[i], zero, zero, zero, None, "none"),
+        legs.update(Estimate(float(t[i]), pos[i], zero, zero, zero, None, "none", pos_accuracy_m=log.goal_tol_m),
                     (float(ref[i, 0]), float(ref[i, 1])) if timed else None)
         if legs.reached_t_s[k] is not None and reach_i[k] is None:
             reach_i[k] = int(np.searchsorted(t, legs.reached_t_s[k]))
