@@ -259,3 +259,33 @@ def test_fly_refuses_a_taken_tcpin_port_before_anything_starts(tmp_path):
                               capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert proc.returncode == 3 and f"MAVLink port {port}" in proc.stderr and "is in use" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_tcpin_on_the_event_loop_follows_its_peers():
+    """The real-time runner's path for a listening link: the loop watches the listener, then the peer's socket, then
+    the listener again when the peer leaves (the descriptor changes under ``loop.add_reader``)."""
+    import asyncio
+
+    port = free_tcp_port()
+    got: list = []
+
+    async def until(cond, timeout_s: float = 5.0) -> bool:
+        end = time.monotonic() + timeout_s
+        while not cond() and time.monotonic() < end:
+            await asyncio.sleep(0.01)
+        return bool(cond())
+
+    async def main() -> MavlinkLink:
+        link = MavlinkLink(f"tcpin://127.0.0.1:{port}", got.append)
+        async with link:
+            for k in range(2):
+                peer = socket.create_connection(("127.0.0.1", port), timeout=2)
+                assert await until(lambda: link.connected)
+                peer.sendall(_heartbeat_frames(2))
+                assert await until(lambda k=k: len(got) == 2 * (k + 1))
+                peer.close()
+                assert await until(lambda k=k: link.rejected["link_closed"] == k + 1 and not link.connected)
+        return link
+
+    link = asyncio.run(main())
+    assert len(got) == 4 and link.rejected["link_closed"] == 2
