@@ -17,13 +17,11 @@ from dataclasses import replace
 from typing import Any
 
 from companion.core.obstacles import Obstacle
-from companion.perception.clusters import Clusterer, Detection, segments
+from companion.perception.clusters import Clusterer, Detection
 from companion.perception.local_map import LocalMap
 from companion.perception.points import PointFilter, ScanPoints
 from companion.perception.pose_history import Pose, PoseHistory
 from companion.perception.scan import ObstacleDistanceAssembler, Scan, ScanGate, ScanPart
-
-FITS_PER_SLICE = 4  # circle fits in one slice of deferred work
 
 
 class Perception:
@@ -107,7 +105,7 @@ class Perception:
 
     def work(self, deadline_s: float, clock: Callable[[], float]) -> bool:
         """Go on with a deferred scan until it is mapped (True) or ``clock()`` passes ``deadline_s`` (False: call
-        again). A slice is one stage or :data:`FITS_PER_SLICE` circle fits."""
+        again). A slice is one stage: points, clusters (every circle fit at once), map."""
         while self._work is not None:
             try:
                 next(self._work)
@@ -123,22 +121,15 @@ class Perception:
         self._work = None
 
     def _process(self, scan: Scan, pose: Pose) -> Iterator[None]:
-        """Generator: points, clusters (a few fits a slice), map; yields between slices."""
+        """Generator: points, clusters, map; yields between them (each stage timed on its own)."""
         t0 = self._now()
         pts = self.points.place(scan, pose)
-        t1 = self._took("points", t0)
+        self._took("points", t0)
         yield
-        dets: list[Detection] = []
-        fit_s = 0.0
-        for k, seg in enumerate(segments(pts)):
-            det = self.clusterer.fit_segment(pts, seg)
-            if det is not None:
-                dets.append(det)
-            if k % FITS_PER_SLICE == FITS_PER_SLICE - 1:
-                fit_s += self._now() - t1
-                yield
-                t1 = self._now()
-        self.stage_s["clusters"] = fit_s + self._now() - t1
+        t1 = self._now()
+        dets = self.clusterer.detect(pts)
+        self._took("clusters", t1)
+        yield
         t2 = self._now()
         self.map.update(dets, pts)
         self._took("map", t2)
