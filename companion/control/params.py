@@ -41,10 +41,12 @@ class SmcGains:
     lag_scale_start_s: float = 0.05
     lag_scale_end_s: float = 0.15
     lag_scale_min: float = 0.25
+    ki: float = 0.0
+    i_limit_mps2: float = 1.5
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for non-positive gains or a lag scale that does not fall into (0, 1]."""
-        _check_positive(self, allow_zero=("k_sat", "lag_scale_start_s"))
+        _check_positive(self, allow_zero=("k_sat", "lag_scale_start_s", "ki"))
         if self.lag_scale_end_s <= self.lag_scale_start_s:
             raise ValueError(f"lag_scale_end_s: must be > lag_scale_start_s ({self.lag_scale_start_s}), got "
                              f"{self.lag_scale_end_s}")

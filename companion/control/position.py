@@ -172,6 +172,9 @@ def _limit_horizontal(a: np.ndarray, a_max: float) -> np.ndarray:
     return a
 
 
+I_REF_SPEED_MPS = 0.3  # the SMC's integral action runs while the reference is slower than this (m/s)
+
+
 class SmcPositionController:
     """Sliding-mode position controller (eqs. 30–37); ``feedforward`` given = ``smc_ff``, None = ``smc``.
 
@@ -193,6 +196,9 @@ class SmcPositionController:
         self._k = tuple(float(v) for v in gains.k)
         self._ks = tuple(float(v) for v in gains.k_sat)
         self._bl = tuple(float(v) for v in gains.boundary)
+        self._ki = float(gains.ki)
+        self._i_lim = float(gains.i_limit_mps2)
+        self._integral = [0.0, 0.0]  # horizontal integral action (m/s²), with ki > 0
 
     @property
     def swing_feedforward(self) -> bool:
@@ -232,6 +238,13 @@ class SmcPositionController:
             de = float(ref_vel[i]) - float(vel[i])
             s[i] = cs[i] * e + de
             acc[i] = float(ref_acc[i]) + cs[i] * de + ks[i] * s[i] + ff[i]
+        if self._ki > 0.0 and math.hypot(float(ref_vel[0]), float(ref_vel[1])) < I_REF_SPEED_MPS:
+            # integral action against a steady force (a mean wind's drag), only while the reference hovers: along
+            # a flown path the tracking error is the plan's (and would wind up into an overshoot at its end)
+            for i in range(2):
+                e = float(ref_pos[i]) - float(pos[i])
+                self._integral[i] = min(self._i_lim, max(-self._i_lim, self._integral[i] + self._ki * e * dt_s))
+                acc[i] += self._integral[i]
         h = math.hypot(acc[0], acc[1])
         if h > self.acc_max:
             acc[0] *= self.acc_max / h
