@@ -1,6 +1,6 @@
 """``fly --mission autopilot`` against real autopilots in software (opt-in, as tests/test_real_autopilots.py: skipped
 unless ``SLUNGPILOT_PX4_BUILD`` / ``SLUNGPILOT_ARDUPILOT`` is set, docs/autopilots.md). PX4 v1.15 SITL with the SIH
-quadrotor: A pymavlink
+quadrotor: a pymavlink
 ground station on PX4's GCS link uploads a take-off, four waypoints through the Table 2 forest (one held), a landing
 and a fence (inclusion square, exclusion circle) about PX4's own home; the companion, on PX4's onboard link,
 downloads them (PX4's earth: a 6371 km sphere) and flies them in real time, with the open field's settings (PX4
@@ -183,7 +183,7 @@ class _UdpGcs(_Gcs):
 def test_arducopter_flies_the_mission_and_fence_a_ground_station_uploaded(tmp_path, monkeypatch):
     """ArduCopter SITL: item 0 of its mission is home (uploaded as such, skipped by the companion), its earth is
     ArduPilot's (6378.1 km). The ground station talks on the port ArduCopter's SERIAL0 sends to, before the
-    companion takes it. Measured 2026-12-03: completed, goal at 18.6 s, the four points placed within 4 mm."""
+    companion takes it. Measured 2026-12-03: completed, time to goal 11.5 s, the four points placed within 4 mm."""
     monkeypatch.setattr(sys.modules[__name__], "INSTANCE", AP_INSTANCE)  # _Gcs's system id: 1 + instance
     port = free_port()
     proc = sitl_external.start_arducopter(tmp_path, port, instance=AP_INSTANCE, payload=False)
