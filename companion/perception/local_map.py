@@ -126,12 +126,10 @@ class LocalMap:
         dt = t - tr.t_s
         if dt <= 0.0:
             return
-        f = np.eye(4)
-        f[0, 2] = f[1, 3] = dt
-        g = np.array([[0.5 * dt * dt, 0.0], [0.0, 0.5 * dt * dt], [dt, 0.0], [0.0, dt]])
+        f, q = _transition(dt, self.q)
         if _significant(tr):  # a still trunk's velocity is noise: it must not walk away while unseen
             tr.x = f @ tr.x
-        tr.p = f @ tr.p @ f.T + self.q * (g @ g.T)
+        tr.p = f @ tr.p @ f.T + q
         tr.t_s = t
 
     def _associate(self, dets: list[Detection]) -> dict[int, int]:
@@ -168,12 +166,13 @@ class LocalMap:
         return used
 
     def _correct(self, tr: Track, det: Detection) -> None:
-        h = np.zeros((2, 4))
-        h[0, 0] = h[1, 1] = 1.0
-        s = h @ tr.p @ h.T + det.cov_xy
-        k = tr.p @ h.T @ np.linalg.inv(s)
+        s = tr.p[:2, :2] + det.cov_xy  # H = [I 0]: the position is measured
+        a, b, c, d = float(s[0, 0]), float(s[0, 1]), float(s[1, 0]), float(s[1, 1])
+        det_s = a * d - b * c
+        s_inv = np.array([[d, -b], [-c, a]]) / det_s
+        k = tr.p[:, :2] @ s_inv
         tr.x = tr.x + k @ (np.array([det.x_m, det.y_m]) - tr.x[:2])
-        tr.p = (np.eye(4) - k @ h) @ tr.p
+        tr.p = tr.p - k @ tr.p[:2, :]
         rv = max(det.radius_sigma_m ** 2, 1e-6)
         w = tr.radius_var / (tr.radius_var + rv)
         tr.radius_m += w * (det.radius_m - tr.radius_m)
@@ -255,7 +254,7 @@ class LocalMap:
         return tuple(o.at_time(max(0.0, t_s - t0)) for o, t0 in zip(self.obstacles, self._times, strict=True))
 
     def _obstacle(self, tr: Track) -> Obstacle:
-        sig = math.sqrt(max(float(np.linalg.eigvalsh(tr.p[:2, :2])[-1]), 0.0) + tr.radius_var)
+        sig = math.sqrt(_max_eig2(tr.p) + tr.radius_var)
         r = min(tr.radius_m + self.inflate_k * min(sig, MAX_SIGMA_M), Obstacle.MAX_RADIUS_M)
         vn, ve = float(tr.x[2]), float(tr.x[3])
         if not _significant(tr) or math.hypot(vn, ve) > Obstacle.MAX_SPEED_MPS:
@@ -343,3 +342,27 @@ def _distinct(dets: list[Detection]) -> list[Detection]:
         if all(math.hypot(d.x_m - o.x_m, d.y_m - o.y_m) >= min(d.radius_m, o.radius_m) + 0.05 for o in out):
             out.append(d)
     return out
+
+
+_TRANSITIONS: dict[tuple[float, float], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _transition(dt: float, q: float) -> tuple[np.ndarray, np.ndarray]:
+    """The constant-velocity transition over ``dt`` (s) and its process noise for acceleration variance ``q``
+    ((m/s²)²); cached: every track is predicted over the same scan interval."""
+    key = (dt, q)
+    hit = _TRANSITIONS.get(key)
+    if hit is None:
+        f = np.eye(4)
+        f[0, 2] = f[1, 3] = dt
+        g = np.array([[0.5 * dt * dt, 0.0], [0.0, 0.5 * dt * dt], [dt, 0.0], [0.0, dt]])
+        if len(_TRANSITIONS) > 64:
+            _TRANSITIONS.clear()
+        hit = _TRANSITIONS[key] = (f, q * (g @ g.T))
+    return hit
+
+
+def _max_eig2(p: np.ndarray) -> float:
+    """The larger eigenvalue of ``p``'s upper-left 2×2 block (symmetric; m²), at least 0."""
+    a, b, d = float(p[0, 0]), float(p[0, 1]), float(p[1, 1])
+    return max(0.5 * (a + d) + math.sqrt(0.25 * (a - d) ** 2 + b * b), 0.0)

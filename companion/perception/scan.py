@@ -119,7 +119,8 @@ class ObstacleDistanceAssembler:
         self.parts = 0
         self.partial_scans = 0
         self._key: tuple[int, int] | None = None  # (system id, time_usec) being assembled
-        self._rays: dict[int, tuple[float, float]] = {}  # millidegree key → (angle rad, range m)
+        self._keys: set[int] = set()  # the rays held, by angle in millidegrees
+        self._parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # per part: keys, angles rad, ranges m
         self._limits = (0.0, 0.0, 0.0, 0)  # min m, max m, increment rad, frame
 
     def add(self, p: ScanPart) -> list[Scan]:
@@ -146,21 +147,24 @@ class ObstacleDistanceAssembler:
         inc = min(self._limits[2], math.radians(p.increment_deg))
         self._limits = (self._limits[0], self._limits[1], inc, self._limits[3])
         ang, rng = part_rays(p)
-        for a, r in zip(ang.tolist(), rng.tolist(), strict=True):
-            self._rays.setdefault(round(math.degrees(a) * 1000.0) % 360000, (a, r))
-        if len(self._rays) * math.degrees(inc) >= 360.0 - 1e-6 or len(self._rays) >= MAX_RAYS:
+        keys = np.round(np.degrees(ang) * 1000.0).astype(np.int64) % 360000
+        self._parts.append((keys, ang, rng))
+        self._keys.update(keys.tolist())
+        if len(self._keys) * math.degrees(inc) >= 360.0 - 1e-6 or len(self._keys) >= MAX_RAYS:
             out.append(self._flush(partial=False))
         return out
 
     def _flush(self, partial: bool) -> Scan:
         assert self._key is not None
         sysid, t_us = self._key
-        items = sorted(self._rays.values())
+        keys = np.concatenate([k for k, _, _ in self._parts])
+        ang = np.concatenate([a for _, a, _ in self._parts])
+        rng = np.concatenate([r for _, _, r in self._parts])
+        _, first = np.unique(keys, return_index=True)  # sorted by angle; a repeated angle's first reading kept
         lo, hi, inc, frame = self._limits
-        self._key, self._rays = None, {}
+        self._key, self._keys, self._parts = None, set(), []
         self.partial_scans += partial
-        return Scan(t_us * 1e-6, np.array([a for a, _ in items]), np.array([r for _, r in items]), lo, hi, inc,
-                    FRAMES[frame], "mavlink", sysid)
+        return Scan(t_us * 1e-6, ang[first], rng[first], lo, hi, inc, FRAMES[frame], "mavlink", sysid)
 
 
 def scan_problem(s: Scan) -> str | None:
