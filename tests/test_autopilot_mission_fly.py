@@ -211,3 +211,30 @@ def test_mavsdk_as_the_ground_station_uploads_what_the_companion_flies(tmp_path)
     assert (am["home"]["lat_deg"], am["home"]["lon_deg"], am["home"]["alt_amsl_m"]) == pytest.approx(DEFAULT_HOME)
     assert np.allclose(am["waypoints"], [[n, e, -alt] for n, e, alt, _ in ROUTE], atol=0.02)
     assert report["collisions"] == 0 and [w["reached_at_s"] is not None for w in report["waypoints"]] == [True] * 4
+
+
+async def _download_signed(tmp_path):
+    """The bundled vehicle with a signing key and nothing uploaded; the companion, signed with the same key."""
+    import secrets
+
+    from companion.mavlink_io.signing import load_key_file
+
+    key_file = tmp_path / "key"
+    key_file.write_text(secrets.token_hex(32) + "\n")
+    base = load_mission(shipped_missions()["forest"])
+    extra = ["--control-period-ms", "4", "--signing-key", str(key_file)]
+    async with SitlProcess(base, tmp_path / "sitl", lockstep=True, extra_args=extra) as sitl:
+        setup = FlightSetup(connect=sitl.companion_url, sock=sitl.companion_sock, lockstep=True,
+                            profile=profile_by_name("bundled"), signing_key=load_key_file(key_file))
+        spec = FlySpec(setup=setup, run_dir=tmp_path / "run", plots=False, narrate=False, autopilot_mission=True)
+        return await fly_mission(spec, base)
+
+
+def test_the_download_is_signed_like_the_flight(tmp_path):
+    """Signing on (the vehicle drops unsigned frames): the download still gets home and both lists (empty here),
+    so the refusal is the empty mission's, not a silent link."""
+    result = asyncio.run(_download_signed(tmp_path))
+    report = result.report
+    assert result.outcome == "refused" and "no items (upload a mission" in report["outcome_detail"]
+    dl = report["autopilot_mission"]["download"]
+    assert dl["mission"]["state"] == dl["fence"]["state"] == "done" and report["autopilot_mission"]["home"]
