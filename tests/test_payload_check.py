@@ -118,3 +118,15 @@ def test_lockstep_flight_in_light_turbulence_completes_the_same_twice(tmp_path):
     again = tmp_path / "again"
     _fly(_mission(tmp_path, wind=wind), again, "--planner", "shaped", "--true-payload-mass-kg", "0.3")
     assert (again / "flight_log.npz").read_bytes() == (run / "flight_log.npz").read_bytes()  # seeded: same bits
+
+
+def test_payload_that_would_drag_on_the_ground_is_refused_before_anything_starts(tmp_path):
+    """Issue 28's table: 0.25 kg on 2.5 m flown at 2 m dragged its payload into two trunks; now refused."""
+    run = tmp_path / "run"
+    r = _fly(_mission(tmp_path, "m = 0.25\nl = 2.5\n"), run)
+    assert r.returncode == 4, r.stderr
+    assert "start_ned_m: the payload would hang -0.50 m above the ground (altitude 2.00 m, cable 2.50 m); fly at " \
+        "least 2.80 m high" in r.stderr
+    rep = json.loads((run / "report.json").read_text())
+    assert rep["outcome"] == "refused" and "payload would hang" in rep["outcome_detail"]
+    assert not (run / "sitl.log").exists()  # no vehicle was started

@@ -19,7 +19,7 @@ from typing import Any
 from companion.config import shipped_config
 from companion.control.params import ControllerConfig, load_controller_config
 from companion.core.mission import Mission
-from companion.core.payload_check import thrust_margin
+from companion.core.payload_check import check_payload_clears_ground, thrust_margin
 from companion.errors import ConfigError
 from companion.flight.lockstep import LockstepRunner
 from companion.flight.pilot import Pilot
@@ -78,9 +78,9 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
     spec.setup.validate()
     run_dir = spec.run_dir or new_run_dir(mission)
     run_dir.mkdir(parents=True, exist_ok=True)
-    too_heavy = _thrust_margin_refusal(spec, mission, run_dir)  # before anything starts or takes off
-    if too_heavy is not None:
-        return too_heavy
+    unfit = _payload_refusal(spec, mission, run_dir)  # before anything starts or takes off
+    if unfit is not None:
+        return unfit
     setup = replace(spec.setup, tlog_path=run_dir / "flight.tlog", run_dir=run_dir)
     wall0 = time.monotonic()
     zt_holder: list[Any] = []
@@ -162,18 +162,25 @@ async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path
     return replace(setup, connect=sitl.companion_url, sock=sitl.companion_sock)
 
 
-def _thrust_margin_refusal(spec: FlySpec, mission: Mission, run_dir: Path) -> FlyResult | None:
+def _payload_refusal(spec: FlySpec, mission: Mission, run_dir: Path) -> FlyResult | None:
     """Outcome ``refused`` (the run folder written, nothing started) when the declared payload leaves the vehicle
-    too little thrust margin (:mod:`companion.core.payload_check`); None when it may fly."""
+    too little thrust margin, or would hang too close to the ground on the route
+    (:mod:`companion.core.payload_check`); None when it may fly."""
     from companion.report.metrics import FlightLog
 
     margin = thrust_margin(mission.companion_params())
-    if margin.ok:
+    detail = None if margin.ok else margin.detail()
+    if detail is None:
+        try:
+            check_payload_clears_ground(mission)
+        except ConfigError as exc:
+            detail = f"refused before take-off: {exc}"
+    if detail is None:
         return None
-    log.error("%s", margin.detail())
+    log.error("%s", detail)
     flog = FlightLog(planner=mission.planner, controller=mission.controller, mission=mission.name,
                      obstacles=mission.obstacles)
-    extra = {"outcome": "refused", "outcome_detail": margin.detail(), "final_phase": "not_started",
+    extra = {"outcome": "refused", "outcome_detail": detail, "final_phase": "not_started",
              "thrust_margin": margin.as_dict()}
     return FlyResult("refused", write_run(flog, mission, extra, run_dir, spec.report, plots=False), run_dir)
 

@@ -9,7 +9,7 @@ import pytest
 
 from companion.config import shipped_config
 from companion.core.mission import PayloadConfig, Waypoint, load_mission
-from companion.core.payload_fit import check_payload_clears_ground
+from companion.core.payload_check import check_payload_clears_ground
 from companion.errors import ConfigError
 
 
