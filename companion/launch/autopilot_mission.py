@@ -2,9 +2,9 @@
 flight is built.
 
 The flight sequence is not touched: before the pilot exists, :func:`fetch_autopilot_mission` opens the flight's
-own link (the same URL, socket and signing key; the bundled vehicle's lockstep loop answers while it waits for its
-first step), waits for the autopilot's HEARTBEAT, asks for HOME_POSITION (and GPS_GLOBAL_ORIGIN, for the report),
-downloads MAV_MISSION_TYPE_MISSION and then MAV_MISSION_TYPE_FENCE with the pure
+own link (the same URL, socket and signing key, over UDP, serial or TCP; the bundled vehicle's lockstep loop answers
+while it waits for its first step), waits for the autopilot's HEARTBEAT, asks for HOME_POSITION (and
+GPS_GLOBAL_ORIGIN, for the report), downloads MAV_MISSION_TYPE_MISSION and then MAV_MISSION_TYPE_FENCE with the pure
 :class:`~companion.mavlink_io.mission_client.MissionDownload`, closes the link and converts the items with
 :func:`companion.core.autopilot_mission.mission_from_items`. The pilot then flies the resulting mission with the
 usual runner. Anything not understood is a :class:`Refusal` before take-off (the run folder and its report are
@@ -122,8 +122,8 @@ def _find_vehicle(s: _Session, timeout_s: float) -> None:
     end = time.monotonic() + timeout_s
     while not s.got.sysid:
         if time.monotonic() >= end:
-            raise Refusal("no_vehicle", f"no autopilot HEARTBEAT within {timeout_s:g} s on {s.link.url.mode}://"
-                                        f"{s.link.url.host}:{s.link.url.port}: cannot download its mission")
+            raise Refusal("no_vehicle", f"no autopilot HEARTBEAT within {timeout_s:g} s on {s.link.url}: cannot "
+                                        "download its mission")
         s.wait(end)
 
 
