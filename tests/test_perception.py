@@ -144,6 +144,12 @@ def test_a_moving_trunk_gets_its_velocity_and_a_still_one_none():
     assert moving.y_m == pytest.approx(-2.0 + 0.5 * 3.9, abs=0.1)
     assert (still.vx_mps, still.vy_mps) == (0.0, 0.0)
     assert len(p.map.tracks) == 2  # one track each: association followed the moving trunk
+    # what the planner reads: moving trunks advanced to its time in 50 ms steps (a new set 20 times a second)
+    t = 1.0 + 39 * DT
+    a, b, c = p.obstacles_at(t + 0.051), p.obstacles_at(t + 0.09), p.obstacles_at(t + 0.551)
+    assert a is b and c is not a
+    ya, yc = (max(o, key=lambda o: o.x_m).y_m for o in (a, c))
+    assert yc - ya == pytest.approx(0.5 * 0.5, abs=0.05)
 
 
 def test_the_pose_at_the_scans_time_places_a_fast_vehicles_scan():

@@ -35,6 +35,7 @@ GATE_M = 0.5  # Euclidean gate beyond the two radii (m)
 MAX_GATE_M = 1.0  # never further (m): an uncertain track (unseen for long) must not take a neighbour's detection
 FREE_STEP_M = 0.05  # the free-distance march's step (m)
 MAX_SIGMA_M = 0.15  # the 1σ an inflation uses at most (m): a trunk unseen for long keeps growing in its filter
+ADVANCE_STEP_S = 0.05  # moving trunks are advanced in steps of this much vehicle time (s)
 PUBLISH_STEP_M = 0.03  # a published trunk is replaced when its estimate moved this much (m, m/s)
 VIEW_BAND_M = 0.5  # a ray this close (m, vertically) to where a trunk was seen would have seen it again
 MIN_HEIGHT_M = 1.0
@@ -77,6 +78,7 @@ class LocalMap:
         self._published: dict[int, tuple[Obstacle, float]] = {}  # track id → (obstacle, time published, s)
         self._times: tuple[float, ...] = ()  # per obstacle: when it was published (s)
         self._moving = False
+        self._advanced: tuple[float, tuple[Obstacle, ...] | None, tuple[Obstacle, ...]] = (math.nan, None, ())
         self.version = 0
         self.last: ScanPoints | None = None
         self._next_id = 1
@@ -248,10 +250,15 @@ class LocalMap:
 
     def obstacles_at(self, t_s: float) -> tuple[Obstacle, ...]:
         """:attr:`obstacles` with the moving ones advanced from the time each was published to ``t_s`` (s, vehicle
-        time); the same tuple while none moves."""
+        time) rounded down to :data:`ADVANCE_STEP_S` (the planner re-reads a changed set: per tick was costly); the
+        same tuple while none moves."""
         if not self._moving:
             return self.obstacles
-        return tuple(o.at_time(max(0.0, t_s - t0)) for o, t0 in zip(self.obstacles, self._times, strict=True))
+        tq = math.floor(t_s / ADVANCE_STEP_S) * ADVANCE_STEP_S  # a new set at most 20 times a second, not per tick
+        if self._advanced[0] != tq or self._advanced[1] is not self.obstacles:
+            moved = tuple(o.at_time(max(0.0, tq - t0)) for o, t0 in zip(self.obstacles, self._times, strict=True))
+            self._advanced = (tq, self.obstacles, moved)
+        return self._advanced[2]
 
     def _obstacle(self, tr: Track) -> Obstacle:
         sig = math.sqrt(_max_eig2(tr.p) + tr.radius_var)
