@@ -58,12 +58,14 @@ from companion.flight.legs import Legs, capped, leg_plan, legs_done, planned_swi
 from companion.flight.phase import CorePhase
 from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator, make_planner
 from companion.planning.fence_guard import fence_obstacles
+from companion.planning.stop_cap import LATENCY_S, SeenFree, stop_cap_mps
 
 log = logging.getLogger(__name__)
 
 __all__ = ["ARRIVE_DWELL_S", "LIFT_MARGIN_M", "PHASES", "Command", "FlightCore", "climb_altitude_ned_m"]
 
 PHASES = tuple(CorePhase)
+SEEN_SAFE_M = 0.1  # the trunks' safe distance in the seen-free speed cap's margin (the perception map's, m)
 DESCENT_MPS = 0.5  # the companion's own landing descent (when the autopilot's land mode is not confirmed)
 SWING_READY_FADE = 0.9  # the swing estimate carries this much feed-forward: trusted enough to start the cruise
 #: where a time-parameterised planner gives the reference
@@ -124,6 +126,15 @@ class FlightCore:
         #: a multi-leg mission's waypoints (None without: straight to the goal), the fence's keep-out discs
         self.legs = Legs(mission, self.cfg.planner.v_max_mps) if mission.waypoints else None
         self._fence_obs = fence_obstacles(mission.fence)
+        #: what the last mapped range scan saw free along the direction of travel (the pilot sets it on arrival;
+        #: None without perception: no speed cap), and the planner's swing-bounded deceleration for the cap (m/s²)
+        self.seen_free: SeenFree | None = None
+        pl = self.cfg.planner
+        self._a_stop = pl.shaped_a_max_mps2 if self._timed else pl.a_goal_mps2
+        # what passes before a lower cap takes effect: a scan, a re-plan, and the reference's own lag behind the
+        # plan (shaped: the shaper's delay, half its boxes' widths; a velocity planner's reference lags its desired
+        # velocity: the safe planner's own goal braking looks goal_lookahead_s ahead for it)
+        self._cap_latency_s = LATENCY_S + (0.5 * sum(pl.shaper_tau_s) if self._timed else pl.goal_lookahead_s)
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -357,7 +368,7 @@ class FlightCore:
                 t_s=est.t_s, pos_m=np.asarray(pos[:2], dtype=np.float64), vel_mps=np.asarray(vel[:2], dtype=np.float64),
                 ref_pos_m=np.array(ref.p[:2]), ref_vel_mps=np.array(ref.v[:2]), goal_m=goal, r_max_m=r_max,
                 swing=swing, cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
-                **legs_in,
+                v_cap_mps=self._v_cap(est, r_max), **legs_in,
             )
             out = self.planner.plan(inp, obs)
             vdx, vdy = float(out.v_des_mps[0]), float(out.v_des_mps[1])
@@ -390,7 +401,7 @@ class FlightCore:
             vel_mps=np.asarray(est.vel_ned_mps[:2], dtype=np.float64), ref_pos_m=np.array(ref.p[:2]),
             ref_vel_mps=np.array(ref.v[:2]), goal_m=goal, r_max_m=r_max, swing=swing,
             cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
-            swing_sigma_rad=swing_sigma_rad(est), **legs_in,
+            swing_sigma_rad=swing_sigma_rad(est), v_cap_mps=self._v_cap(est, r_max), **legs_in,
         )
         out = self.planner.plan(inp, obs)
         if out.no_route and not self.no_route:
@@ -409,6 +420,27 @@ class FlightCore:
                 ref.step_vertical(self._vertical_speed(z_target), dt)
         ref.set_horizontal(r.pos_m, r.vel_mps, r.acc_mps2)
         return out
+
+    def _v_cap(self, est: Estimate, r_max: float) -> float:
+        """The speed cap (m/s) inside the space seen free (:mod:`companion.planning.stop_cap`; inf without it); the
+        margin is the envelope radius ``r_max`` (m) + the airframe + the trunks' safe distance."""
+        if self.seen_free is None:
+            return math.inf
+        pos, vel = est.pos_ned_m, est.vel_ned_mps
+        return stop_cap_mps(self.seen_free, float(pos[0]), float(pos[1]), math.hypot(float(vel[0]), float(vel[1])),
+                            r_max + self._airframe_r + SEEN_SAFE_M, self._a_stop, self._cap_latency_s)
+
+    def travel_headings_rad(self) -> tuple[float, ...]:
+        """The direction of travel (rad from north) for the seen-free distance the pilot measures on each scan: the
+        reference's velocity; while slower than 0.3 m/s (no direction yet, or stopped by the cap) the directions
+        towards the goal and 30° and 60° either side, of which the pilot takes the freest."""
+        ref = self.ref
+        if ref is not None and math.hypot(ref.v[0], ref.v[1]) > 0.3:
+            return (math.atan2(ref.v[1], ref.v[0]),)
+        goal = self.legs.current.pos_ned_m if self.legs is not None else self._goal_xy
+        p = ref.p if ref is not None else self.mission.start_ned_m
+        h = math.atan2(float(goal[1]) - float(p[1]), float(goal[0]) - float(p[0]))
+        return tuple(h + math.radians(d) for d in (0.0, -30.0, 30.0, -60.0, 60.0))
 
     def _acc_for_controller(self, out: PlanOutput, est: Estimate) -> list[float] | None:
         """The controller's reference acceleration with a timed plan (:func:`planned_swing_acc`), or None."""

@@ -46,6 +46,7 @@ from companion.flight.setup import FlightSetup
 from companion.mavlink_io.telemetry import Attitude, LocalPositionNed, ObstacleDistance, Rejected, TelemetryEvent
 from companion.perception.pipeline import Perception
 from companion.perception.scan import Scan, ScanPart
+from companion.planning.stop_cap import SeenFree
 
 log = logging.getLogger(__name__)
 
@@ -113,6 +114,7 @@ class Pilot:
         self.obstacles = ObstacleView(mission.obstacles)
         #: the map of what the vehicle's own range sensors saw (None until it is on: see ``FlightSetup.perception``)
         self.perception: Perception | None = None
+        self._seen_pts: object = None  # the scan the core's seen-free cap was last measured on
         self.perception_errors = 0
         if setup.perception:
             self._start_perception()
@@ -221,6 +223,7 @@ class Pilot:
         if cls is ObstacleDistance:
             p.on_part(ScanPart(ev.time_usec, ev.distances_cm, ev.min_distance_cm, ev.max_distance_cm,
                                ev.increment_deg, ev.angle_offset_deg, ev.frame, src))
+            self._seen_free(p)
         elif src != self.state.vehicle_sysid:
             return
         elif cls is LocalPositionNed:
@@ -244,9 +247,21 @@ class Pilot:
         p.vehicle_sysid = self.state.vehicle_sysid
         try:
             p.on_scan(scan) if vehicle_clock else p.on_foreign_scan(scan)
+            self._seen_free(p)
         except Exception as exc:  # as in on_telemetry: counted, never raised into the input
             self.perception_errors += 1
             log.error("perception failed on a %s scan (%d times): %r", scan.source, self.perception_errors, exc)
+
+    def _seen_free(self, p: Perception) -> None:
+        """On a newly mapped scan: how far it saw free from the sensor along the direction of travel, for the core's
+        speed cap (:mod:`companion.planning.stop_cap`); computed here, on arrival, never in the tick."""
+        pts = p.map.last
+        if pts is None or pts is self._seen_pts:
+            return
+        self._seen_pts = pts
+        origin = (float(pts.origin_m[0]), float(pts.origin_m[1]))
+        d, heading = max((p.free_distance_m(origin, h), h) for h in self.core.travel_headings_rad())
+        self.core.seen_free = SeenFree(origin[0], origin[1], heading, d, pts.t_s)
 
     def on_unread_frame(self, src_system: int, src_component: int, seq: int) -> None:
         """A message nothing reads: still a frame of the vehicle's stream (its sequence numbers count for loss)."""

@@ -15,6 +15,7 @@ payload's nominal swing along it; the flight core then flies that reference inst
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -39,6 +40,9 @@ class PlanInput:
     instead of to rest); ``via_m`` the pass-through points (2,) before the goal, for a time-parameterised planner
     that plans through them as one path; ``leg_caps_mps`` the speed limit (m/s, inf: none) of each leg of that
     path (len(via_m) + 1; empty: none).
+
+    ``v_cap_mps``: the speed (m/s) the flight may keep inside the space its range sensor has seen free
+    (:mod:`companion.planning.stop_cap`; inf without perception): the planners fly no faster.
     """
 
     t_s: float
@@ -57,6 +61,7 @@ class PlanInput:
     goal_pass_mps: float = 0.0
     via_m: tuple[np.ndarray, ...] = ()
     leg_caps_mps: tuple[float, ...] = ()
+    v_cap_mps: float = math.inf
 
 
 @dataclass(frozen=True, slots=True)

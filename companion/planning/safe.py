@@ -195,8 +195,9 @@ class SafePlanner:
                     vx += k * nx
                     vy += k * ny
         vn = math.hypot(vx, vy)
-        if vn > p.v_max_mps:
-            vx, vy = vx * (p.v_max_mps / vn), vy * (p.v_max_mps / vn)
+        v_lim = p.v_max_mps if inp.v_cap_mps >= p.v_max_mps else inp.v_cap_mps  # the seen-free space's cap
+        if vn > v_lim:
+            vx, vy = vx * (v_lim / vn), vy * (v_lim / vn)
             vn = math.hypot(vx, vy)
 
         # 5. local-minimum detector

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -59,6 +60,8 @@ LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps 
 
 # an optional replan's motion may exceed a_max by the profile's discretisation (a few per cent), not by braking
 OPTIONAL_A_FACTOR = 1.06
+CAP_SLACK_MPS = 0.1  # a plan this much faster than the seen-free cap (PlanInput.v_cap_mps) is re-timed under it
+CAP_STOP_MPS = 0.3  # a cap below this stops a plan faster than it (swing-bounded brake); below 0.05 m/s, any plan
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
 
@@ -237,6 +240,12 @@ class ShapedPlanner:
         ring_now = self.envelope_m(inp) + self.err_peak_m
         valid = cur_ok and self.plan_reaches_goal
         why = self._changed(t, obstacles, pred, ring_now) if valid else "invalid"
+        cap, sp0 = inp.v_cap_mps, math.hypot(float(v0[0]), float(v0[1]))  # the cap inside the space seen free
+        if cap < CAP_STOP_MPS and (sp0 > CAP_STOP_MPS or cap < 0.05):  # nothing seen free to go on in: stop
+            self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
+            return
+        why = "cap" if why is None and sp0 > cap + CAP_SLACK_MPS else why  # too fast for it: re-timed, not optional
+        p = p if cap >= p.shaped_v_max_mps else replace(p, shaped_v_max_mps=cap)
         if why is None:
             self.last = {"kept": True, "reason": "valid, nothing changed"}
             return
@@ -263,7 +272,7 @@ class ShapedPlanner:
             return
         self.no_route_since_s = None
 
-        optional = cur_ok and self.plan_reaches_goal  # the current plan is fine; a new one must be better
+        optional = cur_ok and self.plan_reaches_goal and why != "cap"  # a fine plan: a new one must be better
         cc, rr, hh = c, ring, contact
         chosen = None
         tried = 0
