@@ -1,0 +1,153 @@
+"""Issue 27 against ArduCopter SITL (opt-in like tests/test_real_autopilots.py: skipped, saying why, where
+``SLUNGPILOT_ARDUPILOT`` does not point at a build): the companion, an onboard controller now, still hears
+ArduCopter's STATUSTEXT; ``ARMING_CHECK 0`` (pre-arm bit present, not enabled) no longer ends ``not_ready``; and a
+signed flight reads the slung payload's unsigned stream only with ``--accept-unsigned 2``, saying so.
+
+Real time, a minute or two each; one SITL at a time (its payload dials a fixed TCP port).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink import mavutil
+
+from lab import sitl_external
+from lab.faults import free_udp_port
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.slow
+ARDUCOPTER, WHY = sitl_external.find_arducopter()
+needs_arducopter = pytest.mark.skipif(ARDUCOPTER is None, reason=WHY)
+KEY = bytes(range(1, 33))
+
+
+def _prepare(port: int, *, params: dict[str, float] | None = None, signing_key: bytes | None = None) -> None:
+    """Before the companion: on the port ArduCopter sends to, set ``params`` and/or give it the signing key
+    (SETUP_SIGNING), then let go of the port."""
+    conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255, source_component=190)
+    try:
+        assert conn.wait_heartbeat(timeout=60) is not None
+        for name, value in (params or {}).items():
+            for _ in range(10):
+                conn.mav.param_set_send(1, 1, name.encode(), value, 9)
+                m = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=1.0)
+                if m is not None and m.param_id == name and m.param_value == value:
+                    break
+            else:
+                raise AssertionError(f"ArduCopter did not take {name}={value}")
+        if signing_key is not None:
+            ts = int((time.time() - 1_420_070_400) * 100_000)
+            for _ in range(3):
+                conn.mav.setup_signing_send(1, 1, list(signing_key), ts)
+                time.sleep(0.3)
+    finally:
+        conn.close()
+
+
+def _fly(run: Path, port: int, *extra: str) -> tuple[int, dict, str]:
+    out = subprocess.run([sys.executable, "-m", "companion.cli", "-q", "fly", "--connect",
+                          f"udpin://127.0.0.1:{port}", "--mission", "forest_arducopter_sitl", "--ready-timeout", "120",
+                          "--no-zenoh", "--no-recording", "--no-plots", "--run-dir", str(run), *extra],
+                         capture_output=True, text=True, timeout=420, cwd=ROOT)
+    rep = json.loads((run / "report.json").read_text())
+    print(json.dumps({k: rep.get(k) for k in ("outcome", "outcome_detail", "time_to_goal_s", "max_swing_rad",
+                                              "collisions", "vehicle_statustext")}, indent=1))
+    print(json.dumps({"signing": rep["link"].get("signing"), "swing_inputs": (rep.get("swing_estimator") or {}).get(
+        "inputs"), "senders": _senders(run / "flight.tlog")}, indent=1))
+    return out.returncode, rep, out.stderr
+
+
+def _senders(tlog: Path) -> dict[str, int]:
+    """Frames in the flight's .tlog by "system/component signed|unsigned" (what the link received and sent)."""
+    from companion.mavlink_io.tlog import tlog_frames
+
+    out: dict[str, int] = {}
+    for _, f in tlog_frames(tlog) if tlog.exists() else ():
+        if f[0] == 0xFD:
+            k = f"{f[5]}/{f[6]} {'signed' if f[2] & 1 else 'unsigned'}"
+            out[k] = out.get(k, 0) + 1
+    return out
+
+
+@pytest.fixture
+def arducopter(tmp_path):
+    port = free_udp_port()
+    proc = sitl_external.start_arducopter(tmp_path, port, payload=True)
+    yield port
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(20)
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        os.killpg(proc.pid, signal.SIGKILL)
+
+
+@needs_arducopter
+def test_arducopter_with_arming_check_0_flies_and_talks_to_an_onboard_controller(arducopter, tmp_path):
+    _prepare(arducopter, params={"ARMING_CHECK": 0.0})
+    code, rep, err = _fly(tmp_path / "run", arducopter)
+    assert code == 0 and rep["outcome"] == "completed", (rep["outcome"], rep.get("outcome_detail"), err[-2000:])
+    assert rep["collisions"] == 0
+    # ArduCopter sends its STATUSTEXT to every active channel: the onboard controller heard it ("Arming motors")
+    assert any("Arming motors" in t for t in rep["vehicle_statustext"]), rep["vehicle_statustext"]
+
+
+@pytest.fixture
+def arducopter_payload_on_serial0(tmp_path):
+    """ArduCopter SITL with its slung payload dialling SERIAL0 (TCP 5763) and the companion on SERIAL1. With signing
+    on, ArduPilot accepts unsigned frames on channel 0 only (GCS_Signing.cpp ``accept_unsigned_callback``: "assumed
+    to be secure channel"): on SERIAL2, where the payload dials by default, its unsigned stream is dropped by
+    ArduPilot itself (measured: no frame of system 2 reached the companion), on SERIAL0 it is forwarded, unsigned."""
+    root = ARDUCOPTER
+    run = tmp_path / "arducopter-swapped"
+    run.mkdir()
+    parm = run / "simulation.parm"
+    parm.write_text("SIM_SLUP_ENABLE 1\nSIM_SLUP_WEIGHT 0.25\nSIM_SLUP_LINELEN 1\nSIM_SLUP_SYSID 2\nSIM_SLUP_DRAG 1\n")
+    port = free_udp_port()
+    proc = subprocess.Popen(
+        [str(root / "build/sitl/bin/arducopter"), "--model", "quad", "-I", "0", "--wipe", "--home",
+         sitl_external.ARDUCOPTER_HOME, "--defaults", f"{root / 'Tools/autotest/default_params/copter.parm'},{parm}",
+         "--sysid", "1", "--serial0", "tcp:5763", "--serial1", f"udpclient:127.0.0.1:{port}", "--serial2", "tcp:5765"],
+        cwd=run, stdout=(run / "arducopter.log").open("w"), stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+        start_new_session=True)
+    yield port
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(20)
+    except (ProcessLookupError, subprocess.TimeoutExpired):
+        os.killpg(proc.pid, signal.SIGKILL)
+
+
+@needs_arducopter
+def test_arducopter_signed_reads_its_unsigned_payload_only_when_told(arducopter_payload_on_serial0, tmp_path):
+    port = arducopter_payload_on_serial0
+    key = tmp_path / "key.hex"
+    key.write_text(KEY.hex() + "\n")
+    _prepare(port, signing_key=KEY)
+    code, rep, err = _fly(tmp_path / "run", port, "--signing-key", str(key), "--accept-unsigned", "2")
+    assert code == 0 and rep["outcome"] == "completed", (rep["outcome"], rep.get("outcome_detail"), err[-2000:])
+    sig = rep["link"]["signing"]
+    assert sig["accept_unsigned_systems"] == [2] and sig["accepted_unsigned"].get("2", 0) > 100
+    assert rep["swing_estimator"]["inputs"].get("payload_fix", 0) > 50  # the payload's fixes fed the estimator
+    assert not any(s.startswith("1/") for s in sig["dropped_by_sender"])  # ArduCopter's own frames all signed
+
+
+@needs_arducopter
+def test_arducopter_signed_without_accept_unsigned_counts_the_payload_dropped(arducopter_payload_on_serial0, tmp_path):
+    """The issue's flight: signed, the payload's unsigned stream dropped; now counted by sender in the report."""
+    port = arducopter_payload_on_serial0
+    key = tmp_path / "key.hex"
+    key.write_text(KEY.hex() + "\n")
+    _prepare(port, signing_key=KEY)
+    code, rep, err = _fly(tmp_path / "run", port, "--signing-key", str(key))
+    assert code == 0 and rep["outcome"] == "completed", (rep["outcome"], rep.get("outcome_detail"), err[-2000:])
+    sig = rep["link"]["signing"]
+    assert sig["accepted_unsigned"] == {} and sig["dropped_by_sender"]["2/35"]["unsigned"] > 100
+    assert rep["swing_estimator"]["inputs"].get("payload_fix", 0) == 0
