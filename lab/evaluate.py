@@ -231,7 +231,7 @@ def _memory_line(m: dict[str, Any]) -> str:
 def summary_markdown(s: dict[str, Any], png: Path | None = None, cmp_png: Path | None = None) -> str:
     """The human-readable summary (Markdown)."""
     sp = s["spec"]
-    var = ("wind U(0,2), payload U(0.1,0.5) kg, cable U(0.5,1.5) m" if sp["vary"] else
+    var = ("wind U(0,1.3), payload U(0.1,0.5) kg, cable U(0.5,1.5) m" if sp["vary"] else
            f"wind scale {sp['wind_scale']:g}, payload {sp['payload_kg']:g} kg, cable {sp['cable_m']:g} m")
     scenarios = s.get("scenarios", ["static"])
     lines = [

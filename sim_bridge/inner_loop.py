@@ -266,3 +266,37 @@ def mix(
     out = np.empty(4)
     _mix(float(thrust_n), np.asarray(torque, dtype=np.float64), mixer_inverse(rotor), float(f_max), air_mode, out)
     return out
+
+
+#: the period of eq. 49's signal (s): the least common multiple of its five sines' periods (4/3, 1, 10/3, 20/3, 2/3)
+EQ49_PERIOD_S = 20.0
+
+
+@lru_cache(maxsize=1)
+def eq49_peak() -> float:
+    """The largest |w(t)| of eq. 49 at scale 1 over its whole period (N·m on each torque channel): 0.592."""
+    from companion.core.wind import eq49_signal
+
+    return max(abs(eq49_signal(k * 1e-3)) for k in range(int(EQ49_PERIOD_S * 1000)))
+
+
+def yaw_authority_at_hover_nm(rotor: RotorConfig, params: VehicleParams) -> float:
+    """The largest yaw torque (N·m) the rotors give while their thrust still only holds the hover: two rotors
+    at twice their hover share, two at zero, i.e. (c_M/c_T)·(M + m)·g."""
+    return abs(float(mixer_matrix(rotor)[3, 0])) * params.hover_thrust_n
+
+
+def eq49_torque_problem(scale: float, rotor: RotorConfig, params: VehicleParams, margin: float = 0.9) -> str | None:
+    """Why the airframe cannot fly eq. 49 at ``scale`` (None when it can): its yaw channel's peak must stay within
+    ``margin`` of the yaw torque the rotors give at hover. Beyond it the mixer can only find the yaw torque by
+    raising the collective (air mode), and the vehicle spins up and climbs away (measured: scale 1.5 diverged on
+    take-off, 1.3 flew). Eq. 49 puts the same w(t) on every channel; roll and pitch have ~2.7x the authority."""
+    peak = scale * eq49_peak()
+    authority = yaw_authority_at_hover_nm(rotor, params)
+    if peak <= margin * authority:
+        return None
+    return (f"[wind] model \"paper\" scale {scale:g}: eq. 49 puts a yaw torque of up to {peak:.2f} N·m on the "
+            f"airframe, "
+            f"more than {margin:g} of the {authority:.2f} N·m its rotors give at hover: no attitude loop can hold it "
+            f"(it spins up and climbs away). The largest scale this airframe flies is "
+            f"{margin * authority / eq49_peak():.2f}; for stronger wind use model = \"turbulence\" (drag, no torques)")

@@ -26,6 +26,7 @@ from companion.errors import ModelError
 from companion.mavlink_io.signing import SigningVerifier
 from sim_bridge import commands, mission_server, telemetry
 from sim_bridge.imu import ImuModel, ImuNoise
+from sim_bridge.inner_loop import eq49_torque_problem
 from sim_bridge.link import MavUdpLink, RejectCounters
 from sim_bridge.params import build_param_table, gains_from_params
 from sim_bridge.physics import InnerLoopGains, RotorConfig, VehicleSim
@@ -98,6 +99,10 @@ class SitlConfig:
         if self.signing_key is not None and len(self.signing_key) != 32:
             raise ValueError("signing_key: must be 32 bytes")
         self.imu.validate()
+        if self.wind.model == "paper":
+            problem = eq49_torque_problem(self.wind.scale, self.rotor, self.params)
+            if problem is not None:
+                raise ValueError(problem)
 
 
 class SitlVehicle:

@@ -50,9 +50,9 @@ def test_fixed_variation_is_table1_and_vary_stays_in_ranges():
     seen_wind = []
     for seed in range(40):
         v = generate_forest(seed, ForestSpec(vary=True))
-        assert 0.1 <= v.vehicle.m <= 0.5 and 0.5 <= v.vehicle.l <= 1.5 and 0.0 <= v.wind.scale <= 2.0
+        assert 0.1 <= v.vehicle.m <= 0.5 and 0.5 <= v.vehicle.l <= 1.5 and 0.0 <= v.wind.scale <= 1.3
         seen_wind.append(v.wind.scale)
-    assert max(seen_wind) - min(seen_wind) > 1.0  # actually varied
+    assert max(seen_wind) - min(seen_wind) > 0.8  # actually varied
 
 
 def test_pair_trap_blocks_the_path_for_the_airframe():

@@ -182,3 +182,22 @@ def test_tilt_priority_keeps_thrust_direction_when_heading_is_off():
     f = sim.thrust_vector_ned_n
     assert f[1] > 0.12 * P.hover_thrust_n and abs(f[0]) < 0.05 * P.hover_thrust_n, f
     assert abs(sim.euler_rad[2]) < math.pi / 2  # and it is turning towards the commanded heading
+
+
+def test_eq49_beyond_the_airframes_yaw_authority_is_refused_with_the_numbers():
+    """Issue 28: eq. 49 x 2 puts 1.18 N·m of yaw on an airframe whose rotors give 0.88 N·m at hover; the bundled
+    vehicle diverged (spun up, climbed away 25 m). Now the vehicle refuses such a world before it starts."""
+    from companion.core.wind import WindConfig
+    from sim_bridge.inner_loop import eq49_peak, eq49_torque_problem, yaw_authority_at_hover_nm
+    from sim_bridge.vehicle import SitlConfig
+
+    rotor = RotorConfig()
+    assert eq49_peak() == pytest.approx(0.592, abs=1e-3)
+    assert yaw_authority_at_hover_nm(rotor, P) == pytest.approx(0.06 * P.hover_thrust_n)
+    assert eq49_torque_problem(1.3, rotor, P) is None  # flew (lockstep forest, 2026-12-03)
+    why = eq49_torque_problem(2.0, rotor, P)
+    assert why is not None and "1.18 N·m" in why and "0.88 N·m" in why
+    assert "largest scale this airframe flies is 1.34" in why
+    with pytest.raises(ValueError, match="no attitude loop can hold it"):
+        SitlConfig(wind=WindConfig("paper", 1.5)).validate()
+    SitlConfig(wind=WindConfig("paper", 1.0)).validate()

@@ -137,9 +137,12 @@ class SitlProcess:
                     if not line:
                         await self.proc.wait()
                         self._stderr.close()
-                        if "Address already in use" in self._stderr_path.read_text(errors="replace"):
+                        err = self._stderr_path.read_text(errors="replace")
+                        if "Address already in use" in err:
                             raise _PortTaken
-                        raise LinkError(f"the SITL vehicle exited before it was ready; see {self._stderr_path}")
+                        last = [ln for ln in err.splitlines() if "error:" in ln][-1:]  # its own reason, if it gave one
+                        why = f": {last[0].split('error:', 1)[1].strip()}" if last else ""
+                        raise LinkError(f"the SITL vehicle exited before it was ready{why}; see {self._stderr_path}")
                     text = line.decode(errors="replace").strip()
                     if text.startswith("SITL READY"):
                         self.ready_line = text
