@@ -88,3 +88,20 @@ def test_blind_flight_past_a_trunk_hidden_behind_another(tmp_path, planner):
     assert rep["min_clearance_m"] > 0.0
     mapped = rep["perception"]["tracks_final"]
     assert any(math.hypot(t["x_m"] - 6.5, t["y_m"] - 0.25) < 0.3 for t in mapped), mapped
+
+
+def test_free_along_is_the_free_distance_the_map_marches_from_the_sensor():
+    """free_along (the nearest ray's free distance) against LocalMap.free_distance_m's march from the sensor."""
+    from companion.perception.local_map import LocalMap
+    from companion.perception.points import ScanPoints
+    from companion.planning.stop_cap import free_along
+
+    rng = np.random.default_rng(1)
+    bearing = np.radians(np.arange(360.0)) - math.pi
+    free = rng.uniform(0.5, 12.0, 360)
+    pts = ScanPoints(np.zeros((0, 2)), np.zeros(0), np.zeros(0, int), np.zeros(0), bearing, free, (1.0, -2.0), 12.0,
+                     0.0, math.radians(1.0))
+    m = LocalMap()
+    m.last = pts
+    for h in rng.uniform(-math.pi, math.pi, 50):
+        assert free_along(bearing, free, h) == pytest.approx(m.free_distance_m((1.0, -2.0), h), abs=0.051)

@@ -46,7 +46,7 @@ from companion.flight.setup import FlightSetup
 from companion.mavlink_io.telemetry import Attitude, LocalPositionNed, ObstacleDistance, Rejected, TelemetryEvent
 from companion.perception.pipeline import Perception
 from companion.perception.scan import Scan, ScanPart
-from companion.planning.stop_cap import SeenFree
+from companion.planning.stop_cap import SeenFree, free_along
 
 log = logging.getLogger(__name__)
 
@@ -260,7 +260,7 @@ class Pilot:
             return
         self._seen_pts = pts
         origin = (float(pts.origin_m[0]), float(pts.origin_m[1]))
-        d, heading = max((p.free_distance_m(origin, h), h) for h in self.core.travel_headings_rad())
+        d, heading = max((free_along(pts.bearing_rad, pts.free_m, h), h) for h in self.core.travel_headings_rad())
         self.core.seen_free = SeenFree(origin[0], origin[1], heading, d, pts.t_s)
 
     def on_unread_frame(self, src_system: int, src_component: int, seq: int) -> None:

@@ -1,10 +1,11 @@
-"""The speed the flight may keep inside the space its range sensor has seen free (pure: floats only).
+"""The speed the flight may keep inside the space its range sensor has seen free (pure: numpy, floats).
 
 "Never faster than it can stop, swing envelope included, inside the space it has seen free": on each mapped scan
-the pilot measures how far the scan saw free from the sensor along the direction of travel
-(:meth:`companion.perception.local_map.LocalMap.free_distance_m`: the range limit, a trunk's surface, or the
-shadow behind one) and hands the flight core a :class:`SeenFree`. Each tick the core turns it into the planners'
-speed cap (``PlanInput.v_cap_mps``) with :func:`stop_cap_mps`, a handful of float operations:
+the pilot measures how far the scan saw free from the sensor along the direction of travel (:func:`free_along`:
+from the sensor itself that is the free distance of the ray nearest to the heading — its return, the range
+limit, or where a tilted ray met the ground; a dropout saw nothing free) and hands the flight core a
+:class:`SeenFree`. Each tick the core turns it into the planners' speed cap (``PlanInput.v_cap_mps``) with
+:func:`stop_cap_mps`, a handful of float operations:
 
     d = d_free − |p − p_scan| − margin − v · latency,    v_cap = sqrt(2 · a_stop · max(0, d))
 
@@ -18,6 +19,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+import numpy as np
 
 LATENCY_S = 0.2  # a scan period (10 Hz) plus the re-plan and the reference's reaction (s)
 
@@ -43,3 +46,12 @@ def stop_cap_mps(seen: SeenFree | None, x_m: float, y_m: float, speed_mps: float
     d = (seen.d_free_m - math.hypot(x_m - seen.x_m, y_m - seen.y_m) - margin_m
          - max(0.0, speed_mps) * latency_s)
     return math.sqrt(2.0 * a_stop_mps2 * max(0.0, d))
+
+
+def free_along(bearing_rad: np.ndarray, free_m: np.ndarray, heading_rad: float) -> float:
+    """How far (m) a scan saw free from its sensor along ``heading_rad`` (rad from north): the horizontal free
+    distance ``free_m`` (m) of the ray whose bearing (``bearing_rad``, rad from north) is nearest to the heading
+    (what :meth:`~companion.perception.local_map.LocalMap.free_distance_m` finds from the sensor's position, without
+    its march: ~10 µs instead of ~3 ms)."""
+    diff = np.abs((bearing_rad - heading_rad + math.pi) % (2.0 * math.pi) - math.pi)
+    return float(free_m[int(np.argmin(diff))])
