@@ -39,6 +39,10 @@ TRUNK_ABOVE_M = 3.0  # trunks stand this far above the flight altitude (m): a fl
 SWING_BOUND_RAD = {"calm": 0.25, "paper": 0.25, "light": 0.25, "moderate": 0.35}
 #: the turbulence cells: intensity and mean wind (m/s), as the issue's grid asks
 TURBULENCE = {"light": ("light", 3.0), "moderate": ("moderate", 6.0)}
+#: the payloads are of one density: the drag area C_d·A grows as m^(2/3) from the wind model's default for Table 1's
+#: 0.25 kg payload (a 0.1 kg payload has 0.54x its area, 0.8 kg 2.2x); one area for every mass would make the light
+#: payloads sails (0.1 kg trailing 0.2 rad in a steady 6 m/s before any gust)
+REFERENCE_PAYLOAD_KG = 0.25
 
 
 @dataclass(frozen=True)
@@ -55,10 +59,11 @@ class Cell:
         return f"m{self.mass_kg:g}|l{self.cable_m:g}|{self.wind}"
 
 
-def wind_config(name: str, seed: int = 0, altitude_m: float = 3.0) -> WindConfig:
+def wind_config(name: str, seed: int = 0, altitude_m: float = 3.0, payload_kg: float = REFERENCE_PAYLOAD_KG
+                ) -> WindConfig:
     """The wind of a grid column: ``calm``, ``paper`` (eq. 49) or a physical wind (:mod:`companion.core.turbulence`:
     a mean wind across the corridor, from the east, with Dryden turbulence of the named intensity at the flight's
-    altitude, seeded per forest)."""
+    altitude, seeded per forest, dragging a payload of ``payload_kg`` by :data:`REFERENCE_PAYLOAD_KG`'s density)."""
     if name == "calm":
         return WindConfig("none", 0.0)
     if name == "paper":
@@ -66,8 +71,9 @@ def wind_config(name: str, seed: int = 0, altitude_m: float = 3.0) -> WindConfig
     if name not in TURBULENCE:
         raise ValueError(f"wind: must be one of {', '.join(WINDS)}, got {name!r}")
     intensity, mean = TURBULENCE[name]
+    area = WindConfig().payload_drag_area_m2 * (payload_kg / REFERENCE_PAYLOAD_KG) ** (2.0 / 3.0)
     w = WindConfig("turbulence", 1.0, mean_speed_mps=mean, direction_deg=90.0, intensity=intensity,
-                   altitude_m=altitude_m, seed=seed)
+                   altitude_m=altitude_m, seed=seed, payload_drag_area_m2=area)
     w.validate()
     return w
 
@@ -84,7 +90,7 @@ def cell_mission(cell: Cell, seed: int, base: ForestSpec) -> Mission:
     m = generate_forest(seed, spec)
     vehicle = replace(m.vehicle, m=cell.mass_kg, l=cell.cable_m)
     vehicle.validate()
-    return m.with_(vehicle=vehicle, wind=wind_config(cell.wind, seed, spec.altitude_m),
+    return m.with_(vehicle=vehicle, wind=wind_config(cell.wind, seed, spec.altitude_m, cell.mass_kg),
                    name=f"{m.name}-m{cell.mass_kg:g}-l{cell.cable_m:g}-{cell.wind}")
 
 
