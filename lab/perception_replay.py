@@ -9,9 +9,9 @@ ones moved by their velocity from the vehicle's boot), within its radius plus :d
 
     python -m lab.perception_replay RUN_DIR [RUN_DIR ...]
 
-Prints per run: detections (count, centre error median/p90, radius error median), published trunks (precision:
-the share matching a true trunk; recall: of the true trunks that came within the sensor's range, the share that
-was published at some time), and the perception facts' refusals.
+Prints per run: detections (count, centre error median/p90, radius error median), published trunks as the planner
+reads them (precision: the share matching a true trunk; their centre error median; recall: of the true trunks that
+came within the sensor's range, the share that was published at some time), and the perception facts' refusals.
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ def replay(run_dir: Path) -> dict[str, Any]:
     origin = report.get("mission_frame", {}).get("origin_local_ned_m", [0.0, 0.0, 0.0])
     sysid = report.get("autopilot", {}).get("system_id") or 1
     p = Perception(sysid)
-    det_err, rad_err, pub_ok, pub_n = [], [], 0, 0
+    det_err, rad_err, pub_err, pub_ok, pub_n = [], [], [], 0, 0
     in_range: set[int] = set()
     published: set[int] = set()
     log = mavutil.mavlink_connection(str(run_dir / "flight.tlog"), dialect="common")
@@ -82,9 +82,11 @@ def replay(run_dir: Path) -> dict[str, Any]:
                 if k >= 0:
                     det_err.append(e)
                     rad_err.append(abs(d.radius_m - truth[k, 2]))
-            for o in p.obstacles:
-                k, _ = _match(o.x_m, o.y_m, truth)
+            for o in p.obstacles_at(pts.t_s):  # as the planner reads them: moving ones advanced
+                k, e = _match(o.x_m, o.y_m, truth)
                 pub_n += 1
+                if k >= 0:
+                    pub_err.append(e)
                 pub_ok += k >= 0
                 if k >= 0:
                     published.add(k)
@@ -95,6 +97,7 @@ def replay(run_dir: Path) -> dict[str, Any]:
         "centre_error_m_p90": float(np.percentile(det_err, 90)) if det_err else math.nan,
         "radius_error_m_median": float(np.median(rad_err)) if rad_err else math.nan,
         "published_precision": pub_ok / pub_n if pub_n else math.nan,
+        "published_centre_error_m_median": float(np.median(pub_err)) if pub_err else math.nan,
         "recall": len(published & in_range) / len(in_range) if in_range else math.nan,
         "trunks_in_range": len(in_range), "refused": facts["refused"], "map": facts["map"],
     }

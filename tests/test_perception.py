@@ -138,8 +138,9 @@ def test_a_moving_trunk_gets_its_velocity_and_a_still_one_none():
     for k in range(40):
         t = 1.0 + k * DT
         _scan(p, t, [(5.0, -2.0 + 0.5 * (t - 1.0), 0.3), (-4.0, 3.0, 0.25)], rng=np.random.default_rng(k))
-    moving = max(p.obstacles, key=lambda o: o.x_m)
-    still = min(p.obstacles, key=lambda o: o.x_m)
+    now = p.obstacles_at(1.0 + 39 * DT)  # what the planner reads: published ones advanced to its time
+    moving = max(now, key=lambda o: o.x_m)
+    still = min(now, key=lambda o: o.x_m)
     assert abs(moving.vy_mps - 0.5) < 0.1 and abs(moving.vx_mps) < 0.1
     assert moving.y_m == pytest.approx(-2.0 + 0.5 * 3.9, abs=0.1)
     assert (still.vx_mps, still.vy_mps) == (0.0, 0.0)

@@ -35,6 +35,8 @@ GATE_M = 0.5  # Euclidean gate beyond the two radii (m)
 MAX_GATE_M = 1.0  # never further (m): an uncertain track (unseen for long) must not take a neighbour's detection
 FREE_STEP_M = 0.05  # the free-distance march's step (m)
 MAX_SIGMA_M = 0.15  # the 1σ an inflation uses at most (m): a trunk unseen for long keeps growing in its filter
+STILL_DRIFT_M2_PER_S = 1e-4  # a still trunk's centre variance grows this much per second unseen (m²/s)
+MIN_SPEED_MPS = 0.2  # a trunk slower than this is published still (m/s)
 ADVANCE_STEP_S = 0.05  # moving trunks are advanced in steps of this much vehicle time (s)
 PUBLISH_STEP_M = 0.03  # a published trunk is replaced when its estimate moved this much (m, m/s)
 VIEW_BAND_M = 0.5  # a ray this close (m, vertically) to where a trunk was seen would have seen it again
@@ -43,8 +45,10 @@ MIN_HEIGHT_M = 1.0
 
 @dataclass
 class Track:
-    """One trunk tracked: ``x`` state (north, east, vn, ve), ``p`` its 4×4 covariance, radius and its variance,
-    hits, misses in view since the last hit, the last time seen (s) and the returns' mean NED height (m)."""
+    """One trunk tracked by two models: ``x`` constant-velocity state (north, east, vn, ve) and ``p`` its 4×4
+    covariance, ``xs``/``ps`` a still trunk's centre and covariance; radius and its variance,
+    hits, misses in view since the last hit, the last time seen (s), the returns' mean NED height (m) and the highest
+    point seen on it (m above the ground: its published height is 1 m more)."""
 
     id: int
     x: np.ndarray
@@ -54,16 +58,38 @@ class Track:
     t_s: float
     last_seen_s: float
     z_m: float
+    top_m: float = 0.0  # the highest point seen on it, above the ground (m)
+    xs: np.ndarray | None = None  # the still model: centre (m) ...
+    ps: np.ndarray | None = None  # ... and its 2×2 covariance (m²)
     hits: int = 1
     misses: int = 0
     confirmed: bool = False
+
+    def __post_init__(self) -> None:
+        if self.xs is None:
+            self.xs, self.ps = self.x[:2].copy(), self.p[:2, :2].copy()
+
+    @property
+    def moving(self) -> bool:
+        """Its speed stands out of its uncertainty (3σ) and reaches :data:`MIN_SPEED_MPS`."""
+        return _significant(self)
+
+    @property
+    def pos(self) -> np.ndarray:
+        """The centre (north, east; m): the constant-velocity model's when it moves, else the still model's."""
+        return self.x[:2] if self.moving else self.xs
+
+    @property
+    def pos_cov(self) -> np.ndarray:
+        """The centre's 2×2 covariance (m²), of the model :attr:`pos` is from."""
+        return self.p[:2, :2] if self.moving else self.ps
 
 
 class LocalMap:
     """Tracks from :class:`Detection` s; :meth:`update` per scan, :attr:`obstacles` the confirmed ones."""
 
     def __init__(self, confirm_hits: int = 3, retire_misses: int = 5, max_tracks: int = 256,
-                 accel_sigma_mps2: float = 0.5, inflate_k: float = 2.0, tentative_s: float = 2.0,
+                 accel_sigma_mps2: float = 0.1, inflate_k: float = 2.0, tentative_s: float = 2.0,
                  safe_distance_m: float = 0.1) -> None:
         self.confirm_hits = confirm_hits
         self.retire_misses = retire_misses
@@ -96,7 +122,7 @@ class LocalMap:
         seen = set(used.values())
         unseen = [tr for tid, tr in self.tracks.items() if tid not in seen]
         if unseen:
-            view = in_view_many(pts, np.array([tr.x[0] for tr in unseen]), np.array([tr.x[1] for tr in unseen]),
+            view = in_view_many(pts, np.array([tr.pos[0] for tr in unseen]), np.array([tr.pos[1] for tr in unseen]),
                                 np.array([tr.radius_m for tr in unseen]), np.array([tr.z_m for tr in unseen]))
             for tr, v in zip(unseen, view.tolist(), strict=True):
                 self._unseen(tr, pts, v)
@@ -113,7 +139,7 @@ class LocalMap:
         if len(self.tracks) < 2:
             return
         trs = list(self.tracks.values())
-        xy = np.array([tr.x[:2] for tr in trs])
+        xy = np.array([tr.pos for tr in trs])
         r = np.array([tr.radius_m for tr in trs])
         d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
         over = np.triu(d < np.minimum(r[:, None], r[None, :]) + 0.05, 1)  # a centre inside the other trunk
@@ -129,9 +155,9 @@ class LocalMap:
         if dt <= 0.0:
             return
         f, q = _transition(dt, self.q)
-        if _significant(tr):  # a still trunk's velocity is noise: it must not walk away while unseen
-            tr.x = f @ tr.x
+        tr.x = f @ tr.x
         tr.p = f @ tr.p @ f.T + q
+        tr.ps = tr.ps + np.eye(2) * (STILL_DRIFT_M2_PER_S * dt)  # the still model: it neither walks nor blurs
         tr.t_s = t
 
     def _associate(self, dets: list[Detection]) -> dict[int, int]:
@@ -139,8 +165,8 @@ class LocalMap:
         if not dets or not self.tracks:
             return {}
         trs = list(self.tracks.values())
-        tx = np.array([tr.x[:2] for tr in trs])  # (T, 2)
-        tp = np.array([tr.p[:2, :2] for tr in trs])  # (T, 2, 2)
+        tx = np.array([tr.pos for tr in trs])  # (T, 2)
+        tp = np.array([tr.pos_cov for tr in trs])  # (T, 2, 2)
         tr_r = np.array([tr.radius_m for tr in trs])
         dx = np.array([[d.x_m, d.y_m] for d in dets])  # (D, 2)
         dc = np.array([d.cov_xy for d in dets])  # (D, 2, 2)
@@ -173,13 +199,18 @@ class LocalMap:
         det_s = a * d - b * c
         s_inv = np.array([[d, -b], [-c, a]]) / det_s
         k = tr.p[:, :2] @ s_inv
-        tr.x = tr.x + k @ (np.array([det.x_m, det.y_m]) - tr.x[:2])
+        z = np.array([det.x_m, det.y_m])
+        tr.x = tr.x + k @ (z - tr.x[:2])
         tr.p = tr.p - k @ tr.p[:2, :]
+        ks = tr.ps @ np.linalg.inv(tr.ps + det.cov_xy)  # the still model
+        tr.xs = tr.xs + ks @ (z - tr.xs)
+        tr.ps = tr.ps - ks @ tr.ps
         rv = max(det.radius_sigma_m ** 2, 1e-6)
         w = tr.radius_var / (tr.radius_var + rv)
         tr.radius_m += w * (det.radius_m - tr.radius_m)
         tr.radius_var = tr.radius_var * rv / (tr.radius_var + rv)
         tr.z_m += (det.z_m - tr.z_m) / min(tr.hits + 1, 20)
+        tr.top_m = max(tr.top_m, -det.z_m)
         tr.hits += 1
         tr.misses = 0
         tr.last_seen_s = tr.t_s
@@ -195,7 +226,7 @@ class LocalMap:
         p[:2, :2] = det.cov_xy
         p[2, 2] = p[3, 3] = 1.0  # (1 m/s)² before any motion is seen
         tr = Track(self._next_id, np.array([det.x_m, det.y_m, 0.0, 0.0]), p, det.radius_m,
-                   max(det.radius_sigma_m ** 2, 1e-6), t, t, det.z_m)
+                   max(det.radius_sigma_m ** 2, 1e-6), t, t, det.z_m, -det.z_m)
         self._next_id += 1
         self.tracks[tr.id] = tr
         self.counts["born"] += 1
@@ -233,7 +264,7 @@ class LocalMap:
                 continue
             cand = self._obstacle(tr)
             old = self._published.get(tr.id)
-            if old is None or _moved(old[0], cand):
+            if old is None or _moved(old[0].at_time(t - old[1]), cand):  # a moving one compared where it is now
                 old = self._published[tr.id] = (cand, t)
                 changed = True
             out.append(old[0])
@@ -261,13 +292,13 @@ class LocalMap:
         return self._advanced[2]
 
     def _obstacle(self, tr: Track) -> Obstacle:
-        sig = math.sqrt(_max_eig2(tr.p) + tr.radius_var)
+        sig = math.sqrt(_max_eig2(tr.pos_cov) + tr.radius_var)
         r = min(tr.radius_m + self.inflate_k * min(sig, MAX_SIGMA_M), Obstacle.MAX_RADIUS_M)
         vn, ve = float(tr.x[2]), float(tr.x[3])
         if not _significant(tr) or math.hypot(vn, ve) > Obstacle.MAX_SPEED_MPS:
             vn = ve = 0.0
-        height = min(max(-tr.z_m + 1.0, MIN_HEIGHT_M), Obstacle.MAX_HEIGHT_M)
-        return Obstacle(float(tr.x[0]), float(tr.x[1]), max(r, 0.01), height, self.safe_distance_m, vn, ve,
+        height = min(max(tr.top_m + 1.0, MIN_HEIGHT_M), Obstacle.MAX_HEIGHT_M)
+        return Obstacle(float(tr.pos[0]), float(tr.pos[1]), max(r, 0.01), height, self.safe_distance_m, vn, ve,
                         "perception")
 
     # ------------------------------------------------------------------ free space
@@ -326,19 +357,21 @@ def in_view(pts: ScanPoints, x: float, y: float, radius_m: float) -> bool:
 
 
 def _moved(old: Obstacle, new: Obstacle) -> bool:
-    """Whether ``new`` differs from ``old`` by :data:`PUBLISH_STEP_M` or more (centre, radius, velocity) or in
-    height."""
+    """Whether ``new`` differs from ``old`` by :data:`PUBLISH_STEP_M` or more (centre, radius growth, velocity),
+    by twice that (radius shrinking) or by 0.5 m in height."""
     step = PUBLISH_STEP_M
-    return (math.hypot(new.x_m - old.x_m, new.y_m - old.y_m) >= step or abs(new.radius_m - old.radius_m) >= step
+    return (math.hypot(new.x_m - old.x_m, new.y_m - old.y_m) >= step
+            or not -2.0 * step < new.radius_m - old.radius_m < step  # growing counts sooner than shrinking
             or math.hypot(new.vx_mps - old.vx_mps, new.vy_mps - old.vy_mps) >= step
             or (new.vx_mps == 0.0 and new.vy_mps == 0.0) != (old.vx_mps == 0.0 and old.vy_mps == 0.0)
             or abs(new.height_m - old.height_m) >= 0.5)
 
 
 def _significant(tr: Track) -> bool:
-    """Whether a track's velocity stands out of its uncertainty (above 2σ)."""
+    """Whether a track moves: its speed stands out of its uncertainty (above 3σ) and reaches :data:`MIN_SPEED_MPS`
+    (a still trunk's estimate wanders by a few cm/s)."""
     v2 = float(tr.x[2]) ** 2 + float(tr.x[3]) ** 2
-    return v2 > 4.0 * float(tr.p[2, 2] + tr.p[3, 3])
+    return v2 > max(9.0 * float(tr.p[2, 2] + tr.p[3, 3]), MIN_SPEED_MPS ** 2)
 
 
 def _distinct(dets: list[Detection]) -> list[Detection]:
