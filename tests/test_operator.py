@@ -93,3 +93,38 @@ def test_the_core_resumes_where_it_paused_and_still_holds_at_the_goal():
     assert not core.resume()  # nothing to resume now
     core.descend()
     assert not core.resume()
+
+
+class _Wire:
+    def __init__(self) -> None:
+        self.frames: list[bytes] = []
+
+    def write(self, buf) -> None:
+        self.frames.append(bytes(buf))
+
+
+def test_statustext_chunks_as_mavlink2_and_keeps_to_its_rate():
+    from pymavlink.dialects.v20 import common as M
+
+    from companion.mavlink_io import statustext as stx
+
+    wire = _Wire()
+    out = stx.StatusTextOut(M.MAVLink(wire, srcSystem=1, srcComponent=191), burst=6, rate_hz=2.0)
+    long_text = "slungpilot hold: position or attitude older than 0.3 s (stale telemetry)"  # 73 characters
+    out.say(4, long_text, 0.0)
+    out.say(6, "x" * 100, 0.0)  # fills two chunks exactly: an empty third ends it
+    rx = M.MAVLink(None)
+    msgs = [m for f in wire.frames for m in rx.parse_buffer(f) or []]
+    assert [(m.get_srcSystem(), m.get_srcComponent()) for m in msgs] == [(1, 191)] * 5
+    assert [(m.id, m.chunk_seq) for m in msgs] == [(1, 0), (1, 1), (2, 0), (2, 1), (2, 2)]
+    assert "".join(m.text for m in msgs[:2]) == long_text and msgs[0].severity == 4 and msgs[4].text == ""
+    out.say(6, "short", 0.0)  # one token left: sent, id 0
+    out.say(6, "later", 0.0)  # none left: waits
+    assert out.sent == 6 and out.waiting == 1
+    out.pump(0.4)  # 0.8 token: still waiting
+    assert out.sent == 6
+    out.pump(0.5)  # 1.0 token
+    assert out.sent == 7 and out.waiting == 0
+    for k in range(30):  # a flood: the queue keeps the newest 20
+        out.say(6, f"t{k}", 0.5)
+    assert out.dropped == 10 and out.waiting == 20
