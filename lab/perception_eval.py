@@ -47,6 +47,7 @@ log = logging.getLogger(__name__)
 DEFAULT_PLANNERS = ("shaped", "safe")  # every planner that is not one of the paper's
 DEFAULT_DENSITY = 8.0  # trunks per 100 m² (the issue's target density)
 ARMS = ("blind", "mapped")
+FRESH_S = 1.0  # a map trunk seen within this (s) of the map's last scan is "fresh"
 CLOCK_T0_S = 2.0  # vehicle time (s) of the mission clock's zero in a lockstep flight (measured: report t0)
 
 
@@ -102,8 +103,14 @@ def score_blind(run_dir: Path, world: World) -> dict[str, Any]:
     moving = [o for o in world.trunks if o.vx_mps != 0.0 or o.vy_mps != 0.0]
     path = _flight_path(run_dir)
     sight = sightable(static, *path) if path is not None else np.zeros(len(static), dtype=bool)
-    # a moving trunk's track, as the map saw it, in the same frame: at vehicle time 0 (world positions)
     score = match_trunks(static, sight.tolist(), est, movers=moving)
+    # a track unseen for long is predicted on (its filter's velocity): its centre error apart from the fresh ones'
+    t_end = facts.get("map_t_s")
+    age = [None if t_end is None else t_end - est[k].get("last_seen_s", t_end) for _, k in score["pairs"]]
+    score["centre_err_fresh_m"] = [c for c, a in zip(score["centre_err_m"], age, strict=True)
+                                   if a is not None and a <= FRESH_S]
+    score["centre_err_stale_m"] = [c for c, a in zip(score["centre_err_m"], age, strict=True)
+                                   if a is not None and a > FRESH_S]
     score.update(clock_t0_s=rep.get("obstacle_clock_t0_s"), scans_mapped=facts.get("scans_mapped"),
                  map_t_s=facts.get("map_t_s"), map_counts=facts.get("map"),
                  tracks_final=est, truth=[[o.x_m, o.y_m, o.radius_m, o.vx_mps, o.vy_mps] for o in world.trunks])

@@ -43,6 +43,8 @@ def _map_scores(blind: list[dict[str, Any]]) -> dict[str, Any]:
             "precision": matched / (matched + fp) if matched + fp else None,
             "recall": found / sight if sight else None,
             "centre_err_m": _q(centre), "radius_err_m": _q(radius), "radius_abs_err_m": _q([abs(x) for x in radius]),
+            "centre_err_fresh_m": _q([c for s in sc for c in s.get("centre_err_fresh_m", [])]),
+            "centre_err_stale_m": _q([c for s in sc for c in s.get("centre_err_stale_m", [])]),
             "clock_t0_s": _q([s.get("clock_t0_s") for s in sc])}
 
 
@@ -110,10 +112,12 @@ def summary_markdown(s: dict[str, Any]) -> str:
         "world holding them (bundled 2-D LiDAR, 12 m, 10 Hz, 1°); mapped = the mission with them.", "",
         "Recall counts the static trunks that came within range (near side ≤ 12 m), ≥ 3 rays wide and in 2-D "
         "line of sight of the flown path for ≥ 0.5 s; a map trunk matches a true one within 0.3 m (centre); "
-        "radius error = fitted radius (not inflated) − true radius.", "",
+        "radius error = fitted radius (not inflated) − true radius; fresh = map trunks seen within 1 s of the "
+        "map's last scan, stale = unseen longer (their filter predicts them on).", "",
         "| scenario | planner | clean blind | clean mapped | time blind/mapped (median, p90, max) | precision "
-        "| recall | centre err median/p90 (m) | radius err median, median abs (m) | crossing hits blind/mapped |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| recall | centre err median/p90 (m) | fresh / stale median (m) | radius err median, median abs (m) "
+        "| crossing hits blind/mapped |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for sc, per in s["cells"].items():
         for p, c in per.items():
@@ -122,6 +126,7 @@ def summary_markdown(s: dict[str, Any]) -> str:
                 f"| {sc} | {p} | {b['clean']}/{b['n']} | {m['clean']}/{m['n']} | {_f(r['median'])}, "
                 f"{_f(r['p90'])}, {_f(r['max'])} | {_f(mp['precision'], pct=True)} | {_f(mp['recall'], pct=True)} "
                 f"| {_f(mp['centre_err_m']['median'], 3)} / {_f(mp['centre_err_m']['p90'], 3)} | "
+                f"{_f(mp['centre_err_fresh_m']['median'], 3)} / {_f(mp['centre_err_stale_m']['median'], 3)} | "
                 f"{_f(mp['radius_err_m']['median'], 3)}, {_f(mp['radius_abs_err_m']['median'], 3)} | "
                 f"{b['collisions_moving']}/{m['collisions_moving']} |")
     lines += ["", "## Targets (issue 26)", "",

@@ -118,4 +118,5 @@ def match_trunks(truth: Sequence[Any], sight: Sequence[bool], est: Sequence[dict
         "precision": len(used_e) / scored if scored else None,
         "recall": found / n_sight if n_sight else None,
         "centre_err_m": [round(c, 4) for c in centre], "radius_err_m": [round(x, 4) for x in radius],
+        "pairs": [[i, k] for i, k in used_t.items()],  # (true trunk, map trunk) indices, in centre_err_m's order
     }
