@@ -189,12 +189,14 @@ class Perception:
 
 
 def _track_fact(tr: Any) -> dict[str, Any]:
-    """One confirmed :class:`~companion.perception.local_map.Track` for the report (m, m/s, s)."""
+    """One confirmed :class:`~companion.perception.local_map.Track` for the report (m, m/s, s): its centre and 1σ
+    from the model the map publishes it by (still or moving), the velocity of its moving model."""
     import math
 
-    sig = math.sqrt(max(float(tr.p[0, 0] + tr.p[1, 1]) / 2.0, 0.0))
-    return {"id": tr.id, "x_m": round(float(tr.x[0]), 4), "y_m": round(float(tr.x[1]), 4),
+    pos, cov = tr.pos, tr.pos_cov
+    sig = math.sqrt(max(float(cov[0, 0] + cov[1, 1]) / 2.0, 0.0))
+    return {"id": tr.id, "x_m": round(float(pos[0]), 4), "y_m": round(float(pos[1]), 4),
             "radius_m": round(tr.radius_m, 4), "sigma_xy_m": round(sig, 4),
             "sigma_r_m": round(math.sqrt(max(tr.radius_var, 0.0)), 4), "vx_mps": round(float(tr.x[2]), 3),
-            "vy_mps": round(float(tr.x[3]), 3), "hits": tr.hits, "last_seen_s": round(tr.last_seen_s, 3),
-            "source": "perception"}
+            "vy_mps": round(float(tr.x[3]), 3), "moving": bool(tr.moving), "hits": tr.hits,
+            "last_seen_s": round(tr.last_seen_s, 3), "source": "perception"}
