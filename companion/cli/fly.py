@@ -132,6 +132,7 @@ def spec_from_args(args: argparse.Namespace, mission: Mission) -> FlySpec:
         signing_key=None if args.signing_key is None else load_key_file(args.signing_key),
         accept_unsigned=tuple(args.accept_unsigned), gcs_sysid=args.gcs_sysid,
         inject_tick_error_at_s=_env_float("SLUNGPILOT_INJECT_TICK_ERROR_AT_S"),
+        perception={"auto": None, "on": True, "off": False}[getattr(args, "perception", "auto")],
     )
     setup.validate(RT_PRIORITY_MAX)
     sitl_args: list[str] = []

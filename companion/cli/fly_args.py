@@ -69,6 +69,9 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --sitl: the trunks that stand in the simulated world (a world TOML, or a shipped one: "
                         "forest, forest_crossing), which the vehicle's LiDAR sees; the report scores clearance "
                         "against them (docs/sitl.md)")
+    p.add_argument("--perception", choices=("auto", "on", "off"), default="auto",
+                   help="map trunks from the vehicle's range scans (OBSTACLE_DISTANCE, Zenoh scans) for the planner: "
+                        "auto (default) starts at the first scan, off ignores scans (docs/companion.md)")
     p.add_argument("--lockstep", action="store_true",
                    help="the vehicle is a lockstep simulator (driven by its SYSTEM_TIME step markers)")
     p.add_argument("--planner", choices=PLANNERS, help="override the mission's")
