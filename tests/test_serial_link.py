@@ -117,6 +117,18 @@ def test_frames_cut_anywhere_with_garbage_between_all_come_out_in_order():
     assert framer.garbage_bytes == injected and framer.garbage_runs > 0 and framer.held == 0
 
 
+def test_ardupilot_dialect_frames_are_frames_not_garbage():
+    """ArduPilot's own messages (not in the common dialect) are framed, as UDP delivers them, not counted as noise."""
+    from pymavlink.dialects.v20 import ardupilotmega as APM
+
+    sink = _Frames()
+    apm = APM.MAVLink(sink, srcSystem=1, srcComponent=1)
+    apm.ahrs2_send(0.1, 0.2, 0.3, 10.0, 1, 2)
+    apm.attitude_send(1, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0)
+    framer = StreamFramer()
+    assert framer.feed(b"".join(sink.frames)) == sink.frames and framer.garbage_bytes == 0
+
+
 def test_a_partial_frame_waits_and_an_unknown_id_is_garbage():
     (f,) = _vehicle_frames(1)[:1]
     framer = StreamFramer()

@@ -7,8 +7,8 @@ marker it tried and looks for the next one (resynchronisation). A false marker w
 given up as soon as a whole valid frame follows it, so noise never holds real frames back.
 
 A frame is accepted when: MAVLink 2 (0xFD) with incompatibility flags 0 or 1 (signed: 13 signature bytes follow
-the CRC, not checked here), or MAVLink 1 (0xFE); a message id whose CRC extra is known; the CRC right. Frames of
-unknown ids cannot be told from noise and are skipped as garbage.
+the CRC, not checked here), or MAVLink 1 (0xFE); a message id whose CRC extra is known (common or ArduPilot
+dialect); the CRC right. Frames of other ids cannot be told from noise and are skipped as garbage.
 """
 
 from __future__ import annotations
@@ -24,16 +24,21 @@ _EXTRA: dict[int, bytes | None] = {}
 
 
 def _crc_extra(msgid: int) -> bytes | None:
-    """The CRC extra byte of ``msgid`` (None: unknown id), cached."""
+    """The CRC extra byte of ``msgid`` (None: unknown id), cached: the common dialect's, else ArduPilot's (its own
+    messages are framed as on UDP, where they reach the handler as unknown messages, not as garbage)."""
     try:
         return _EXTRA[msgid]
     except KeyError:
-        try:
-            extra: bytes | None = bytes((crc_extra_of(msgid),))
-        except KeyError:
-            extra = None
-        _EXTRA[msgid] = extra
-        return extra
+        pass
+    try:
+        extra: bytes | None = bytes((crc_extra_of(msgid),))
+    except KeyError:
+        from pymavlink.dialects.v20 import ardupilotmega  # imported on the first id common lacks (0.2 s)
+
+        cls = ardupilotmega.mavlink_map.get(msgid)
+        extra = None if cls is None else bytes((cls.crc_extra,))
+    _EXTRA[msgid] = extra
+    return extra
 
 
 class StreamFramer:
