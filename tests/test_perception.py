@@ -271,6 +271,11 @@ def test_bad_scans_wrong_vehicles_floods_and_late_scans_are_refused_and_counted(
     assert not p.on_scan(Scan(3.5, ang, np.full(360, np.inf), 0.1, 12.0, math.radians(1.0), source="zenoh"))
     assert p.refused["late"] == 1
     assert p.facts()["refused_total"] >= 5 + 2 + 1 + 1 + (1000 - mapped) + 1
+    # NaN rays (dropouts, a LaserScan's invalid readings) are not a reason to refuse a scan: unknown, counted
+    half = np.where(np.arange(360) % 2 == 0, np.nan, np.inf)
+    before = p.points.dropped["unknown"]
+    assert p.on_scan(Scan(9.9, ang, half, 0.1, 12.0, math.radians(1.0), source="zenoh"))
+    assert p.points.dropped["unknown"] - before == 180
 
 
 def test_still_trunks_keep_the_same_obstacles_once_settled():

@@ -7,7 +7,8 @@ the ground. Filtered, and counted by reason in :class:`PointFilter` ``dropped``:
 - ``ground``: the return's end point is within :data:`GROUND_MARGIN_M` of the ground (z = 0 NED) or below it;
 - ``below_band``: the end point lies more than :data:`BELOW_BAND_M` below the airframe (the payload, low brush);
 - ``phantom``: an isolated return (rain, dust): neither neighbouring ray returns within :data:`PHANTOM_GAP_M`
-  of it. A trunk seen by one ray only (thin and far) is dropped too; it is seen by several rays when nearer.
+  of it. A trunk seen by one ray only (thin and far) is dropped too; it is seen by several rays when nearer;
+- ``unknown``: rays without a valid reading (NaN: a dropout, a NaN in a LaserScan, below the minimum range).
 
 Also kept per ray: its horizontal bearing in the mission frame (rad, from north, clockwise) and the horizontal
 distance it saw free (m): to its return, to its ground strike, to its range limit when nothing returned; 0 when
@@ -64,7 +65,7 @@ def ray_directions(scan: Scan, pose: Pose) -> np.ndarray:
 
 class PointFilter:
     """Scans → :class:`ScanPoints`, counting what it drops in ``dropped`` (``ground``, ``below_band``,
-    ``phantom``)."""
+    ``phantom``, ``unknown``)."""
 
     def __init__(self, ground_margin_m: float = GROUND_MARGIN_M, below_band_m: float = BELOW_BAND_M,
                  phantom_gap_m: float = PHANTOM_GAP_M) -> None:
@@ -91,6 +92,7 @@ class PointFilter:
         keep = hit & ~ground & ~below
         phantom = keep & self._isolated(r, keep)
         keep &= ~phantom
+        self.dropped["unknown"] += int(np.isnan(r).sum())  # NaN: no data, a dropout, below the minimum range
         self.dropped["ground"] += int(ground.sum())
         self.dropped["below_band"] += int(below.sum())
         self.dropped["phantom"] += int(phantom.sum())
