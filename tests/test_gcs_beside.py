@@ -112,7 +112,8 @@ def test_gcs_through_mavproxy_pauses_resumes_and_the_mission_completes(tmp_path)
         procs.append(fly)
         gcs = Gcs(gside)
         assert gcs.pump(120.0, lambda: gcs.said("slungpilot mission")), gcs.texts
-        gcs.pump(4.0)  # mid-leg
+        assert gcs.pump(60.0, lambda: gcs.said("phase: cruise")), gcs.texts
+        gcs.pump(1.5)  # mid-leg
         assert gcs.command(0, as_sysid=200) == (M.MAV_RESULT_DENIED, 200)  # not the GCS it obeys
         assert gcs.command(0) == (M.MAV_RESULT_ACCEPTED, 255), gcs.texts
         gcs.pump(8.0)

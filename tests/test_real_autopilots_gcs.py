@@ -105,19 +105,28 @@ def arducopter_payload_on_serial0(tmp_path):
     on, ArduPilot accepts unsigned frames on channel 0 only (GCS_Signing.cpp ``accept_unsigned_callback``: "assumed
     to be secure channel"): on SERIAL2, where the payload dials by default, its unsigned stream is dropped by
     ArduPilot itself (measured: no frame of system 2 reached the companion), on SERIAL0 it is forwarded, unsigned."""
+    port = free_udp_port()
+    proc = _start_arducopter(tmp_path / "arducopter-swapped", "--serial0", "tcp:5763", "--serial1",
+                             f"udpclient:127.0.0.1:{port}", "--serial2", "tcp:5765")
+    yield port
+    _stop(proc)
+
+
+def _start_arducopter(run: Path, *serials: str) -> subprocess.Popen:
+    """ArduCopter SITL with its slung payload (as lab.sitl_external starts it) on the given serial ports."""
     root = ARDUCOPTER
-    run = tmp_path / "arducopter-swapped"
+    assert root is not None
     run.mkdir()
     parm = run / "simulation.parm"
     parm.write_text("SIM_SLUP_ENABLE 1\nSIM_SLUP_WEIGHT 0.25\nSIM_SLUP_LINELEN 1\nSIM_SLUP_SYSID 2\nSIM_SLUP_DRAG 1\n")
-    port = free_udp_port()
-    proc = subprocess.Popen(
+    return subprocess.Popen(
         [str(root / "build/sitl/bin/arducopter"), "--model", "quad", "-I", "0", "--wipe", "--home",
          sitl_external.ARDUCOPTER_HOME, "--defaults", f"{root / 'Tools/autotest/default_params/copter.parm'},{parm}",
-         "--sysid", "1", "--serial0", "tcp:5763", "--serial1", f"udpclient:127.0.0.1:{port}", "--serial2", "tcp:5765"],
-        cwd=run, stdout=(run / "arducopter.log").open("w"), stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-        start_new_session=True)
-    yield port
+         "--sysid", "1", *serials], cwd=run, stdout=(run / "arducopter.log").open("w"), stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL, start_new_session=True)
+
+
+def _stop(proc: subprocess.Popen) -> None:
     try:
         os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(20)
@@ -151,3 +160,62 @@ def test_arducopter_signed_without_accept_unsigned_counts_the_payload_dropped(ar
     sig = rep["link"]["signing"]
     assert sig["accepted_unsigned"] == {} and sig["dropped_by_sender"]["2/35"]["unsigned"] > 100
     assert rep["swing_estimator"]["inputs"].get("payload_fix", 0) == 0
+
+
+@needs_arducopter
+def test_arducopter_routes_a_mavproxy_gcs_to_the_companion_which_pauses_and_resumes(tmp_path):
+    """The real set-up beside a ground station: ArduCopter routes between its ports. SERIAL0 to MAVProxy with a
+    pymavlink GCS on its output, SERIAL1 to the companion: the GCS's commands to (1, 191) reach the companion through
+    ArduPilot's routing, the companion's STATUSTEXT reaches the GCS the same way; pause mid-leg, resume, completed."""
+    import numpy as np
+    from pymavlink.dialects.v20 import common as M
+    from test_gcs_beside import MAVPROXY, Gcs
+
+    mp_port, gcs_port, comp = free_udp_port(), free_udp_port(), free_udp_port()
+    mavproxy = subprocess.Popen([sys.executable, str(MAVPROXY), "--master", f"udpin:127.0.0.1:{mp_port}", "--out",
+                                 f"udpin:127.0.0.1:{gcs_port}", "--non-interactive", "--daemon", "--nowait",
+                                 "--default-modules", "", "--state-basedir", str(tmp_path)],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                cwd=tmp_path)
+    sitl = _start_arducopter(tmp_path / "arducopter", "--serial0", f"udpclient:127.0.0.1:{mp_port}", "--serial1",
+                             f"udpclient:127.0.0.1:{comp}")
+    run = tmp_path / "run"
+    fly = subprocess.Popen([sys.executable, "-m", "companion.cli", "-q", "fly", "--connect", f"udpin://127.0.0.1:{comp}",
+                            "--mission", "forest_arducopter_sitl", "--ready-timeout", "120", "--gcs-sysid", "255",
+                            "--no-zenoh", "--no-recording", "--no-plots", "--run-dir", str(run)],
+                           cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        gcs = Gcs(gcs_port)
+        assert gcs.pump(180.0, lambda: gcs.said("slungpilot mission")), gcs.texts
+        assert gcs.pump(60.0, lambda: gcs.said("phase: cruise")), gcs.texts
+        gcs.pump(1.5)  # mid-leg
+        assert gcs.command(0, as_sysid=200) == (M.MAV_RESULT_DENIED, 200)
+        assert gcs.command(0) == (M.MAV_RESULT_ACCEPTED, 255)
+        gcs.pump(8.0)
+        assert gcs.command(1) == (M.MAV_RESULT_ACCEPTED, 255)
+        assert gcs.pump(120.0, lambda: gcs.said("slungpilot done")), gcs.texts
+        err = fly.communicate(timeout=120)[1]
+    finally:
+        for p in (fly, mavproxy):
+            p.terminate()
+            try:
+                p.wait(20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        _stop(sitl)
+    rep = json.loads((run / "report.json").read_text())
+    assert fly.returncode == 0 and rep["outcome"] == "completed", (rep["outcome"], rep.get("outcome_detail"),
+                                                                   err[-2000:])
+    assert set(gcs.companion_hb) == {M.MAV_TYPE_ONBOARD_CONTROLLER}
+    orders = {o["order"]: o["t_s"] for o in rep["operator"]["orders"]}
+    log = np.load(run / "flight_log.npz")
+    t, pos, vel = log["t_s"], log["pos_ned_m"], log["vel_ned_mps"]
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    held = (t > orders["pause"] + 5.0) & (t < orders["resume"])
+    print(json.dumps({"speed_at_pause": float(speed[np.searchsorted(t, orders["pause"])]),
+                      "held_speed_max": float(speed[held].max()), "held_drift_m": float(np.ptp(pos[held, :2], 0).max()),
+                      "time_to_goal_s": rep["time_to_goal_s"], "max_swing_rad": rep["max_swing_rad"],
+                      "texts": [x[2] for x in gcs.texts]}, indent=1))
+    assert speed[np.searchsorted(t, orders["pause"])] > 0.5 and held.sum() > 100
+    assert speed[held].max() < 0.3 and np.ptp(pos[held, :2], axis=0).max() < 0.3
+    assert rep["collisions"] == 0

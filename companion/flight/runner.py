@@ -100,6 +100,7 @@ class Runner:
                                 accept_unsigned=s.accept_unsigned)
         self.link.frame_handler = self._on_frame
         self.texts = StatusTextOut(self.link.mav)  # our phases, failsafes and answers, to the ground station
+        self._core_phase_said = ""  # the mission's phase (climb, cruise, hold, ...) last said to the GCS
         st = pilot.state
         self.requests = RequestLink(self.link.mav, lambda: (st.vehicle_sysid, st.vehicle_compid),
                                     lambda what: pilot.profile.mode_params(what))
@@ -253,6 +254,10 @@ class Runner:
             self.texts.pump(time.monotonic())
         for t in self.pilot.take_transitions():
             self._say_transition(t)
+        core_phase = self.pilot.core.phase
+        if core_phase != self._core_phase_said and self.pilot.seq.state == "mission":
+            self._core_phase_said = core_phase
+            self.texts.say(6, f"slungpilot mission phase: {core_phase}", time.monotonic())
             for sink in self.sinks:
                 try:
                     sink.on_transition(t, self)
