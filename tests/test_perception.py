@@ -276,6 +276,9 @@ def test_bad_scans_wrong_vehicles_floods_and_late_scans_are_refused_and_counted(
     before = p.points.dropped["unknown"]
     assert p.on_scan(Scan(9.9, ang, half, 0.1, 12.0, math.radians(1.0), source="zenoh"))
     assert p.points.dropped["unknown"] - before == 180
+    # the same scan again (the sensor on MAVLink and on Zenoh): a duplicate, not mapped twice
+    assert not p.on_scan(Scan(9.9, ang, half, 0.1, 12.0, math.radians(1.0), source="zenoh"))
+    assert p.gate.refused["duplicate"] == 1
 
 
 def test_still_trunks_keep_the_same_obstacles_once_settled():

@@ -189,9 +189,10 @@ def scan_problem(s: Scan) -> str | None:
 
 
 class ScanGate:
-    """What may reach the map, counted by refusal reason in ``refused``: a bad scan (:func:`scan_problem`), one
-    from another system than the vehicle (``wrong_vehicle``), one not newer than the last kept (``stale``), one
-    less than ``1 / max_rate_hz`` s of vehicle time after the last kept (``rate_limit``)."""
+    """What may reach the map, counted by reason in ``refused``: a bad scan (:func:`scan_problem`), one from
+    another system than the vehicle (``wrong_vehicle``), one of the same time as the last kept (``duplicate``: the
+    same scan from a second input), one older (``stale``), one less than ``1 / max_rate_hz`` s of vehicle time
+    after the last kept (``rate_limit``)."""
 
     def __init__(self, max_rate_hz: float = MAX_RATE_HZ) -> None:
         self.min_gap_s = 1.0 / max_rate_hz
@@ -204,7 +205,9 @@ class ScanGate:
         why = scan_problem(s)
         if why is None and s.system_id is not None and s.system_id != vehicle_sysid:
             why = "wrong_vehicle"
-        if why is None and s.t_s <= self._last_t_s:
+        if why is None and s.t_s == self._last_t_s:
+            why = "duplicate"  # the same scan again (a resend, or the same sensor on MAVLink and Zenoh)
+        if why is None and s.t_s < self._last_t_s:
             why = "stale"
         if why is None and s.t_s - self._last_t_s < self.min_gap_s - 1e-9:
             why = "rate_limit"
