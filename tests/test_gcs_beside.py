@@ -15,6 +15,7 @@ holds within 5 s), resumes it, and the mission completes.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import subprocess
@@ -89,7 +90,10 @@ class Gcs:
         return result, to
 
 
-def test_gcs_through_mavproxy_pauses_resumes_and_the_mission_completes(tmp_path):
+@contextlib.contextmanager
+def _flight(tmp_path: Path):
+    """The bundled vehicle (real time), MAVProxy with the companion as its master, ``fly`` obeying system 255, and a
+    GCS on MAVProxy's other output: yields (gcs, fly process, run folder); everything stopped after."""
     comp, vside, gside = free_udp_port(), free_udp_port(), free_udp_port()
     procs = []
     try:
@@ -114,12 +118,7 @@ def test_gcs_through_mavproxy_pauses_resumes_and_the_mission_completes(tmp_path)
         assert gcs.pump(120.0, lambda: gcs.said("slungpilot mission")), gcs.texts
         assert gcs.pump(60.0, lambda: gcs.said("phase: cruise")), gcs.texts
         gcs.pump(1.5)  # mid-leg
-        assert gcs.command(0, as_sysid=200) == (M.MAV_RESULT_DENIED, 200)  # not the GCS it obeys
-        assert gcs.command(0) == (M.MAV_RESULT_ACCEPTED, 255), gcs.texts
-        gcs.pump(8.0)
-        assert gcs.command(1) == (M.MAV_RESULT_ACCEPTED, 255)
-        assert gcs.pump(120.0, lambda: gcs.said("slungpilot done")), gcs.texts
-        err = fly.communicate(timeout=120)[1]
+        yield gcs, fly, run
     finally:
         for p in reversed(procs):
             p.terminate()
@@ -127,6 +126,16 @@ def test_gcs_through_mavproxy_pauses_resumes_and_the_mission_completes(tmp_path)
                 p.wait(20)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_gcs_through_mavproxy_pauses_resumes_and_the_mission_completes(tmp_path):
+    with _flight(tmp_path) as (gcs, fly, run):
+        assert gcs.command(0, as_sysid=200) == (M.MAV_RESULT_DENIED, 200)  # not the GCS it obeys
+        assert gcs.command(0) == (M.MAV_RESULT_ACCEPTED, 255), gcs.texts
+        gcs.pump(8.0)
+        assert gcs.command(1) == (M.MAV_RESULT_ACCEPTED, 255)
+        assert gcs.pump(120.0, lambda: gcs.said("slungpilot done")), gcs.texts
+        err = fly.communicate(timeout=120)[1]
     rep = json.loads((run / "report.json").read_text())
     assert fly.returncode == 0 and rep["outcome"] == "completed", (rep["outcome"], rep.get("outcome_detail"),
                                                                    err[-2000:])
@@ -151,3 +160,24 @@ def test_gcs_through_mavproxy_pauses_resumes_and_the_mission_completes(tmp_path)
                       "time_to_goal_s": rep["time_to_goal_s"], "texts": [x[2] for x in gcs.texts]}, indent=1))
     assert speed[held].max() < 0.3 and np.ptp(pos[held, :2], axis=0).max() < 0.3  # stopped, and held there
     assert rep["collisions"] == 0
+
+
+def test_gcs_land_lands_where_the_vehicle_is(tmp_path):
+    """MAV_CMD_NAV_LAND to the companion mid-leg: ACCEPTED, it brakes, the vehicle lands there; outcome aborted."""
+    with _flight(tmp_path) as (gcs, fly, run):
+        gcs.conn.mav.command_long_send(*COMPANION, M.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0)
+        assert gcs.pump(5.0, lambda: any(a[1] == M.MAV_CMD_NAV_LAND for a in gcs.acks)), (gcs.acks, gcs.texts)
+        assert gcs.pump(120.0, lambda: gcs.said("slungpilot done")), gcs.texts
+        err = fly.communicate(timeout=120)[1]
+    rep = json.loads((run / "report.json").read_text())
+    assert [a[2] for a in gcs.acks if a[1] == M.MAV_CMD_NAV_LAND] == [M.MAV_RESULT_ACCEPTED]
+    assert rep["outcome"] == "aborted" and rep["final_phase"] == "landed", (rep["outcome"], rep["final_phase"],
+                                                                           err[-2000:])
+    assert "land ordered by the ground station (system 255)" in rep["outcome_detail"]
+    t_land = rep["operator"]["orders"][0]["t_s"]
+    log = np.load(run / "flight_log.npz")
+    t, pos = log["t_s"], log["pos_ned_m"]
+    asked_at = pos[np.searchsorted(t, t_land), :2]
+    print(json.dumps({"landed_from_asked_m": float(np.hypot(*(pos[-1, :2] - asked_at))), "final_z": float(pos[-1, 2]),
+                      "collisions": rep["collisions"]}))
+    assert float(np.hypot(*(pos[-1, :2] - asked_at))) < 3.0 and rep["collisions"] == 0

@@ -73,12 +73,12 @@ def test_pause_holds_continue_resumes_land_lands_return_holds_then_lands():
     assert [o for _, o in seq.orders_done] == [op.Order.PAUSE, op.Order.RESUME]
     seq.order(op.Order.LAND, "land ordered by the ground station (system 255)")
     step = seq.step(_obs(3.0))
-    assert seq.state is State.LAND and step.core is CoreOrder.HOLD_HERE
+    assert seq.state is State.LAND and step.core is CoreOrder.PAUSE
     assert seq.outcome == "aborted" and "ground station" in seq.detail
     ret = _in_mission()
     ret.order(op.Order.RETURN, "return ordered")
     step = ret.step(_obs(1.0))
-    assert ret.state is State.HOLD and step.core is CoreOrder.HOLD_HERE and ret.outcome == "aborted"
+    assert ret.state is State.HOLD and step.core is CoreOrder.PAUSE and ret.outcome == "aborted"
 
 
 def test_the_core_resumes_where_it_paused_and_still_holds_at_the_goal():

@@ -12,8 +12,8 @@ MAV_CMD_DO_PAUSE_CONTINUE, param1 = 0        pause: the reference brakes at its 
                                              (no step for the payload) and holds where it stops (the core's
                                              ``hold_here(brake=True)``); the mission clock runs on
 MAV_CMD_DO_PAUSE_CONTINUE, param1 = 1        continue: fly the mission on from where it paused
-MAV_CMD_NAV_LAND                             abort: land where it is (the autopilot's land mode; the core
-                                             holds its reference until the mode is confirmed)
+MAV_CMD_NAV_LAND                             abort: land where it is (the autopilot's land mode; until it is
+                                             confirmed the core brakes as for a pause and holds)
 MAV_CMD_NAV_RETURN_TO_LAUNCH                 abort: hold (the swing settles), then land where it is. The
                                              companion plans its route one way only, through what it saw:
                                              it flies no return; an operator who wants the autopilot's own
@@ -176,7 +176,8 @@ class OperatorReactions:
             self.orders_done = (*self.orders_done, (obs.now_s, order))
             if order is Order.LAND:
                 s._go(obs, State.LAND, why)
-                s._core_order = CoreOrder.HOLD_HERE  # land where it is: hold there until the land mode is on
             else:
                 s._hold_stream = Stream.CORE
                 s._go(obs, State.HOLD, why)
+            if s._hold_stream is Stream.CORE:  # brake as for a pause and hold there until the mode is on
+                s._core_order = CoreOrder.PAUSE
