@@ -205,6 +205,7 @@ class Pilot:
         self.perception = Perception(self.state.vehicle_sysid, defer=not self.setup.lockstep)
         p = self.perception
         self.obstacles.perceived = p.obstacles_at
+        p.on_mapped = lambda: self._seen_free(p)  # also when a deferred (real-time) scan is mapped between ticks
         log.info("perception on: trunks mapped from the vehicle's range scans")
 
     def _perceive(self, ev: TelemetryEvent) -> None:

@@ -51,6 +51,8 @@ class Perception:
         self.defer = defer
         self.superseded = 0  # deferred scans replaced by a newer one before they were mapped
         self._work: Iterator[None] | None = None
+        #: called after each scan is mapped (on arrival, or at the end of deferred work): e.g. the seen-free update
+        self.on_mapped: Callable[[], None] | None = None
 
     @property
     def obstacles(self) -> tuple[Obstacle, ...]:
@@ -135,6 +137,8 @@ class Perception:
         self._took("map", t2)
         self.last_points, self.last_detections = pts, dets
         self.scans_mapped += 1
+        if self.on_mapped is not None:
+            self.on_mapped()
 
     def on_foreign_scan(self, scan: Scan) -> bool:
         """A whole scan whose stamp may be on another clock than the vehicle's (ROS time): placed at its stamp when
