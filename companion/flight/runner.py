@@ -254,15 +254,15 @@ class Runner:
             self.texts.pump(time.monotonic())
         for t in self.pilot.take_transitions():
             self._say_transition(t)
-        core_phase = self.pilot.core.phase
-        if core_phase != self._core_phase_said and self.pilot.seq.state == "mission":
-            self._core_phase_said = core_phase
-            self.texts.say(6, f"slungpilot mission phase: {core_phase}", time.monotonic())
             for sink in self.sinks:
                 try:
                     sink.on_transition(t, self)
                 except Exception:
                     log.exception("telemetry sink %s failed; continuing", type(sink).__name__)
+        core_phase = self.pilot.core.phase
+        if core_phase != self._core_phase_said and self.pilot.seq.state == "mission":
+            self._core_phase_said = core_phase
+            self.texts.say(6, f"slungpilot mission phase: {core_phase}", time.monotonic())
 
     def _say_transition(self, t: Transition) -> None:
         """A phase change as STATUSTEXT for the ground station (holds and failsafes as warnings)."""
