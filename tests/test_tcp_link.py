@@ -6,6 +6,7 @@ with a TELEM port): handshake, lock, resets, reconnection.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import select
@@ -289,3 +290,57 @@ def test_tcpin_on_the_event_loop_follows_its_peers():
 
     link = asyncio.run(main())
     assert len(got) == 4 and link.rejected["link_closed"] == 2
+
+
+# ------------------------------------------------------------------------------------------------ a real autopilot
+def _arducopter_on_tcp(workdir: Path, instance: int = 7) -> tuple[subprocess.Popen, int]:
+    """ArduCopter SITL (quad, no payload) with SERIAL0 a TCP server, as ``sim_vehicle.py`` starts it; its port."""
+    from lab import sitl_external
+
+    root, why = sitl_external.find_arducopter()
+    if root is None:
+        pytest.skip(why)
+    (workdir / "sim.parm").write_text("SIM_SLUP_ENABLE 0\n")
+    defaults = f"{root / 'Tools/autotest/default_params/copter.parm'},{workdir / 'sim.parm'}"
+    with open(workdir / "arducopter.log", "w") as log:
+        proc = subprocess.Popen([str(root / "build/sitl/bin/arducopter"), "--model", "quad", "-I", str(instance),
+                                 "--wipe", "--home", sitl_external.ARDUCOPTER_HOME, "--defaults", defaults,
+                                 "--serial0", "tcp:0"], cwd=workdir, stdout=log, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, start_new_session=True)
+    return proc, 5760 + 10 * instance
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kill", [False, True], ids=["completes", "killed_mid_flight"])
+def test_arducopter_sitl_over_tcp(tmp_path, kill):
+    """Opt-in (SLUNGPILOT_ARDUPILOT): ArduCopter SITL's own TCP server, as ``--connect tcp://`` is used with it; the
+    forest completes; SIGKILLed mid-flight the connection dies under the companion: link_lost, counted once."""
+    import signal as sig
+
+    ac, port = _arducopter_on_tcp(tmp_path)
+    try:
+        time.sleep(1.0)  # its TCP server is up within a second; a refused connect is a LinkError, not a wait
+        fly = subprocess.Popen([sys.executable, "-m", "companion.cli", "-v", "fly", "--connect",
+                                f"tcp://127.0.0.1:{port}", "--mission", "forest_arducopter_sitl", "--no-zenoh",
+                                "--no-recording", "--no-plots", "--run-dir", str(tmp_path / "run")],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        assert fly.stderr is not None
+        if kill:
+            for line in fly.stderr:
+                if "arm → mission" in line:
+                    break
+            time.sleep(2.0)
+            os.killpg(ac.pid, sig.SIGKILL)
+        _out, err = fly.communicate(timeout=420)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(ac.pid, sig.SIGKILL)
+        ac.wait(10)
+    rep = json.loads((tmp_path / "run" / "report.json").read_text())
+    if kill:
+        assert fly.returncode == 3 and rep["outcome"] == "link_lost", rep["outcome"]
+        assert rep["link"]["rejected"].get("link_closed") == 1, rep["link"]
+    else:
+        assert fly.returncode == 0, err[-3000:]
+        assert rep["outcome"] == "completed" and rep["collisions"] == 0 and rep["autopilot"]["family"] == "ardupilot"
+        assert "locked onto the autopilot (system 1) on tcp://" in err
