@@ -89,3 +89,19 @@ def test_the_bundled_vehicle_reporting_arming_check_0_flies_the_forest(tmp_path)
     assert out.returncode == 0 and rep["outcome"] == "completed", (rep["outcome"], rep.get("outcome_detail"),
                                                                     out.stderr[-2000:])
     assert rep["collisions"] == 0
+
+
+def test_last_words_are_whole_when_the_autopilot_chunks_them():
+    """PX4 sends a text over 50 characters in MAVLink 2 chunks (measured: "Arming denied: Resolve system health
+    failures firs" then "t\\t", id shared); the not_ready ending quotes the whole text, not its tail."""
+    from companion.mavlink_io.telemetry import StatusText
+
+    st = VehicleState(cable_length_m=1.0)
+    st.vehicle_sysid = 1
+    head = "Arming denied: Resolve system health failures firs"
+    st.ingest(StatusText(1, 1, 0, 2, head, 9, 0))
+    assert st.last_words == ""  # not whole yet
+    st.ingest(StatusText(1, 1, 1, 2, "t\t", 9, 1))
+    assert st.last_words == "Arming denied: Resolve system health failures first"
+    st.ingest(StatusText(1, 1, 2, 6, "Armed by external command\t", 0, 0))
+    assert st.last_words == "Armed by external command"

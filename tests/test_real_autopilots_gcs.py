@@ -219,3 +219,45 @@ def test_arducopter_routes_a_mavproxy_gcs_to_the_companion_which_pauses_and_resu
     assert speed[np.searchsorted(t, orders["pause"])] > 0.5 and held.sum() > 100
     assert speed[held].max() < 0.3 and np.ptp(pos[held, :2], axis=0).max() < 0.3
     assert rep["collisions"] == 0
+
+
+PX4, PX4_WHY = sitl_external.find_px4()
+
+
+@pytest.mark.skipif(PX4 is None, reason=PX4_WHY)
+def test_px4_says_its_statustext_to_an_onboard_controller_only_beside_a_gcs(tmp_path):
+    """The measurement behind the companion's identity, on one PX4 SIH boot: its onboard link, our heartbeat as an
+    onboard controller for 20 s, then as a GCS for 12 s; an arm asked every 3 s from 5 s on (refused while PX4's
+    estimator settles, and PX4 says why). STATUSTEXT arrive only once a GCS is heard on that link."""
+    from pymavlink.dialects.v20 import common as M
+
+    instance = 7
+    proc = sitl_external.start_px4_sih(tmp_path, instance)
+    conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{14540 + instance}", source_system=1, source_component=191)
+    texts: dict[str, list[str]] = {"onboard": [], "gcs": []}
+    acks: dict[str, list[int]] = {"onboard": [], "gcs": []}
+    try:
+        assert conn.wait_heartbeat(timeout=60) is not None
+        t0 = time.monotonic()
+        last_hb = last_arm = 0.0
+        while (now := time.monotonic()) - t0 < 32.0:
+            as_type = "onboard" if now - t0 < 20.0 else "gcs"
+            if now - last_hb >= 1.0:
+                conn.mav.heartbeat_send(M.MAV_TYPE_ONBOARD_CONTROLLER if as_type == "onboard" else M.MAV_TYPE_GCS,
+                                        M.MAV_AUTOPILOT_INVALID, 0, 0, M.MAV_STATE_ACTIVE)
+                last_hb = now
+            if now - t0 > 5.0 and now - last_arm >= 3.0:
+                conn.mav.command_long_send(conn.target_system, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0,
+                                           0)
+                last_arm = now
+            m = conn.recv_match(type=["STATUSTEXT", "COMMAND_ACK"], blocking=True, timeout=0.2)
+            if m is not None and m.get_type() == "STATUSTEXT":
+                texts[as_type].append(m.text)
+            elif m is not None and m.command == M.MAV_CMD_COMPONENT_ARM_DISARM:
+                acks[as_type].append(m.result)
+    finally:
+        conn.close()
+        _stop(proc)
+    print(json.dumps({"texts": texts, "arm_answers": acks}, indent=1))
+    assert acks["onboard"] and texts["onboard"] == []  # answered, said nothing
+    assert texts["gcs"]  # the same link, a GCS heard on it: PX4 says its reasons

@@ -135,6 +135,7 @@ class VehicleState:
     counts: Counter = field(default_factory=Counter)
     rejected: Counter = field(default_factory=Counter)
     statustext: list[str] = field(default_factory=list)
+    _chunks: dict[int, dict[int, str]] = field(default_factory=dict, repr=False)  # STATUSTEXT id -> chunks so far
     mode_class: Callable[[int], str] = field(default=lambda custom_mode: "other", repr=False)
     _mode_memo: tuple[Callable[[int], str] | None, int, str] = field(default=(None, 0, "other"), repr=False)
     _clock_wall_s: float | None = None
@@ -334,10 +335,23 @@ class VehicleState:
         return ev.message
 
     def _on_statustext(self, ev: tm.StatusText, wall_s: float | None) -> str:
-        self.statustext.append(ev.text)
+        """Keep the text; a chunked one (MAVLink 2 ``id``, as PX4 sends texts over 50 characters) once its last
+        chunk (shorter than 50) arrived, joined, so the last words are whole."""
+        text = ev.text
+        if ev.id:
+            parts = self._chunks.setdefault(ev.id, {})
+            parts[ev.chunk_seq] = text
+            if len(text) >= 50:
+                while len(self._chunks) > 8:  # texts whose last chunk never came
+                    del self._chunks[next(iter(self._chunks))]
+                return ev.message
+            text = "".join(parts[k] for k in sorted(parts))
+            del self._chunks[ev.id]
+        text = text.strip()
+        self.statustext.append(text)
         if len(self.statustext) > 200:
             del self.statustext[:100]
-        log.info("vehicle says: %s", ev.text)
+        log.info("vehicle says: %s", text)
         return ev.message
 
     def set_payload_fix(self, t_s: float, payload_pos_ned_m: np.ndarray, payload_vel_ned_mps: np.ndarray) -> None:

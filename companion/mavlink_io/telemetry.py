@@ -209,11 +209,14 @@ class EstimatorStatus(Sourced):
 
 @dataclass(frozen=True, slots=True)
 class StatusText(Sourced):
-    """STATUSTEXT: MAV_SEVERITY and the text (up to 50 characters)."""
+    """STATUSTEXT: MAV_SEVERITY and the text (up to 50 characters); a longer text comes in chunks sharing an ``id``
+    (0: not chunked), numbered by ``chunk_seq``."""
 
     message: ClassVar[str] = "STATUSTEXT"
     severity: int
     text: str
+    id: int = 0
+    chunk_seq: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -433,7 +436,7 @@ def _d_est_status(t: tuple, s: int, c: int, q: int) -> EstimatorStatus | Rejecte
 
 
 def _d_statustext(t: tuple, s: int, c: int, q: int) -> StatusText:
-    return StatusText._make(s, c, q, t[0], _text(t[1]))
+    return StatusText._make(s, c, q, t[0], _text(t[1]), t[2], t[3])
 
 
 def _d_ack(t: tuple, s: int, c: int, q: int) -> CommandAck:
@@ -506,7 +509,7 @@ _LAYOUTS = {lay.msgid: lay for lay in (
                               "pos_horiz_accuracy", _d_est_status),
     _Layout(242, "<iiifff", "latitude longitude altitude x y z", _d_home),
     _Layout(245, "<BB", "vtol_state landed_state", _d_ext_state),
-    _Layout(253, "<B50s", "severity text", _d_statustext),
+    _Layout(253, "<B50sHB", "severity text id chunk_seq", _d_statustext),
     _Layout(350, "<QH10s5f", "time_usec array_id name data*5", _d_debug_array),
     _Layout(330, "<Q72HHHBBffB", "time_usec distances*72 min_distance max_distance sensor_type increment "
                                  "increment_f angle_offset frame", _d_obstacle_distance),
