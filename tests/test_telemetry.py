@@ -83,7 +83,8 @@ def _messages(rng: random.Random):
     yield (M.MAVLink_statustext_message(4, b"Takeoff detected", 0, 0), tm.StatusText,
            dict(severity=4, text="Takeoff detected", id=0, chunk_seq=0))
     yield (M.MAVLink_statustext_message(2, b"Arming denied: Resolve system health failures firs", 7, 0),
-           tm.StatusText, dict(severity=2, text="Arming denied: Resolve system health failures firs", id=7, chunk_seq=0))
+           tm.StatusText, dict(severity=2, text="Arming denied: Resolve system health failures firs", id=7,
+                               chunk_seq=0))
     yield M.MAVLink_command_ack_message(400, 0, 0, 0, 0, 0), tm.CommandAck, dict(command=400, result=0)
     yield (M.MAVLink_command_long_message(1, 191, 193, 0, 0.0, 1.5, 2.0, 3.0, 4.0, 5.0, -6.0), tm.CommandLong,
            dict(command=193, target_system=1, target_component=191, params=(0.0, 1.5, 2.0, 3.0, 4.0, 5.0, -6.0)))
