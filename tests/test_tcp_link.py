@@ -1,7 +1,8 @@
 """TCP links (issue 27): ``--connect tcp://HOST:PORT`` (ArduPilot SITL's and mavlink-router's TCP servers) and
 ``tcpin://HOST:PORT`` (listen for one peer at a time), on real sockets on 127.0.0.1, against pymavlink as the other
 implementation and, for whole flights, the bundled vehicle behind a serial-to-TCP bridge (what mavlink-router does
-with a TELEM port): handshake, lock, resets, reconnection.
+with a TELEM port): handshake, lock, resets, reconnection. Opt-in (SLUNGPILOT_ARDUPILOT): ArduCopter SITL over its
+own TCP server and over a serial pty.
 """
 
 from __future__ import annotations
@@ -293,8 +294,9 @@ def test_tcpin_on_the_event_loop_follows_its_peers():
 
 
 # ------------------------------------------------------------------------------------------------ a real autopilot
-def _arducopter_on_tcp(workdir: Path, instance: int = 7) -> tuple[subprocess.Popen, int]:
-    """ArduCopter SITL (quad, no payload) with SERIAL0 a TCP server, as ``sim_vehicle.py`` starts it; its port."""
+def _arducopter_on_tcp(workdir: Path, instance: int = 7, serial0: str = "tcp:0") -> tuple[subprocess.Popen, int]:
+    """ArduCopter SITL (quad, no payload) with SERIAL0 a TCP server, as ``sim_vehicle.py`` starts it (or ``serial0``,
+    e.g. ``uart:DEVICE:BAUD``); its TCP port."""
     from lab import sitl_external
 
     root, why = sitl_external.find_arducopter()
@@ -305,7 +307,7 @@ def _arducopter_on_tcp(workdir: Path, instance: int = 7) -> tuple[subprocess.Pop
     with open(workdir / "arducopter.log", "w") as log:
         proc = subprocess.Popen([str(root / "build/sitl/bin/arducopter"), "--model", "quad", "-I", str(instance),
                                  "--wipe", "--home", sitl_external.ARDUCOPTER_HOME, "--defaults", defaults,
-                                 "--serial0", "tcp:0"], cwd=workdir, stdout=log, stderr=subprocess.STDOUT,
+                                 "--serial0", serial0], cwd=workdir, stdout=log, stderr=subprocess.STDOUT,
                                 stdin=subprocess.DEVNULL, start_new_session=True)
     return proc, 5760 + 10 * instance
 
@@ -344,3 +346,27 @@ def test_arducopter_sitl_over_tcp(tmp_path, kill):
         assert fly.returncode == 0, err[-3000:]
         assert rep["outcome"] == "completed" and rep["collisions"] == 0 and rep["autopilot"]["family"] == "ardupilot"
         assert "locked onto the autopilot (system 1) on tcp://" in err
+
+
+@pytest.mark.slow
+def test_arducopter_sitl_on_a_serial_pty(tmp_path):
+    """Opt-in (SLUNGPILOT_ARDUPILOT): ArduCopter SITL's SERIAL0 on one end of a pty pair at 921600 baud (its
+    ``uart:`` device), the companion on the other with ``--connect serial://``: the forest completes, nothing lost."""
+    import signal as sig
+
+    with PtyPair(tmp_path / "fc", tmp_path / "cc"):
+        ac, _ = _arducopter_on_tcp(tmp_path, serial0=f"uart:{tmp_path / 'fc'}:921600")
+        try:
+            out = subprocess.run([sys.executable, "-m", "companion.cli", "-v", "fly", "--connect",
+                                  f"serial://{tmp_path / 'cc'}:921600", "--mission", "forest_arducopter_sitl",
+                                  "--no-zenoh", "--no-recording", "--no-plots", "--run-dir", str(tmp_path / "run")],
+                                 capture_output=True, text=True, cwd=ROOT, timeout=420)
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(ac.pid, sig.SIGKILL)
+            ac.wait(10)
+    assert out.returncode == 0, out.stderr[-3000:]
+    rep = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert rep["outcome"] == "completed" and rep["collisions"] == 0 and rep["autopilot"]["family"] == "ardupilot"
+    assert rep["link"]["lost"] == 0 and not rep["link"]["rejected"], rep["link"]
+    assert "locked onto the autopilot (system 1) on serial://" in out.stderr
