@@ -20,6 +20,7 @@ from __future__ import annotations
 import heapq
 import logging
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -93,12 +94,14 @@ def fly_inprocess(
     link_jitter_s: float = 0.0,
     link_seed: int = 0,
     true_vehicle: VehicleParams | None = None,
+    on_tick: Callable[[FlightCore, float], None] | None = None,
 ) -> FlightLog:
     """Fly ``mission`` from take-off to the end of the hold (or timeout); returns the flight log.
 
     ``swing_sensor`` False flies without swing measurement (full-cable envelope, no feed-forward).
     ``swing_source`` overrides it: ``"cable_sensor"``, ``"none"`` or ``"estimate"`` (the swing estimator fed
     by ``estimator``, default :class:`~lab.swing_sim.EstimatorDriver` with its default sensors, seed 0).
+    ``on_tick(core, t_s)``: called before each tick's update (orders the sequence would give: a pause, a resume).
     ``truth``: if given, every tick's true state, commanded thrust and specific force is appended to it.
     With ``record`` False only the last tick is kept (for throughput measurements). ``true_vehicle``: the vehicle
     the physics flies when it differs from the mission's (a mis-declared payload: the companion flies
@@ -142,6 +145,8 @@ def fly_inprocess(
             )
         if link is not None:
             est = link.to_core(tick, est)
+        if on_tick is not None:  # what the flight sequence would order now (a test's pause, a hold)
+            on_tick(core, sim.t_s)
         cmd = core.update(est, mission.obstacles)
         if driver is not None:
             driver.command(sim.t_s, cmd.thrust_n)

@@ -5,6 +5,7 @@ holds the core, continue resumes it, land lands where it is, return holds then l
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from companion.core.mission import load_mission
 from companion.flight import operator as op
@@ -36,7 +37,6 @@ def test_who_may_command_and_what_is_answered_in_each_phase():
     assert desk.on_command(_cmd(op.MAV_CMD_NAV_LAND), 1, State.LAND, False).order is None  # already landing
     assert desk.on_command(_cmd(op.MAV_CMD_NAV_RETURN_TO_LAUNCH), 1, State.HOLD, False).order is op.Order.RETURN
     assert desk.on_command(_cmd(400), 1, State.MISSION, False).result == op.UNSUPPORTED
-    assert desk.on_command(pause, 1, State.MISSION, False, resumable=False).result == op.DENIED
     ci = CommandInt(255, 190, 0, op.MAV_CMD_NAV_LAND, 1, 191, (0.0,) * 7, 6)  # COMMAND_INT alike
     assert desk.on_command(ci, 1, State.MISSION, False).order is op.Order.LAND
     # --gcs-sysid: that system only; others denied, said and counted by sender
@@ -87,7 +87,7 @@ def test_the_core_resumes_where_it_paused_and_still_holds_at_the_goal():
     core.phase = CorePhase.CRUISE
     goal_hold = core._hold_ned_m.copy()
     core.hold_here(brake=True)
-    assert core.phase is CorePhase.HOLD_HERE and core.resumable
+    assert core.phase is CorePhase.HOLD_HERE
     assert core.resume() and core.phase is CorePhase.CRUISE and not core._braking
     assert np.array_equal(core._hold_ned_m, goal_hold)  # at the goal it hovers at the goal, not where it paused
     assert not core.resume()  # nothing to resume now
@@ -128,3 +128,30 @@ def test_statustext_chunks_as_mavlink2_and_keeps_to_its_rate():
     for k in range(30):  # a flood: the queue keeps the newest 20
         out.say(6, f"t{k}", 0.5)
     assert out.dropped == 10 and out.waiting == 20
+
+
+@pytest.mark.parametrize("planner", ["shaped", "safe"])
+def test_a_paused_mission_holds_then_resumes_and_completes_with_every_planner(planner):
+    """Closed loop in-process (the bundled physics, the flight core): paused mid-leg at 4.5 s the vehicle stops and
+    hovers; resumed at 9 s it flies on to the goal, clean. The shaped planner stops along its checked path."""
+    from companion.report.metrics import compute_metrics
+    from companion.report.run_folder import log_arrays
+    from lab.inprocess import fly_inprocess
+
+    mission = load_mission("config/missions/forest.toml").with_(planner=planner)
+
+    def orders(core, t_s):
+        if abs(t_s - 4.5) < 1e-6:
+            core.hold_here(brake=True)
+        elif abs(t_s - 9.0) < 1e-6:
+            assert core.resume()
+
+    flog = fly_inprocess(mission, on_tick=orders)
+    a = log_arrays(flog)
+    t, v = a["t_s"], np.hypot(a["vel_ned_mps"][:, 0], a["vel_ned_mps"][:, 1])
+    speed_at_pause = float(v[np.searchsorted(t, 4.5)])
+    assert speed_at_pause > 1.0  # it was paused mid-leg, flying
+    held = (t > 7.5) & (t < 9.0)
+    assert float(v[held].max()) < 0.1  # stopped and hovering
+    rep = compute_metrics(flog, mission)
+    assert rep["reached_goal"] and rep["collisions"] == 0 and rep["time_to_goal_s"] > 9.0

@@ -163,15 +163,10 @@ class FlightCore:
         self._braking = brake and not self._timed_stop
         self.phase = CorePhase.HOLD_HERE
 
-    @property
-    def resumable(self) -> bool:
-        """Whether :meth:`resume` can fly on after a hold (a time-parameterised planner needs a ``resume``)."""
-        return not self._timed or hasattr(self.planner, "resume")
-
     def resume(self) -> bool:
         """Fly the mission on from where :meth:`hold_here` stopped it, from the phase it stopped (a ground
         station's pause ended); False when there is nothing to resume."""
-        if self.phase != CorePhase.HOLD_HERE or self._paused_from is None or not self.resumable:
+        if self.phase != CorePhase.HOLD_HERE or self._paused_from is None:
             return False
         if self._timed_stop:
             self.planner.resume()

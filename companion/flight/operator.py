@@ -85,15 +85,13 @@ class OperatorDesk:
         self.denied: Counter[tuple[int, int]] = Counter()  # (system, component) -> commands denied
         self.answered: Counter[str] = Counter()  # "land:accepted", ...
 
-    def on_command(self, ev: Any, own_sysid: int | None, state: State, paused: bool,
-                   resumable: bool = True) -> Answer | None:
+    def on_command(self, ev: Any, own_sysid: int | None, state: State, paused: bool) -> Answer | None:
         """The answer to one COMMAND_LONG/COMMAND_INT event, or None when it is not addressed to the companion
-        (system ``own_sysid``, component 191). ``resumable``: the flight core can fly on after a pause (else a
-        pause is DENIED: the operator lands or returns instead)."""
+        (system ``own_sysid``, component 191)."""
         if own_sysid is None or ev.target_system not in (0, own_sysid) or \
                 ev.target_component != MAV_COMP_ID_ONBOARD_COMPUTER:
             return None
-        ans = self._decide(ev, state, paused, resumable)
+        ans = self._decide(ev, state, paused)
         label = {ACCEPTED: "accepted", TEMPORARILY_REJECTED: "temporarily_rejected", DENIED: "denied",
                  UNSUPPORTED: "unsupported"}.get(ans.result, str(ans.result))
         self.answered[f"{_NAMES.get(ev.command, ev.command)}:{label}"] += 1
@@ -105,7 +103,7 @@ class OperatorDesk:
             return "" if src == self.gcs_sysid else f"obeys system {self.gcs_sysid} only"
         return "signing is on and no --gcs-sysid names the GCS to obey" if self.signing else ""
 
-    def _decide(self, ev: Any, state: State, paused: bool, resumable: bool) -> Answer:
+    def _decide(self, ev: Any, state: State, paused: bool) -> Answer:
         src, comp, cmd = ev.src_system, ev.src_component, ev.command
 
         def answer(result: int, text: str = "", severity: int = SEV_INFO, order: Order | None = None) -> Answer:
@@ -125,9 +123,6 @@ class OperatorDesk:
                 return answer(TEMPORARILY_REJECTED, f"companion: cannot {order} in phase {state}", SEV_WARNING)
             if paused is (order is Order.PAUSE):
                 return answer(ACCEPTED, f"companion: already {'paused' if paused else 'flying'}")
-            if not resumable:
-                return answer(DENIED, "companion: this planner cannot resume after a pause: land or return",
-                              SEV_WARNING)
             text = "companion: paused, holding" if order is Order.PAUSE else "companion: resuming the mission"
             return answer(ACCEPTED, text, SEV_NOTICE, order)
         order = Order.LAND if cmd == MAV_CMD_NAV_LAND else Order.RETURN

@@ -283,7 +283,7 @@ class Pilot:
     def on_command(self, ev: TelemetryEvent) -> Answer | None:
         """A COMMAND_LONG/COMMAND_INT: what to answer when it is addressed to the companion (None otherwise); an
         accepted order goes to the sequence, carried out at the next tick."""
-        ans = self.desk.on_command(ev, self.state.vehicle_sysid, self.seq.state, self.seq.paused, self.core.resumable)
+        ans = self.desk.on_command(ev, self.state.vehicle_sysid, self.seq.state, self.seq.paused)
         if ans is not None and ans.order is not None:
             self.seq.order(ans.order, f"{ans.order} ordered by the ground station (system {ev.src_system})")
         return ans

@@ -69,6 +69,9 @@ class ApfPlanner:
     def stop(self) -> None:
         """Nothing to stop: the flight core holds the reference itself (:class:`~companion.planning.base.Planner`)."""
 
+    def resume(self) -> None:
+        """Nothing to resume: the flight core flies on itself (:class:`~companion.planning.base.Planner`)."""
+
     def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
         """Resultant force (eq. 26 / 28) at the measured position, read as desired velocity."""
         p = self.params

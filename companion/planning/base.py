@@ -119,6 +119,11 @@ class Planner(Protocol):
         then holds the reference itself."""
         ...
 
+    def resume(self) -> None:
+        """Fly on after :meth:`stop` (a ground station's pause ended): the next :meth:`plan` plans from where the
+        stop left the plan. A no-op for planners that give a desired velocity."""
+        ...
+
 
 def saturate(v: np.ndarray, limit: float) -> np.ndarray:
     """``v`` scaled down to norm ``limit`` if longer."""

@@ -134,6 +134,9 @@ class SafePlanner:
     def stop(self) -> None:
         """Nothing to stop: the flight core holds the reference itself (:class:`~companion.planning.base.Planner`)."""
 
+    def resume(self) -> None:
+        """Nothing to resume: the flight core flies on itself (:class:`~companion.planning.base.Planner`)."""
+
     def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
         """Desired horizontal velocity at the reference point (m/s, NED (2,))."""
         p = self.params
