@@ -88,6 +88,12 @@ def test_a_missing_device_is_a_link_error_naming_it(tmp_path):
     assert f"cannot open serial://{tmp_path}/nothing:921600" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_fly_serial_is_for_the_bundled_vehicle_only(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "companion.cli", "fly", "--serial", "--no-zenoh", "--run-dir",
+                           str(tmp_path / "run")], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert proc.returncode == 2 and "--serial: only with --sitl" in proc.stderr and "Traceback" not in proc.stderr
+
+
 def test_sitl_refuses_a_bad_serial_spec():
     proc = subprocess.run([sys.executable, "-m", "sim_bridge", "--serial", "/dev/ttyUSB0"],
                           capture_output=True, text=True, cwd=ROOT, timeout=60)
