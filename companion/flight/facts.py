@@ -35,7 +35,7 @@ def pilot_facts(p: Pilot) -> dict[str, Any]:
         "mission_frame": p.frame.facts(),
         "arrival": dict(p.core.arrival),
         # scans mapped, refused by reason, returns dropped, the map's counts (None: perception never started)
-        "perception": None if p.perception is None else p.perception.facts() | {"errors": p.perception_errors},
+        "perception": p.sensing.facts(),
     }
 
 

@@ -40,13 +40,13 @@ from companion.flight.obstacle_view import ObstacleView
 from companion.flight.operator import Answer, OperatorDesk
 from companion.flight.phase import CoreOrder, Phase, State, flight_phase
 from companion.flight.requests import Request
+from companion.flight.sensing import Sensing
 from companion.flight.sequence import FlightSequence
 from companion.flight.sequence_types import Observation, SequenceConfig, Stream, Transition
 from companion.flight.setup import FlightSetup
-from companion.mavlink_io.telemetry import Attitude, LocalPositionNed, ObstacleDistance, Rejected, TelemetryEvent
+from companion.mavlink_io.telemetry import TelemetryEvent
 from companion.perception.pipeline import Perception
-from companion.perception.scan import Scan, ScanPart
-from companion.planning.stop_cap import SeenFree, free_along
+from companion.perception.scan import Scan
 
 log = logging.getLogger(__name__)
 
@@ -112,12 +112,9 @@ class Pilot:
         self.record = FlightRecord(mission, self.state)
         self.frame = MissionFrame(mission.start_ned_m, setup.start_here)
         self.obstacles = ObstacleView(mission.obstacles)
-        #: the map of what the vehicle's own range sensors saw (None until it is on: see ``FlightSetup.perception``)
-        self.perception: Perception | None = None
-        self._seen_pts: object = None  # the scan the core's seen-free cap was last measured on
-        self.perception_errors = 0
-        if setup.perception:
-            self._start_perception()
+        #: the map of what the vehicle's own range sensors saw, and its feed (see ``FlightSetup.perception``)
+        self.sensing = Sensing(setup.perception, setup.lockstep, self.frame, self.obstacles, self.core,
+                               lambda: self.state.vehicle_sysid, self.record.error_log_due)
         self.params: dict[str, dict[str, float]] = {"read": {}, "set": {}}  # the autopilot parameters read/set
         self.abort_reason: str | None = None
         self.tick_errors = 0
@@ -174,14 +171,7 @@ class Pilot:
         found = not known and st.vehicle_sysid is not None
         if found:
             self._vehicle_found()
-        if self.perception is not None or ev.__class__ is ObstacleDistance:
-            try:
-                self._perceive(ev)
-            except Exception as exc:  # a bug in perception must not take the telemetry input down with it
-                self.perception_errors += 1
-                if self.record.error_log_due(wall_s):
-                    log.error("perception failed (%d times): %r", self.perception_errors, exc,
-                              exc_info=self.perception_errors == 1)
+        self.sensing.on_event(ev, wall_s)
         marker = False
         src = ev.src_system
         if src == st.vehicle_sysid:
@@ -199,70 +189,14 @@ class Pilot:
                 marker = True
         return Arrival(found, marker)
 
-    def _start_perception(self) -> None:
-        # lockstep: each scan mapped on arrival (same steps every run); real time: mapped between ticks, a slice at
-        # a time within the runner's budget (a scan costs milliseconds: more than a control period has to spare)
-        self.perception = Perception(self.state.vehicle_sysid, defer=not self.setup.lockstep)
-        p = self.perception
-        self.obstacles.perceived = p.obstacles_at
-        p.on_mapped = lambda: self._seen_free(p)  # also when a deferred (real-time) scan is mapped between ticks
-        log.info("perception on: trunks mapped from the vehicle's range scans")
-
-    def _perceive(self, ev: TelemetryEvent) -> None:
-        """Feed the perception map on arrival (outside the tick): the vehicle's poses (mission frame) and its
-        range scans. With ``setup.perception`` None the map starts at the vehicle's first scan."""
-        p = self.perception
-        src = ev.src_system
-        cls = ev.__class__
-        if p is None:
-            if self.setup.perception is False or src != self.state.vehicle_sysid:
-                return
-            self._start_perception()
-            p = self.perception
-            assert p is not None
-        p.vehicle_sysid = self.state.vehicle_sysid
-        if cls is ObstacleDistance:
-            p.on_part(ScanPart(ev.time_usec, ev.distances_cm, ev.min_distance_cm, ev.max_distance_cm,
-                               ev.increment_deg, ev.angle_offset_deg, ev.frame, src))
-            self._seen_free(p)
-        elif src != self.state.vehicle_sysid:
-            return
-        elif cls is LocalPositionNed:
-            o = self.frame.origin_ned_m
-            x, y, z = ev.pos_ned_m
-            p.on_position(ev.t_boot_s, (x - float(o[0]), y - float(o[1]), z - float(o[2])))
-        elif cls is Attitude:
-            p.on_attitude(ev.t_boot_s, ev.euler_rad)
-        elif cls is Rejected and ev.message == "OBSTACLE_DISTANCE":
-            p.refused["part_nonfinite"] += 1
+    @property
+    def perception(self) -> Perception | None:
+        """The perception map (None until it is on)."""
+        return self.sensing.perception
 
     def on_scan(self, scan: Scan, vehicle_clock: bool = True) -> None:
-        """A whole range scan from another input than MAVLink (Zenoh: the project's stream, ROS 2), handed over
-        between ticks; ``vehicle_clock`` False: its stamp may be on another clock (ROS time)."""
-        if self.perception is None:
-            if self.setup.perception is False:
-                return
-            self._start_perception()
-        p = self.perception
-        assert p is not None
-        p.vehicle_sysid = self.state.vehicle_sysid
-        try:
-            p.on_scan(scan) if vehicle_clock else p.on_foreign_scan(scan)
-            self._seen_free(p)
-        except Exception as exc:  # as in on_telemetry: counted, never raised into the input
-            self.perception_errors += 1
-            log.error("perception failed on a %s scan (%d times): %r", scan.source, self.perception_errors, exc)
-
-    def _seen_free(self, p: Perception) -> None:
-        """On a newly mapped scan: how far it saw free from the sensor along the direction of travel, for the core's
-        speed cap (:mod:`companion.planning.stop_cap`); computed here, on arrival, never in the tick."""
-        pts = p.map.last
-        if pts is None or pts is self._seen_pts:
-            return
-        self._seen_pts = pts
-        origin = (float(pts.origin_m[0]), float(pts.origin_m[1]))
-        d, heading = max((free_along(pts.bearing_rad, pts.free_m, h), h) for h in self.core.travel_headings_rad())
-        self.core.seen_free = SeenFree(origin[0], origin[1], heading, d, pts.t_s)
+        """A whole range scan from Zenoh, between ticks (see :meth:`companion.flight.sensing.Sensing.on_scan`)."""
+        self.sensing.on_scan(scan, vehicle_clock)
 
     def on_unread_frame(self, src_system: int, src_component: int, seq: int) -> None:
         """A message nothing reads: still a frame of the vehicle's stream (its sequence numbers count for loss)."""

@@ -287,15 +287,8 @@ class Runner:
                     log.exception("obstacle input failed (%d times); flying with the obstacles adopted so far",
                                   self.stats.ingest_errors)
             self.stats.ingest_s.append(time.perf_counter() - start)
-        perception = self.pilot.perception
-        if perception is not None and perception.pending:  # real time: a deferred scan, a slice at a time
-            try:
-                perception.work(time.perf_counter() + PERCEPTION_BUDGET_S, time.perf_counter)
-            except Exception:  # counted with the pilot's perception errors; that scan is dropped
-                perception.drop_pending()
-                self.pilot.perception_errors += 1
-                if self.pilot.record.error_log_due(time.monotonic()):
-                    log.exception("perception failed (%d times)", self.pilot.perception_errors)
+        # real time: a deferred scan, a slice at a time (a failure drops it and is counted with perception's)
+        self.pilot.sensing.work(time.perf_counter() + PERCEPTION_BUDGET_S, time.perf_counter, time.monotonic())
         self.gc_pacer.step()
 
     def _finished(self) -> None:
