@@ -24,7 +24,7 @@ PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "c
                  "companion.mavlink_io.mission_client",  # the mission download's state machine (typed events in/out)
                  # the pilot and everything it decides with (the runners around it are not pure)
                  "companion.flight.pilot", "companion.flight.phase", "companion.flight.failsafes",
-                 "companion.flight.sensing",
+                 "companion.flight.sensing", "companion.flight.core_orders",
                  "companion.flight.mode_goal", "companion.flight.setup", "companion.flight.mission_frame",
                  "companion.flight.obstacle_view", "companion.flight.flight_record", "companion.flight.facts",
                  "companion.flight.loop_stats", "companion.flight.arrival", "companion.flight.command",

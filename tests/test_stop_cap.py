@@ -40,7 +40,7 @@ def _fly(planner: str, seen: SeenFree | None, seconds: float = 14.0) -> tuple[np
     sim = VehicleSim(mission.vehicle, wind=mission.wind, dt_s=1e-3, x0=np.zeros(16))
     sim.armed = True
     core = FlightCore(mission, ControllerConfig(), VehicleProfile(), period_s=0.004)
-    core.seen_free = seen
+    core.cap.seen = seen
     pos, pay = [], []
     while sim.t_s < seconds:
         est = Estimate(t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,

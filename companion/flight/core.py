@@ -1,32 +1,9 @@
 """The per-tick pure glue of the companion: estimate → plan → reference → control → attitude setpoint.
 
-Phases: ``climb`` (vertical, from wherever the vehicle is, to the mission's start altitude; skipped when
-already there), ``cruise`` (planner towards the goal; horizontal from the planner, vertical straight to the
-goal's altitude with a braking profile), ``hold`` (at the goal for ``mission.hold_s``), ``no_route`` (the
-planner established that no route to the goal exists and holds where it stopped, for ``mission.hold_s``;
-``FlightCore.no_route`` stays True), ``done`` (hold finished, no route, or timeout; :attr:`FlightCore.result`
-says which; the app lands); ``hold_here`` / ``descend`` (the flight sequence stopped the mission: hover, or
-descend, where the reference is). No I/O, no clocks: time comes from the estimates.
-
-A time-parameterised planner (``shaped``) gives the horizontal reference itself (position, velocity,
-acceleration, and the payload's nominal swing along it); the core flies it through cruise, hold, no_route
-and done instead of integrating a desired velocity (hold_here and descend take over from it smoothly), and
-keeps the anti-swing feed-forward from fighting the planned swing: the controller adds ff(swing) to the
-reference acceleration, so the core hands it a_ref − ff(nominal swing) and the feed-forward acts on the
-deviation from the nominal swing only.
-
-Moving obstacles: a mission obstacle with a velocity (``vx_mps``/``vy_mps``) is at its file position at the
-mission clock's zero — the first :meth:`FlightCore.update` (the first setpoint of the mission) — and moves
-at constant velocity; the core advances it to each tick's time before planning. Live obstacles arrive
-already advanced (:mod:`companion.zenoh_io.obstacle_store`).
-
-Swing input: an :class:`~companion.estimation.estimate.Estimate` with ``swing`` None means no swing measurement —
-the controller then flies without payload compensation and feed-forward and the planners use the
-full-cable envelope max(l, r_uav + L_uav) (``Command.envelope_mode == "full_cable"``).
-
-Which swing sources feed the controller (the cable sensor and the estimator, not the 10 Hz payload stream), and
-how the measured loop lag fades the feed-forward and softens the gains: docs/companion.md, *The flight core's
-swing inputs and loop lag*.
+Phases (:class:`~companion.flight.phase.CorePhase`): climb, cruise, hold at the goal, no_route, done, and the
+sequence's hold_here / descend (:mod:`companion.flight.core_orders`). No I/O, no clocks: time comes from the
+estimates. How a time-parameterised planner's reference is flown, moving obstacles, swing inputs and the loop
+lag: docs/companion.md, *The flight core*.
 """
 
 from __future__ import annotations
@@ -54,25 +31,22 @@ from companion.estimation.estimate import Estimate, swing_sigma_rad, widened_swi
 from companion.estimation.loop_lag import LoopLagEstimator, lag_trust
 from companion.flight.arrival import ARRIVE_DWELL_S, ARRIVE_VERT_M, ArrivalRule, arrival_tolerance_m
 from companion.flight.command import LIFT_MARGIN_M, Command, LagStats, climb_altitude_ned_m
+from companion.flight.core_orders import DESCENT_MPS, TIMED_PHASES, CoreOrders
 from companion.flight.legs import Legs, capped, leg_plan, legs_done, planned_swing_acc
 from companion.flight.phase import CorePhase
 from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator, make_planner
 from companion.planning.fence_guard import fence_obstacles
-from companion.planning.stop_cap import LATENCY_S, SeenFree, stop_cap_mps
+from companion.planning.stop_cap import LATENCY_S, SeenCap, travel_headings_rad
 
 log = logging.getLogger(__name__)
 
 __all__ = ["ARRIVE_DWELL_S", "LIFT_MARGIN_M", "PHASES", "Command", "FlightCore", "climb_altitude_ned_m"]
 
 PHASES = tuple(CorePhase)
-SEEN_SAFE_M = 0.1  # the trunks' safe distance in the seen-free speed cap's margin (the perception map's, m)
-DESCENT_MPS = 0.5  # the companion's own landing descent (when the autopilot's land mode is not confirmed)
 SWING_READY_FADE = 0.9  # the swing estimate carries this much feed-forward: trusted enough to start the cruise
-#: where a time-parameterised planner gives the reference
-TIMED_PHASES = (CorePhase.CRUISE, CorePhase.HOLD, CorePhase.NO_ROUTE, CorePhase.DONE)
 
 
-class FlightCore:
+class FlightCore(CoreOrders):
     """Per-tick flight logic for one mission; call :meth:`update` with each new estimate.
 
     ``period_s``: the control period (s): the loop lag is counted in it, and the first tick steps by it."""
@@ -126,15 +100,14 @@ class FlightCore:
         #: a multi-leg mission's waypoints (None without: straight to the goal), the fence's keep-out discs
         self.legs = Legs(mission, self.cfg.planner.v_max_mps) if mission.waypoints else None
         self._fence_obs = fence_obstacles(mission.fence)
-        #: what the last mapped range scan saw free along the direction of travel (the pilot sets it on arrival;
-        #: None without perception: no speed cap), and the planner's swing-bounded deceleration for the cap (m/s²)
-        self.seen_free: SeenFree | None = None
+        #: the speed cap inside the space the range sensor saw free (the pilot sets ``cap.seen`` on each mapped
+        #: scan; none without perception). What passes before a lower cap takes effect: a scan, a re-plan, and
+        #: the reference's own lag behind the plan (shaped: half its shaper's widths; a velocity planner's
+        #: reference lags its desired velocity: the safe planner's goal braking looks goal_lookahead_s ahead)
         pl = self.cfg.planner
-        self._a_stop = pl.shaped_a_max_mps2 if self._timed else pl.a_goal_mps2
-        # what passes before a lower cap takes effect: a scan, a re-plan, and the reference's own lag behind the
-        # plan (shaped: the shaper's delay, half its boxes' widths; a velocity planner's reference lags its desired
-        # velocity: the safe planner's own goal braking looks goal_lookahead_s ahead for it)
-        self._cap_latency_s = LATENCY_S + (0.5 * sum(pl.shaper_tau_s) if self._timed else pl.goal_lookahead_s)
+        self.cap = SeenCap(pl.shaped_a_max_mps2 if self._timed else pl.a_goal_mps2,
+                           LATENCY_S + (0.5 * sum(pl.shaper_tau_s) if self._timed else pl.goal_lookahead_s),
+                           self._airframe_r)
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -146,48 +119,6 @@ class FlightCore:
         if self.no_route:
             return "no_route"
         return "timeout" if self.timed_out else "completed"
-
-    def hold_here(self, brake: bool = False) -> None:
-        """Stop the mission and hover where the reference is now (a hold the flight sequence asked for);
-        ``brake`` (a ground station's pause, velocity planners): where the reference stops braking at its own
-        acceleration and jerk limits, without coming back (from 2 m/s a hold at "now" overshot 1.1 m and flew back).
-
-        With a time-parameterised planner flying, "now" is the planner's own stop: along its checked path at
-        the swing-bounded deceleration (from 3.6 m/s a straight-line stop at the reference generator's limits
-        overshoots by 6 m, through whatever is ahead, and flies back)."""
-        resumable = self.phase in (CorePhase.CLIMB, CorePhase.CRUISE, CorePhase.HOLD)
-        self._paused_from = (self.phase, self._hold_ned_m) if resumable else None
-        if self.ref is not None:
-            self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)
-        self._stop_timed()
-        self._braking = brake and not self._timed_stop
-        self.phase = CorePhase.HOLD_HERE
-
-    def resume(self) -> bool:
-        """Fly the mission on from where :meth:`hold_here` stopped it, from the phase it stopped (a ground
-        station's pause ended); False when there is nothing to resume."""
-        if self.phase != CorePhase.HOLD_HERE or self._paused_from is None:
-            return False
-        if self._timed_stop:
-            self.planner.resume()
-            self._timed_stop = False
-        (self.phase, self._hold_ned_m), self._paused_from = self._paused_from, None
-        self._braking = False
-        return True
-
-    def descend(self) -> None:
-        """Stop the mission and descend at :data:`DESCENT_MPS` over where the reference is now (the
-        companion's own landing, when the autopilot's land mode was not confirmed); with a time-parameterised
-        planner, over the end of its stop (see :meth:`hold_here`)."""
-        if self.ref is not None:
-            self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)
-        self._stop_timed()
-        self.phase = CorePhase.DESCEND
-
-    def _stop_timed(self) -> None:
-        if self._timed and (self.phase in TIMED_PHASES or self._timed_stop):
-            self.planner.stop()
-            self._timed_stop = True
 
     # ------------------------------------------------------------------------------------------------
     def _vertical_speed(self, z_target: float) -> float:
@@ -363,7 +294,7 @@ class FlightCore:
                 t_s=est.t_s, pos_m=np.asarray(pos[:2], dtype=np.float64), vel_mps=np.asarray(vel[:2], dtype=np.float64),
                 ref_pos_m=np.array(ref.p[:2]), ref_vel_mps=np.array(ref.v[:2]), goal_m=goal, r_max_m=r_max,
                 swing=swing, cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
-                v_cap_mps=self._v_cap(est, r_max), **legs_in,
+                v_cap_mps=self.cap.cap_mps(est.pos_ned_m, est.vel_ned_mps, r_max), **legs_in,
             )
             out = self.planner.plan(inp, obs)
             vdx, vdy = float(out.v_des_mps[0]), float(out.v_des_mps[1])
@@ -396,7 +327,8 @@ class FlightCore:
             vel_mps=np.asarray(est.vel_ned_mps[:2], dtype=np.float64), ref_pos_m=np.array(ref.p[:2]),
             ref_vel_mps=np.array(ref.v[:2]), goal_m=goal, r_max_m=r_max, swing=swing,
             cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
-            swing_sigma_rad=swing_sigma_rad(est), v_cap_mps=self._v_cap(est, r_max), **legs_in,
+            swing_sigma_rad=swing_sigma_rad(est), v_cap_mps=self.cap.cap_mps(est.pos_ned_m, est.vel_ned_mps, r_max),
+            **legs_in,
         )
         out = self.planner.plan(inp, obs)
         if out.no_route and not self.no_route:
@@ -416,26 +348,12 @@ class FlightCore:
         ref.set_horizontal(r.pos_m, r.vel_mps, r.acc_mps2)
         return out
 
-    def _v_cap(self, est: Estimate, r_max: float) -> float:
-        """The speed cap (m/s) inside the space seen free (:mod:`companion.planning.stop_cap`; inf without it); the
-        margin is the envelope radius ``r_max`` (m) + the airframe + the trunks' safe distance."""
-        if self.seen_free is None:
-            return math.inf
-        pos, vel = est.pos_ned_m, est.vel_ned_mps
-        return stop_cap_mps(self.seen_free, float(pos[0]), float(pos[1]), math.hypot(float(vel[0]), float(vel[1])),
-                            r_max + self._airframe_r + SEEN_SAFE_M, self._a_stop, self._cap_latency_s)
-
     def travel_headings_rad(self) -> tuple[float, ...]:
-        """The direction of travel (rad from north) for the seen-free distance the pilot measures on each scan: the
-        reference's velocity; while slower than 0.3 m/s (no direction yet, or stopped by the cap) the directions
-        towards the goal and 30° and 60° either side, of which the pilot takes the freest."""
+        """Where the pilot measures the seen-free distance (:func:`companion.planning.stop_cap.travel_headings_rad`)."""
         ref = self.ref
-        if ref is not None and math.hypot(ref.v[0], ref.v[1]) > 0.3:
-            return (math.atan2(ref.v[1], ref.v[0]),)
         goal = self.legs.current.pos_ned_m if self.legs is not None else self._goal_xy
-        p = ref.p if ref is not None else self.mission.start_ned_m
-        h = math.atan2(float(goal[1]) - float(p[1]), float(goal[0]) - float(p[0]))
-        return tuple(h + math.radians(d) for d in (0.0, -30.0, 30.0, -60.0, 60.0))
+        return travel_headings_rad(ref.p if ref is not None else self.mission.start_ned_m,
+                                   ref.v if ref is not None else None, goal)
 
     def _acc_for_controller(self, out: PlanOutput, est: Estimate) -> list[float] | None:
         """The controller's reference acceleration with a timed plan (:func:`planned_swing_acc`), or None."""

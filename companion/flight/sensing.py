@@ -129,7 +129,7 @@ class Sensing:
         self._seen_pts = pts
         origin = (float(pts.origin_m[0]), float(pts.origin_m[1]))
         d, heading = max((free_along(pts.bearing_rad, pts.free_m, h), h) for h in self.core.travel_headings_rad())
-        self.core.seen_free = SeenFree(origin[0], origin[1], heading, d, pts.t_s)
+        self.core.cap.seen = SeenFree(origin[0], origin[1], heading, d, pts.t_s)
 
     def facts(self) -> dict[str, Any] | None:
         """The report's ``perception`` (None when the map never started)."""

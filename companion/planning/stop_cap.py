@@ -55,3 +55,36 @@ def free_along(bearing_rad: np.ndarray, free_m: np.ndarray, heading_rad: float) 
     its march: ~10 µs instead of ~3 ms)."""
     diff = np.abs((bearing_rad - heading_rad + math.pi) % (2.0 * math.pi) - math.pi)
     return float(free_m[int(np.argmin(diff))])
+
+
+SEEN_SAFE_M = 0.1  # the trunks' safe distance in the cap's margin (the perception map's, m)
+
+
+class SeenCap:
+    """A flight's cap: the last :class:`SeenFree` (``seen``, None without perception: no cap), the planner's
+    swing-bounded deceleration ``a_stop_mps2`` (m/s²), the ``latency_s`` (s) before a lower cap takes effect, and
+    the airframe's radius (m) in the margin."""
+
+    def __init__(self, a_stop_mps2: float, latency_s: float, airframe_r_m: float) -> None:
+        self.seen: SeenFree | None = None
+        self.a_stop_mps2 = a_stop_mps2
+        self.latency_s = latency_s
+        self.airframe_r_m = airframe_r_m
+
+    def cap_mps(self, pos_ned_m: np.ndarray, vel_ned_mps: np.ndarray, r_max_m: float) -> float:
+        """The cap (m/s) at this position and velocity with the envelope radius ``r_max_m`` (m)."""
+        if self.seen is None:
+            return math.inf
+        return stop_cap_mps(self.seen, float(pos_ned_m[0]), float(pos_ned_m[1]),
+                            math.hypot(float(vel_ned_mps[0]), float(vel_ned_mps[1])),
+                            r_max_m + self.airframe_r_m + SEEN_SAFE_M, self.a_stop_mps2, self.latency_s)
+
+
+def travel_headings_rad(ref_p: np.ndarray, ref_v: np.ndarray | None, goal_xy: np.ndarray) -> tuple[float, ...]:
+    """The direction of travel (rad from north) to measure the seen-free distance along: the reference's velocity
+    ``ref_v``; while slower than 0.3 m/s (no direction yet, or stopped by the cap) the directions from ``ref_p``
+    towards ``goal_xy`` and 30° and 60° either side, of which the pilot takes the freest."""
+    if ref_v is not None and math.hypot(ref_v[0], ref_v[1]) > 0.3:
+        return (math.atan2(ref_v[1], ref_v[0]),)
+    h = math.atan2(float(goal_xy[1]) - float(ref_p[1]), float(goal_xy[0]) - float(ref_p[0]))
+    return tuple(h + math.radians(d) for d in (0.0, -30.0, 30.0, -60.0, 60.0))
