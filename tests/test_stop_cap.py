@@ -105,3 +105,20 @@ def test_free_along_is_the_free_distance_the_map_marches_from_the_sensor():
     m.last = pts
     for h in rng.uniform(-math.pi, math.pi, 50):
         assert free_along(bearing, free, h) == pytest.approx(m.free_distance_m((1.0, -2.0), h), abs=0.051)
+
+
+def test_a_return_on_a_known_trunk_is_not_unseen_space():
+    """The ray ahead ends on a trunk: a mapped one is the planner's to fly around (free to the range limit for the
+    cap); one not mapped yet is a wall of unseen space at its range."""
+    from companion.planning.stop_cap import free_along
+
+    bearing = np.radians(np.arange(360.0)) - math.pi
+    free = np.full(360, 12.0)
+    k = int(np.argmin(np.abs(bearing)))  # the ray due north
+    free[k] = 3.0
+    ray = np.array([k])
+    ret = np.array([[3.0, 0.0]])
+    kw = {"ray_of_return": ray, "return_xy_m": ret, "range_max_m": 12.0}
+    assert free_along(bearing, free, 0.0, **kw, known_xy_m=np.array([[3.25, 0.0]]), known_r_m=np.array([0.25])) == 12.0
+    assert free_along(bearing, free, 0.0, **kw, known_xy_m=np.array([[6.0, 2.0]]), known_r_m=np.array([0.25])) == 3.0
+    assert free_along(bearing, free, 0.0, **kw, known_xy_m=np.zeros((0, 2)), known_r_m=np.zeros(0)) == 3.0

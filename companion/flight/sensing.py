@@ -12,6 +12,8 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from companion.flight.core import FlightCore
 from companion.flight.mission_frame import MissionFrame
 from companion.flight.obstacle_view import ObstacleView
@@ -128,7 +130,11 @@ class Sensing:
             return
         self._seen_pts = pts
         origin = (float(pts.origin_m[0]), float(pts.origin_m[1]))
-        d, heading = max((free_along(pts.bearing_rad, pts.free_m, h), h) for h in self.core.travel_headings_rad())
+        # the confirmed trunks (published radii): a return on one is the planner's to fly around, not unseen space
+        known = np.array([(o.x_m, o.y_m, o.radius_m) for o in p.obstacles], dtype=np.float64).reshape(-1, 3)
+        d, heading = max((free_along(pts.bearing_rad, pts.free_m, h, ray_of_return=pts.ray, return_xy_m=pts.xy_m,
+                                     known_xy_m=known[:, :2], known_r_m=known[:, 2], range_max_m=pts.range_max_m), h)
+                         for h in self.core.travel_headings_rad())
         self.core.cap.seen = SeenFree(origin[0], origin[1], heading, d, pts.t_s)
 
     def facts(self) -> dict[str, Any] | None:
