@@ -21,6 +21,11 @@ def test_table2_forest_fits_its_payload():
     check_payload_clears_ground(_forest())  # 1 m cable at 2 m: 1 m above the ground
 
 
+def test_a_start_on_the_ground_is_a_take_off_point():
+    """Group 1 starts on the ground and climbs to its goal at 5 m: the payload lifts off in the climb."""
+    check_payload_clears_ground(load_mission(shipped_config("missions/group1.toml")))
+
+
 @pytest.mark.parametrize(("l_m", "ok"), [(1.69, True), (1.71, False), (2.5, False)])
 def test_a_cable_longer_than_the_altitude_allows_is_refused(l_m, ok):
     m = _forest()

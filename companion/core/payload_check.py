@@ -79,9 +79,10 @@ GROUND_CLEARANCE_M = 0.3
 
 def check_payload_clears_ground(mission: Mission, clearance_m: float = GROUND_CLEARANCE_M) -> None:
     """Raise :class:`ConfigError` if the payload (the companion's belief of its cable length) would hang less than
-    ``clearance_m`` above the ground at the start, a waypoint or the goal."""
+    ``clearance_m`` above the ground at the start (unless the start is on the ground), a waypoint or the goal."""
     cable = mission.companion_params().l
-    points = [("start_ned_m", mission.start_ned_m)]
+    # a start on the ground (z = 0, the paper's group 1) is a take-off point: the payload lifts off in the climb
+    points = [("start_ned_m", mission.start_ned_m)] if float(mission.start_ned_m[2]) < 0.0 else []
     points += [(f"waypoint {i} ({w.name})" if w.name else f"waypoint {i}", w.pos_ned_m)
                for i, w in enumerate(mission.waypoints)]
     points.append(("goal_ned_m", mission.goal_ned_m))
