@@ -33,11 +33,30 @@ def shipped_config(relative: str) -> Path:
     return Path(str(importlib.resources.files(CONFIG_PACKAGE).joinpath(relative)))
 
 
+def shipped_files(folder: str, suffix: str = ".toml") -> dict[str, Path]:
+    """The shipped files of a config folder (``missions``, ``worlds``), by name (file stem), sorted."""
+    root = importlib.resources.files(CONFIG_PACKAGE).joinpath(folder)
+    return {Path(e.name).stem: Path(str(e)) for e in sorted(root.iterdir(), key=lambda e: e.name)
+            if e.name.endswith(suffix)}
+
+
+def resolve_shipped(arg: str | Path, folder: str, kind: str, hint: str = "") -> Path:
+    """A file argument: an existing file wins, else a shipped one of ``folder`` by name (``forest``,
+    ``forest.toml``); :class:`ConfigError` naming the shipped ones otherwise (``kind``: "mission", "world")."""
+    p = Path(arg)
+    if p.is_file():
+        return p
+    shipped = shipped_files(folder)
+    name = p.stem if p.suffix == ".toml" and p.parent == Path(".") else str(arg)
+    if name in shipped:
+        return shipped[name]
+    raise ConfigError(f"{arg}: no such {kind} file, and no shipped {kind} of that name (shipped: "
+                      f"{', '.join(shipped)}{hint})")
+
+
 def shipped_missions() -> dict[str, Path]:
     """The missions that ship with slungpilot, by name (file stem): ``{"forest": Path, "group1": Path, ...}``."""
-    folder = importlib.resources.files(CONFIG_PACKAGE).joinpath("missions")
-    return {Path(e.name).stem: Path(str(e)) for e in sorted(folder.iterdir(), key=lambda e: e.name)
-            if e.name.endswith(".toml")}
+    return shipped_files("missions")
 
 
 def resolve_obstacles(arg: str | Path) -> Path:
@@ -57,15 +76,7 @@ def resolve_obstacles(arg: str | Path) -> Path:
 def resolve_mission(arg: str | Path) -> Path:
     """A mission argument as a file: an existing path wins, else a shipped mission by name (``forest``,
     ``group1.toml``); :class:`ConfigError` naming the known missions otherwise."""
-    p = Path(arg)
-    if p.exists():
-        return p
-    missions = shipped_missions()
-    name = p.stem if p.suffix == ".toml" and p.parent == Path(".") else str(arg)
-    if name in missions:
-        return missions[name]
-    raise ConfigError(f"{arg}: no such mission file, and no shipped mission of that name "
-                      f"(shipped: {', '.join(missions)}; `slungpilot missions` lists them)")
+    return resolve_shipped(arg, "missions", "mission", "; `slungpilot missions` lists them")
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:

@@ -29,13 +29,12 @@ of a flight in a world scores the world's trunks on the vehicle's clock (``sourc
 from __future__ import annotations
 
 import dataclasses
-import importlib.resources
 import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from companion.config import CONFIG_PACKAGE, dataclass_from_table, read_toml
+from companion.config import dataclass_from_table, read_toml, resolve_shipped, shipped_files
 from companion.core.obstacles import Obstacle
 from companion.errors import ConfigError
 
@@ -55,23 +54,13 @@ class World:
 
 def shipped_worlds() -> dict[str, Path]:
     """The worlds that ship with slungpilot, by name (file stem): ``{"forest": Path, ...}``."""
-    folder = importlib.resources.files(CONFIG_PACKAGE).joinpath("worlds")
-    return {Path(e.name).stem: Path(str(e)) for e in sorted(folder.iterdir(), key=lambda e: e.name)
-            if e.name.endswith(".toml")}
+    return shipped_files("worlds")
 
 
 def resolve_world(arg: str | Path) -> Path:
     """A ``--world`` argument as a file: an existing path wins, else a shipped world by name (``forest``,
     ``forest_crossing.toml``); :class:`ConfigError` naming the shipped worlds otherwise."""
-    p = Path(arg)
-    if p.is_file():
-        return p
-    worlds = shipped_worlds()
-    name = p.stem if p.suffix == ".toml" and p.parent == Path(".") else str(arg)
-    if name in worlds:
-        return worlds[name]
-    raise ConfigError(f"{arg}: no such world file, and no shipped world of that name (shipped: "
-                      f"{', '.join(worlds)})")
+    return resolve_shipped(arg, "worlds", "world")
 
 
 def world_from_dict(data: dict[str, Any], where: str) -> World:
