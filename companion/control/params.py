@@ -32,6 +32,8 @@ class SmcGains:
     On a slow link the horizontal c and k are scaled by √s (so the stiffness c·k by s, the damping ratio kept), where
     s is 1 up to ``lag_scale_start_s`` of measured loop lag beyond the autopilot's clean-link lag, falling linearly
     to ``lag_scale_min`` at ``lag_scale_end_s`` (see :mod:`companion.estimation.loop_lag`).
+    ``ki`` (1/s²): horizontal integral action while the reference hovers (slower than 0.3 m/s), clamped at
+    ``i_limit_mps2`` (m/s²): a mean wind's drag leaves no standing offset at a hold or the goal (0: off).
     """
 
     c: Vec3 = (1.2, 1.2, 2.0)
@@ -41,7 +43,7 @@ class SmcGains:
     lag_scale_start_s: float = 0.05
     lag_scale_end_s: float = 0.15
     lag_scale_min: float = 0.25
-    ki: float = 0.0
+    ki: float = 0.5
     i_limit_mps2: float = 1.5
 
     def validate(self) -> None:
