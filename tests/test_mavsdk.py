@@ -12,45 +12,17 @@ import pytest
 
 mavsdk = pytest.importorskip("mavsdk.asyncio", reason="mavsdk (the test extra) is not installed")
 
-from mavsdk.asyncio import ComponentType, Configuration, Mavsdk  # noqa: E402
 from mavsdk.asyncio.plugins.action import ActionAsync  # noqa: E402
 from mavsdk.asyncio.plugins.offboard import OffboardAsync  # noqa: E402
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync  # noqa: E402
 from mavsdk.plugins.offboard import Attitude, OffboardError, PositionNedYaw, VelocityNedYaw  # noqa: E402
 from mavsdk.plugins.telemetry import FlightMode  # noqa: E402
-
-from sim_bridge.mavclient import free_udp_port, spawn_vehicle, stop_vehicle  # noqa: E402
+from mavsdk_drone import Drone  # noqa: E402
 
 pytestmark = pytest.mark.slow  # every test here flies a mission or a peer against the vehicle
 
 HOME = (47.397742, 8.545594, 488.0)
 TEST_BUDGET_S = 60.0
-
-
-class Drone:
-    """A vehicle process plus a MAVSDK instance listening where the vehicle sends (PX4's udpin habit)."""
-
-    def __init__(self, *vehicle_args: str) -> None:
-        self.port = free_udp_port()
-        self.proc, self.vehicle_port, _ = spawn_vehicle("--wind", "none", "--onboard-remote",
-                                                        f"127.0.0.1:{self.port}", *vehicle_args)
-        self.mavsdk: Mavsdk | None = None
-
-    async def connect(self):
-        self.mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-        await self.mavsdk.add_any_connection(f"udpin://127.0.0.1:{self.port}")
-        # as the examples: wait for new systems until one has an autopilot and is connected
-        async for _ in self.mavsdk.on_new_system():
-            for system in await self.mavsdk.get_systems():
-                if await system.has_autopilot() and await system.is_connected():
-                    self.system = system
-                    return system
-        raise AssertionError("no autopilot")
-
-    def close(self) -> None:
-        if self.mavsdk is not None:
-            self.mavsdk.destroy()
-        assert stop_vehicle(self.proc) == 0
 
 
 @pytest.fixture

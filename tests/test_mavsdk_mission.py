@@ -14,43 +14,18 @@ import pytest
 
 mavsdk = pytest.importorskip("mavsdk.asyncio", reason="mavsdk (the test extra) is not installed")
 
-from mavsdk.asyncio import ComponentType, Configuration, Mavsdk  # noqa: E402
 from mavsdk.asyncio.plugins.geofence import GeofenceAsync  # noqa: E402
 from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync  # noqa: E402
 from mavsdk.plugins.geofence import Circle, FenceType, GeofenceData, Point, Polygon  # noqa: E402
 from mavsdk.plugins.mission_raw import MissionItem, MissionRawError  # noqa: E402
+from mavsdk_drone import Drone  # noqa: E402
 from pymavlink.dialects.v20 import common as M  # noqa: E402
-
-from sim_bridge.mavclient import free_udp_port, spawn_vehicle, stop_vehicle  # noqa: E402
 
 pytestmark = pytest.mark.slow  # a real-time vehicle and MAVSDK's server per test
 
 HOME = (47.397742, 8.545594, 488.0)
 TEST_BUDGET_S = 60.0
 REL, MFRAME = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_FRAME_MISSION
-
-
-class Drone:
-    """A vehicle process plus a MAVSDK instance (as a ground station) listening where the vehicle sends."""
-
-    def __init__(self) -> None:
-        self.port = free_udp_port()
-        self.proc, _, _ = spawn_vehicle("--wind", "none", "--onboard-remote", f"127.0.0.1:{self.port}")
-        self.mavsdk: Mavsdk | None = None
-
-    async def connect(self):
-        self.mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-        await self.mavsdk.add_any_connection(f"udpin://127.0.0.1:{self.port}")
-        async for _ in self.mavsdk.on_new_system():
-            for system in await self.mavsdk.get_systems():
-                if await system.has_autopilot() and await system.is_connected():
-                    return system
-        raise AssertionError("no autopilot")
-
-    def close(self) -> None:
-        if self.mavsdk is not None:
-            self.mavsdk.destroy()
-        assert stop_vehicle(self.proc) == 0
 
 
 @pytest.fixture
