@@ -146,6 +146,7 @@ def test_px4_sih_flies_the_mission_and_fence_a_ground_station_uploaded(tmp_path)
     print("home drift between the upload and the download (m):", drift)
     want = [[n + drift[0], e + drift[1], -alt] for n, e, alt, _ in ROUTE]
     assert np.allclose(am["waypoints"], want, atol=0.05)
+    assert am["home_shift_m"][:2] == [0.0, 0.0]  # north and east pinned to the home the route was placed about
     assert [w["reached_t_s"] is not None for w in rep["waypoints_flown"]] == [True] * 3 and rep["reached_goal"]
 
 

@@ -47,3 +47,24 @@ def test_start_here_moves_the_mission_under_the_vehicle(tmp_path):
     assert rep["mission_frame"]["origin_local_ned_m"][:2] == [-5.0, -3.0]
     pos = np.load(Path(rep["run_dir"]) / "flight_log.npz")["pos_ned_m"]
     assert abs(pos[0, 0] - 5.0) < 0.05 and abs(pos[0, 1] - 3.0) < 0.05  # logged in the mission frame
+
+
+def test_a_pinned_frame_stays_where_the_mission_was_placed():
+    """``fly --mission autopilot``: north and east are the download's home however home moves after it (PX4 SIH
+    moved it 0.27-2.2 m while its estimator settled), heights follow home; the start is still checked against the
+    home the autopilot reports."""
+    from companion.flight.mission_frame import MissionFrame
+    from companion.flight.phase import State
+
+    frame = MissionFrame(np.array([0.0, 0.0, -2.0]), False, (1.0, 2.0, 0.5))
+    moved_home = np.array([2.5, 2.0, 0.4])
+    assert frame.update(np.array([2.5, 2.0, 0.4]), moved_home, True, State.WAIT_READY) == 0.0  # at its home
+    assert frame.update(np.array([2.5, 2.0, 0.4]), moved_home, True, State.PRESTREAM) == 0.0
+    assert frame.fixed and frame.origin_ned_m.tolist() == [1.0, 2.0, 0.4]  # heights above the home now
+    frame.update(np.array([2.5, 2.0, 0.4]), np.array([5.0, 5.0, 0.0]), True, State.MISSION)
+    assert frame.origin_ned_m.tolist() == [1.0, 2.0, 0.4]  # fixed
+    assert frame.facts() == {"origin_local_ned_m": [1.0, 2.0, 0.4], "origin": "home at the mission's download",
+                             "home_at_fix_local_ned_m": [2.5, 2.0, 0.4]}
+    follows = MissionFrame(np.array([0.0, 0.0, -2.0]), False)  # a file mission's frame follows home, as before
+    follows.update(None, moved_home, True, State.PRESTREAM)
+    assert follows.origin_ned_m.tolist() == moved_home.tolist() and "home_at_fix_local_ned_m" not in follows.facts()

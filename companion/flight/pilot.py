@@ -110,7 +110,7 @@ class Pilot:
         self.orders_log: list[dict] = []  # its orders as carried out: vehicle time t_s, monotonic wall_s (s)
         self.health = LinkHealth(period_s=self.period_s)
         self.record = FlightRecord(mission, self.state)
-        self.frame = MissionFrame(mission.start_ned_m, setup.start_here)
+        self.frame = MissionFrame(mission.start_ned_m, setup.start_here, setup.mission_origin_ned_m)
         self.obstacles = ObstacleView(mission.obstacles)
         #: the map of what the vehicle's own range sensors saw, and its feed (see ``FlightSetup.perception``)
         self.sensing = Sensing(setup.perception, setup.lockstep, self.frame, self.obstacles, self.core,

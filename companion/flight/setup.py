@@ -36,7 +36,10 @@ class FlightSetup:
     vehicle's first scan arrives (a flight with no scans flies exactly as without it), True: from the start,
     False: never (scans are ignored). ``accept_unsigned``: with signing, the systems whose unsigned frames are read
     all the same (a payload that cannot sign); ``gcs_sysid``: the only ground station whose commands (pause,
-    resume, land, return) the companion obeys (None: any, unless signing is on, when none is obeyed).
+    resume, land, return) the companion obeys (None: any, unless signing is on, when none is obeyed);
+    ``mission_origin_ned_m``: the mission frame's origin pinned (the autopilot's local NED, m; north and east,
+    heights still follow home): the home an autopilot's mission was placed about at its download (None: the frame
+    follows home until the vehicle is ready).
     """
 
     connect: str = "udpin://0.0.0.0:14540"
@@ -65,6 +68,7 @@ class FlightSetup:
     perception: bool | None = None
     accept_unsigned: tuple[int, ...] = ()
     gcs_sysid: int | None = None
+    mission_origin_ned_m: tuple[float, float, float] | None = None
 
     @property
     def period_s(self) -> float:

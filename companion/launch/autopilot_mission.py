@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -227,3 +227,13 @@ def fetch_autopilot_mission(setup: FlightSetup, base: Mission, *, bundled: bool 
     for n in notes:
         log.info("autopilot mission: %s", n)
     return mission, facts
+
+
+def pinned_setup(setup: FlightSetup, facts: dict[str, Any]) -> FlightSetup:
+    """``setup`` with the mission frame pinned to the home the route was placed about (``facts``' home, local NED
+    m): an autopilot that moves home after the download (PX4 SIH while its estimator settles) no longer shifts the
+    route off the points on the earth. ``start_here`` (fly from where the vehicle stands) is left as asked."""
+    home = (facts.get("home") or {}).get("local_ned_m")
+    if home is None or setup.start_here:
+        return setup
+    return replace(setup, mission_origin_ned_m=(float(home[0]), float(home[1]), float(home[2])))

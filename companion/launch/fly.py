@@ -107,7 +107,7 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
             if spec.narrate:
                 wiring.sinks.append(Narrator(lockstep=setup.lockstep))
             if spec.autopilot_mission:  # before the pilot: its route and fence are what the autopilot holds
-                mission, refusal, am_facts = _fetch_autopilot_mission(spec, setup, mission, run_dir)
+                mission, refusal, am_facts, setup = _fetch_autopilot_mission(spec, setup, mission, run_dir)
             pilot = Pilot(mission, setup)
             try:
                 if setup.lockstep:
@@ -129,18 +129,18 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
 
 
 def _fetch_autopilot_mission(spec: FlySpec, setup: Any, mission: Mission,
-                             run_dir: Path) -> tuple[Mission, Any, dict[str, Any]]:
-    """``--mission autopilot``: the mission to fly, the refusal (None when it can be flown) and the report's facts
-    (:mod:`companion.launch.autopilot_mission`)."""
-    from companion.launch.autopilot_mission import Refusal, fetch_autopilot_mission
+                             run_dir: Path) -> tuple[Mission, Any, dict[str, Any], Any]:
+    """``--mission autopilot``: the mission to fly, the refusal (None when it can be flown), the report's facts and
+    the set-up with its mission frame pinned to the download's home (:mod:`companion.launch.autopilot_mission`)."""
+    from companion.launch.autopilot_mission import Refusal, fetch_autopilot_mission, pinned_setup
 
     bundled = spec.sitl or (setup.profile is not None and setup.profile.name == "bundled")
     try:
         flown, facts = fetch_autopilot_mission(setup, mission, bundled=bundled, run_dir=run_dir)
     except Refusal as r:
         log.error("the autopilot's mission is not flown: %s", r.detail)
-        return mission, r, {"refused": r.detail, **r.facts}
-    return flown, None, facts
+        return mission, r, {"refused": r.detail, **r.facts}, setup
+    return flown, None, facts, pinned_setup(setup, facts)
 
 
 async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path,
@@ -275,16 +275,20 @@ def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path
 def _home_shift(am_facts: dict[str, Any], runner: Runner) -> None:
     """``--mission autopilot``: how far (m, the autopilot's local NED) the mission frame the flight fixed lies from
     the home its route was placed about (``home_shift_m``; the autopilot moved home in between: the route flew
-    shifted by that much), warned about above 0.5 m."""
+    shifted by that much; north and east 0 once the frame is pinned to that home), warned about above 0.5 m
+    horizontally; with a pinned frame also ``home_moved_m``: how far the autopilot's own home moved by then (the
+    route's north and east did not follow it)."""
     home = (am_facts.get("home") or {}).get("local_ned_m")
     frame = runner.pilot.frame
     if home is None or not frame.fixed:
         return
     shift = [float(o - h) for o, h in zip(frame.origin_ned_m, home, strict=True)]
     am_facts["home_shift_m"] = shift
-    if math.hypot(*shift) > 0.5:
+    if frame.home_at_fix_ned_m is not None:  # pinned: how far the autopilot moved home, the route did not follow
+        am_facts["home_moved_m"] = [float(a - h) for a, h in zip(frame.home_at_fix_ned_m, home, strict=True)]
+    if math.hypot(*shift[:2]) > 0.5:
         log.warning("the autopilot moved home %.2f m after its mission was downloaded: the route flew shifted by "
-                    "that much (report: autopilot_mission.home_shift_m)", math.hypot(*shift))
+                    "that much (report: autopilot_mission.home_shift_m)", math.hypot(*shift[:2]))
 
 
 def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any]) -> dict[str, Any]:
