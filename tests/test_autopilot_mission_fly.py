@@ -16,12 +16,12 @@ import time
 
 import numpy as np
 import pytest
+from _operator_helpers import DEFAULT_HOME, FENCE_SQUARE, KEEP_OUT, ROUTE, fence_margins_m, mavsdk_upload, route_fence
 from pymavlink.dialects.v20 import common as M
 
 from companion.autopilots.profile import profile_by_name
 from companion.config import shipped_missions
 from companion.core.autopilot_mission import earth_radii_m
-from companion.core.fence import Fence, FenceCircle, FencePolygon, fence_margin_m
 from companion.core.mission import load_mission
 from companion.flight.setup import FlightSetup
 from companion.launch.fly import fly_mission
@@ -30,10 +30,6 @@ from companion.launch.spec import FlySpec
 
 pytestmark = pytest.mark.slow
 
-ROUTE = [(2.0, 1.6, 2.0, 0.0), (5.5, 2.6, 2.5, 2.0), (9.0, 1.2, 2.0, 0.0), (10.0, 0.0, 2.0, 0.0)]  # n, e, alt, hold
-FENCE_SQUARE = [(-3.0, -4.0), (14.0, -4.0), (14.0, 5.0), (-3.0, 5.0)]
-KEEP_OUT = (7.5, 3.8, 0.5)  # north, east, radius (m): beside the leg from the clearing to the east gap
-DEFAULT_HOME = (47.397742, 8.545594, 488.0)  # the bundled vehicle's home without --home
 
 
 class _Gcs:
@@ -127,12 +123,8 @@ def test_a_ground_station_s_mission_and_fence_are_flown_through_the_forest(tmp_p
     assert am["items"] == 6 and am["fence_items"] == 5 and am["earth_model"] == "wgs84"
     assert am["home_shift_m"] == [0.0, 0.0, 0.0]  # the flight's frame is the home the route was placed about
     assert np.allclose(am["waypoints"], [[n, e, -alt] for n, e, alt, _ in ROUTE], atol=0.02)
-    data = np.load(result.run_dir / "flight_log.npz")
-    fence = Fence((FencePolygon(tuple(FENCE_SQUARE), True),), (FenceCircle(KEEP_OUT[:2], KEEP_OUT[2], False),))
-    pos, payload = data["pos_ned_m"], data["payload_pos_ned_m"]
-    margins = [fence_margin_m(fence, p[:2]) for p in pos] + \
-        [fence_margin_m(fence, p[:2]) for p in payload if np.all(np.isfinite(p))]
-    assert len(margins) > len(pos) and min(margins) > 0.0, min(margins)  # vehicle and payload stayed inside
+    n, margin = fence_margins_m(np.load(result.run_dir / "flight_log.npz"), route_fence())
+    assert n > 0 and margin > 0.0, margin  # vehicle and payload stayed inside
     assert report["collisions"] == 0 and report["reached_goal"]
     legs = report["waypoints"]  # the multi-leg flight's report per waypoint
     assert [w["name"] for w in legs] == ["item 1", "item 2", "item 3", "goal"]
@@ -149,21 +141,9 @@ def test_a_fence_that_excludes_the_start_is_refused_before_take_off(tmp_path):
     assert report["autopilot_mission"]["fence_items"] == 5
 
 
-def _ll_deg(home: tuple[float, float, float], n: float, e: float) -> tuple[float, float]:
-    """Latitude and longitude (deg) of (north, east) m from ``home`` (the bundled vehicle's WGS-84 local radii)."""
-    r_n, r_e = earth_radii_m("wgs84", home[0], home[2])
-    return home[0] + math.degrees(n / r_n), home[1] + math.degrees(e / (r_e * math.cos(math.radians(home[0]))))
-
-
 async def _fly_mavsdk(tmp_path):
     """MAVSDK as the ground station on the vehicle's GCS link: mission_raw uploads the mission, the geofence plugin
     the fence; then the companion flies (MAVSDK stays connected, as a ground station would)."""
-    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
-    from mavsdk.asyncio.plugins.geofence import GeofenceAsync
-    from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
-    from mavsdk.plugins.geofence import Circle, FenceType, GeofenceData, Point, Polygon
-    from mavsdk.plugins.mission_raw import MissionItem
-
     from companion.launch.sitl import free_udp_port
 
     base = load_mission(shipped_missions()["forest"])
@@ -171,28 +151,8 @@ async def _fly_mavsdk(tmp_path):
     extra = ["--control-period-ms", "4", "--gcs-remote", f"127.0.0.1:{gcs_port}"]
     async with SitlProcess(base, tmp_path / "sitl", lockstep=True, extra_args=extra) as sitl:
         home = DEFAULT_HOME  # the vehicle's (its GCS link locks onto its first client: MAVSDK's, here)
-        drone = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+        drone = await mavsdk_upload(f"udpin://127.0.0.1:{gcs_port}", home)
         try:
-            await drone.add_any_connection(f"udpin://127.0.0.1:{gcs_port}")
-            system = None
-            async for _ in drone.on_new_system():
-                for s in await drone.get_systems():
-                    if await s.has_autopilot() and await s.is_connected():
-                        system = s
-                if system is not None:
-                    break
-            rel = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
-            items = [MissionItem(0, rel, M.MAV_CMD_NAV_TAKEOFF, 1, 1, 0.0, 0.0, 0.0, math.nan, 0, 0, 2.0, 0)]
-            for k, (n, e, alt, hold) in enumerate(ROUTE):
-                lat, lon = _ll_deg(home, n, e)
-                items.append(MissionItem(k + 1, rel, M.MAV_CMD_NAV_WAYPOINT, 0, 1, hold, 0.0, 0.0, math.nan,
-                                         round(lat * 1e7), round(lon * 1e7), alt, 0))
-            items.append(MissionItem(5, rel, M.MAV_CMD_NAV_LAND, 0, 1, 0.0, 0.0, 0.0, math.nan, 0, 0, 0.0, 0))
-            await MissionRawAsync(system).upload_mission(items)
-            square = [Point(*_ll_deg(home, n, e)) for n, e in FENCE_SQUARE]
-            keep_out = Circle(Point(*_ll_deg(home, *KEEP_OUT[:2])), KEEP_OUT[2], FenceType.EXCLUSION)
-            await GeofenceAsync(system).upload_geofence(GeofenceData([Polygon(square, FenceType.INCLUSION)],
-                                                                     [keep_out]))
             setup = FlightSetup(connect=sitl.companion_url, sock=sitl.companion_sock, lockstep=True,
                                 profile=profile_by_name("bundled"))
             spec = FlySpec(setup=setup, run_dir=tmp_path / "run", plots=False, narrate=False, autopilot_mission=True)
