@@ -183,7 +183,9 @@ def test_heartbeat_loss_is_link_lost_and_streaming_stops():
     assert h.streams[-1][1] == Stream.NONE
 
 
-def test_heartbeat_loss_alone_takes_1_5_s():
+def test_heartbeat_loss_alone_takes_4_s_while_telemetry_flows():
+    """A late HEARTBEAT with position and attitude still flowing is an autopilot on a slow clock (PX4 SIH), not a
+    lost link; 4 s of it is."""
     h = _harness()
     h.run_until(lambda: h.seq.state == State.MISSION)
     h.ap.last_hb = h.ap.t
@@ -197,7 +199,7 @@ def test_heartbeat_loss_alone_takes_1_5_s():
     h.ap.advance = no_more_heartbeats
     t0 = h.ap.t
     h.run_until(lambda: h.seq.finished, max_s=5)
-    assert h.seq.outcome == "link_lost" and 1.5 <= h.ap.t - t0 <= 1.52
+    assert h.seq.outcome == "link_lost" and 4.0 <= h.ap.t - t0 <= 4.02
 
 
 def test_stale_telemetry_holds_without_streaming_then_lands():

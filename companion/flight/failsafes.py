@@ -86,9 +86,11 @@ class FailureWatch:
         # Before setpoints flow, an autopilot that pauses its telemetry (PX4 while its estimator starts) is only
         # not ready yet; from then on the vehicle may depend on us, and silence is a lost link.
         telemetry_counts = state not in (State.CONFIGURE, State.WAIT_READY)
-        hb_limit = self.cfg.heartbeat_loss_s if telemetry_counts else max(self.cfg.heartbeat_loss_s,
-                                                                         self.cfg.heartbeat_loss_waiting_s)
-        if hb_age > hb_limit or (telemetry_counts and obs.telemetry_ready and tel_age > self.cfg.telemetry_loss_s):
+        cfg = self.cfg
+        streaming = telemetry_counts and obs.telemetry_ready and tel_age <= cfg.telemetry_loss_s
+        hb_limit = max(cfg.heartbeat_loss_s, cfg.heartbeat_loss_streaming_s if streaming else
+                       cfg.heartbeat_loss_s if telemetry_counts else cfg.heartbeat_loss_waiting_s)
+        if hb_age > hb_limit or (telemetry_counts and obs.telemetry_ready and tel_age > cfg.telemetry_loss_s):
             what = (f"no HEARTBEAT for {hb_age:.1f} s" if hb_age > hb_limit
                     else f"no position/attitude for {tel_age:.2f} s")
             return Failure(FailureKind.LINK_LOST, "link_lost", f"vehicle lost: {what}")

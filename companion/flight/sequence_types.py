@@ -53,6 +53,10 @@ class SequenceConfig:
     # ... before setpoints flow (CONFIGURE, WAIT_READY) nothing depends on us yet, and PX4 SIH was seen to miss
     # its 1 Hz HEARTBEAT for over 1.5 s while its estimator started: only this long ends the wait then
     heartbeat_loss_waiting_s: float = 5.0
+    # ... and while its position and attitude keep flowing the link is alive (telemetry_loss_s watches that):
+    # a late HEARTBEAT alone is an autopilot whose clock runs slow (PX4 SIH at 0.7x wall time sent its 1 Hz
+    # HEARTBEAT 1.25-1.57 s apart and two of four flights ended link_lost mid-mission with telemetry flowing)
+    heartbeat_loss_streaming_s: float = 4.0
     telemetry_loss_s: float = 0.5  # no position or attitude for this long: link lost
     stale_s: float = 0.3  # position or attitude older than this in flight: hold
     invalid_estimate_s: float = 0.3  # invalid estimates for this long: hold (the last valid setpoint until then)
