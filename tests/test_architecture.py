@@ -20,7 +20,7 @@ PACKAGES = ("companion", "sim_bridge", "lab")
 PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "companion.estimation",
                  "companion.autopilots", "companion.flight.core", "companion.flight.sequence",
                  "companion.flight.health", "companion.flight.requests", "companion.report.metrics",
-                 "companion.mavlink_io.telemetry",  # typed telemetry: estimation reads it
+                 "companion.mavlink_io.telemetry", "companion.mavlink_io.events",  # typed telemetry (estimation)
                  "companion.mavlink_io.mission_client",  # the mission download's state machine (typed events in/out)
                  # the pilot and everything it decides with (the runners around it are not pure)
                  "companion.flight.pilot", "companion.flight.phase", "companion.flight.failsafes",
