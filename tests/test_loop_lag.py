@@ -140,11 +140,13 @@ def test_a_jittery_link_that_reorders_setpoints_is_flown_softly(seed: int) -> No
 
 
 def test_the_position_gain_scale_lowers_stiffness_keeping_the_damping_ratio() -> None:
+    from dataclasses import replace
+
     from companion.control.position import SmcPositionController
     from companion.core.model import VehicleParams
 
     cfg = ControllerConfig()
-    ctl = SmcPositionController(cfg.smc, VehicleParams(), None, 6.0)
+    ctl = SmcPositionController(replace(cfg.smc, ki=0.0), VehicleParams(), None, 6.0)  # the proportional part only
     z3 = np.zeros(3)
 
     def acc(pos_err: float, vel_err: float, scale: float) -> float:
