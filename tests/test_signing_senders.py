@@ -184,8 +184,11 @@ def test_signed_flight_with_an_unsigned_payload_sender(tmp_path):
     assert out.returncode == 0 and rep["outcome"] == "completed", (rep["outcome"], out.stderr[-2000:])
     sig = rep["link"]["signing"]
     print(json.dumps(sig, indent=1), relay.injected)
-    assert sig["accept_unsigned_systems"] == [7] and sig["accepted_unsigned"]["7"] > 50
+    # the relay injects the three kinds in turn for as long as the flight lasts (how many depends on the machine):
+    # each counted where it belongs, as many of each, none lost
+    accepted = sig["accepted_unsigned"]["7"]
+    assert sig["accept_unsigned_systems"] == [7] and accepted > 20
     dropped = sig["dropped_by_sender"]
-    assert set(dropped["9/1"]) == {"unsigned"} and dropped["9/1"]["unsigned"] > 50
-    assert dropped["4/1"]["bad_signature"] > 50
+    assert set(dropped["9/1"]) == {"unsigned"} and abs(dropped["9/1"]["unsigned"] - accepted) <= 1
+    assert abs(dropped["4/1"]["bad_signature"] - accepted) <= 1
     assert "1/1" not in dropped  # nothing of the vehicle's own was dropped
