@@ -3,13 +3,15 @@ ground station uploads about the bundled vehicle's home, MAVSDK's upload of them
 talks to the companion (component 191) through a router, the real-time flight behind MAVProxy, and the fence
 margins of a flight log (airframe and payload).
 
-Used by tests/test_autopilot_mission_fly.py, tests/test_gcs_beside.py and tests/test_operator_mission_e2e.py.
+Used by tests/test_autopilot_mission_fly.py, tests/test_autopilot_mission_real.py, tests/test_gcs_beside.py and
+tests/test_operator_mission_e2e.py.
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
+import socket
 import subprocess
 import sys
 import time
@@ -137,6 +139,70 @@ class Gcs:
         _, cmd, result, to = self.acks[n]
         assert cmd == M.MAV_CMD_DO_PAUSE_CONTINUE
         return result, to
+
+
+class MissionGcs:
+    """A ground station's mission upload on raw UDP (blocking pymavlink), to system ``target`` (component 1): it
+    sends to ``port``, or with ``listen`` binds ``port`` and answers whoever sends there (ArduCopter's SERIAL0).
+    ``resend_s`` (s): MISSION_COUNT again after that much silence; ``timeout_s`` (s): the upload's bound."""
+
+    def __init__(self, port: int, target: int = 1, listen: bool = False, resend_s: float = 1.0,
+                 timeout_s: float = 20.0) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", port if listen else 0))
+        self.sock.settimeout(0.05)
+        self.addr: tuple[str, int] | None = None if listen else ("127.0.0.1", port)
+        self.listen, self.target, self.resend_s, self.timeout_s = listen, target, resend_s, timeout_s
+        self.mav = M.MAVLink(self, srcSystem=255, srcComponent=190)
+        self.parser = M.MAVLink(None)
+        self.parser.robust_parsing = True
+
+    def write(self, buf: bytes) -> None:
+        if self.addr is not None:
+            self.sock.sendto(bytes(buf), self.addr)
+
+    def recv(self) -> list:
+        """The target system's messages in the next datagram (none after 50 ms)."""
+        try:
+            data, peer = self.sock.recvfrom(65536)
+        except TimeoutError:
+            return []
+        if self.listen:
+            self.addr = peer
+        return [m for m in self.parser.parse_buffer(data) or []
+                if m.get_type() != "BAD_DATA" and m.get_srcSystem() == self.target]
+
+    def home(self, timeout_s: float = 90.0) -> tuple[float, float, float]:
+        """(lat deg, lon deg, alt m) of HOME_POSITION, asked for once a second with a GCS HEARTBEAT."""
+        end = time.monotonic() + timeout_s
+        asked = 0.0
+        while time.monotonic() < end:
+            if time.monotonic() - asked > 1.0:
+                self.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+                self.mav.command_long_send(self.target, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, 242, 0, 0, 0, 0, 0, 0)
+                asked = time.monotonic()
+            for m in self.recv():
+                if m.get_type() == "HOME_POSITION":
+                    return m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3
+        raise AssertionError(f"no HOME_POSITION from system {self.target}")
+
+    def upload(self, mtype: int, items: list[tuple]) -> int:
+        """Upload ``items`` (frame, command, params, x, y, z) as ``mtype``; the autopilot's MISSION_ACK result."""
+        end = time.monotonic() + self.timeout_s
+        last = 0.0
+        while time.monotonic() < end:
+            if time.monotonic() - last > self.resend_s:
+                self.mav.mission_count_send(self.target, 1, len(items), mtype)
+                last = time.monotonic()
+            for m in self.recv():
+                t = m.get_type()
+                if t in ("MISSION_REQUEST_INT", "MISSION_REQUEST") and m.mission_type == mtype:
+                    frame, cmd, params, x, y, z = items[m.seq]
+                    self.mav.mission_item_int_send(self.target, 1, m.seq, frame, cmd, 0, 1, *params, x, y, z, mtype)
+                    last = time.monotonic()
+                elif t == "MISSION_ACK" and m.mission_type == mtype:
+                    return m.type
+        raise AssertionError(f"system {self.target} did not finish the upload")
 
 
 @contextlib.contextmanager

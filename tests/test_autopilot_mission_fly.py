@@ -11,12 +11,19 @@ from __future__ import annotations
 
 import asyncio
 import math
-import socket
-import time
 
 import numpy as np
 import pytest
-from _operator_helpers import DEFAULT_HOME, FENCE_SQUARE, KEEP_OUT, ROUTE, fence_margins_m, mavsdk_upload, route_fence
+from _operator_helpers import (
+    DEFAULT_HOME,
+    FENCE_SQUARE,
+    KEEP_OUT,
+    ROUTE,
+    MissionGcs,
+    fence_margins_m,
+    mavsdk_upload,
+    route_fence,
+)
 from pymavlink.dialects.v20 import common as M
 
 from companion.autopilots.profile import profile_by_name
@@ -30,55 +37,6 @@ from companion.launch.spec import FlySpec
 
 pytestmark = pytest.mark.slow
 
-
-
-class _Gcs:
-    """A ground station on the vehicle's GCS port (blocking pymavlink over UDP)."""
-
-    def __init__(self, port: int) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(0.05)
-        self.addr = ("127.0.0.1", port)
-        self.mav = M.MAVLink(self, srcSystem=255, srcComponent=190)
-        self.parser = M.MAVLink(None)
-
-    def write(self, buf: bytes) -> None:
-        self.sock.sendto(bytes(buf), self.addr)
-
-    def recv(self) -> list:
-        try:
-            data = self.sock.recv(65536)
-        except TimeoutError:
-            return []
-        return [m for m in self.parser.parse_buffer(data) or [] if m.get_srcSystem() == 1]
-
-    def home(self) -> tuple[float, float, float]:
-        end = time.monotonic() + 10.0
-        while time.monotonic() < end:
-            self.mav.command_long_send(1, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, 242, 0, 0, 0, 0, 0, 0)
-            for m in self.recv() + self.recv():
-                if m.get_type() == "HOME_POSITION":
-                    return m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3
-        raise AssertionError("no HOME_POSITION from the vehicle")
-
-    def upload(self, mtype: int, items: list[tuple]) -> int:
-        """Upload ``items`` (frame, command, params, x, y, z) as ``mtype``; the vehicle's MISSION_ACK result."""
-        end = time.monotonic() + 20.0
-        last = 0.0
-        while time.monotonic() < end:
-            if time.monotonic() - last > 1.0:
-                self.mav.mission_count_send(1, 1, len(items), mtype)
-                last = time.monotonic()
-            for m in self.recv():
-                t = m.get_type()
-                if t in ("MISSION_REQUEST_INT", "MISSION_REQUEST") and m.mission_type == mtype:
-                    frame, cmd, params, x, y, z = items[m.seq]
-                    self.mav.mission_item_int_send(1, 1, m.seq, frame, cmd, 0, 1, *params, x, y, z, mtype)
-                    last = time.monotonic()
-                elif t == "MISSION_ACK" and m.mission_type == mtype:
-                    return m.type
-        raise AssertionError("the vehicle did not finish the upload")
 
 
 def _items(home: tuple[float, float, float], keep_out: tuple[float, float, float] = KEEP_OUT
@@ -104,7 +62,7 @@ async def _fly(tmp_path, keep_out_home: bool = False):
     """Upload (``keep_out_home``: a fence whose exclusion circle covers home) and fly; the FlyResult."""
     base = load_mission(shipped_missions()["forest"])
     async with SitlProcess(base, tmp_path / "sitl", lockstep=True, extra_args=["--control-period-ms", "4"]) as sitl:
-        gcs = _Gcs(sitl.gcs_port)
+        gcs = MissionGcs(sitl.gcs_port)
         mission_items, fence_items = _items(gcs.home(), (0.0, 0.0, 1.0) if keep_out_home else KEEP_OUT)
         assert gcs.upload(M.MAV_MISSION_TYPE_MISSION, mission_items) == M.MAV_MISSION_ACCEPTED
         assert gcs.upload(M.MAV_MISSION_TYPE_FENCE, fence_items) == M.MAV_MISSION_ACCEPTED

@@ -18,15 +18,13 @@ import json
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
-from _operator_helpers import FENCE_SQUARE, KEEP_OUT, ROUTE
+from _operator_helpers import FENCE_SQUARE, KEEP_OUT, ROUTE, MissionGcs
 from pymavlink.dialects.v20 import common as M
 
 from companion.core.autopilot_mission import earth_radii_m
@@ -37,60 +35,6 @@ ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow
 PX4, PX4_WHY = sitl_external.find_px4()
 INSTANCE = 6  # onboard link to 14540+6, GCS link from 18570+6 (PX4's SITL start-up)
-
-
-class _Gcs:
-    """A ground station talking to PX4's GCS link port (PX4 answers whoever talks to it)."""
-
-    def __init__(self, port: int) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(0.1)
-        self.addr = ("127.0.0.1", port)
-        self.mav = M.MAVLink(self, srcSystem=255, srcComponent=190)
-        self.parser = M.MAVLink(None)
-        self.parser.robust_parsing = True
-
-    def write(self, buf: bytes) -> None:
-        self.sock.sendto(bytes(buf), self.addr)
-
-    def recv(self) -> list:
-        try:
-            data = self.sock.recv(65536)
-        except TimeoutError:
-            return []
-        msgs = [m for m in self.parser.parse_buffer(data) or [] if m.get_type() != "BAD_DATA"]
-        return [m for m in msgs if m.get_srcSystem() == 1 + INSTANCE]
-
-    def home(self, timeout_s: float = 90.0) -> tuple[float, float, float]:
-        end = time.monotonic() + timeout_s
-        asked = 0.0
-        while time.monotonic() < end:
-            if time.monotonic() - asked > 1.0:
-                self.mav.heartbeat_send(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0)
-                self.mav.command_long_send(1 + INSTANCE, 1, M.MAV_CMD_REQUEST_MESSAGE, 0, 242, 0, 0, 0, 0, 0, 0)
-                asked = time.monotonic()
-            for m in self.recv():
-                if m.get_type() == "HOME_POSITION":
-                    return m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3
-        raise AssertionError("no HOME_POSITION from PX4")
-
-    def upload(self, mtype: int, items: list[tuple]) -> int:
-        end = time.monotonic() + 30.0
-        last = 0.0
-        while time.monotonic() < end:
-            if time.monotonic() - last > 2.0:
-                self.mav.mission_count_send(1 + INSTANCE, 1, len(items), mtype)
-                last = time.monotonic()
-            for m in self.recv():
-                t = m.get_type()
-                if t in ("MISSION_REQUEST_INT", "MISSION_REQUEST") and m.mission_type == mtype:
-                    frame, cmd, params, x, y, z = items[m.seq]
-                    self.mav.mission_item_int_send(1 + INSTANCE, 1, m.seq, frame, cmd, 0, 1, *params, x, y, z, mtype)
-                    last = time.monotonic()
-                elif t == "MISSION_ACK" and m.mission_type == mtype:
-                    return m.type
-        raise AssertionError("PX4 did not finish the upload")
 
 
 def _items(home: tuple[float, float, float], earth: str = "px4") -> tuple[list[tuple], list[tuple]]:
@@ -114,7 +58,7 @@ def _items(home: tuple[float, float, float], earth: str = "px4") -> tuple[list[t
 def test_px4_sih_flies_the_mission_and_fence_a_ground_station_uploaded(tmp_path):
     proc = sitl_external.start_px4_sih(tmp_path, INSTANCE)
     try:
-        gcs = _Gcs(18570 + INSTANCE)
+        gcs = MissionGcs(18570 + INSTANCE, 1 + INSTANCE, resend_s=2.0, timeout_s=30.0)
         home = gcs.home()
         mission, fence = _items(home)
         assert gcs.upload(M.MAV_MISSION_TYPE_MISSION, mission) == M.MAV_MISSION_ACCEPTED
@@ -155,42 +99,15 @@ ARDUCOPTER, ARDUCOPTER_WHY = sitl_external.find_arducopter()
 AP_INSTANCE = 3  # no slung payload (only instance 0 can have one): ports clear of the payload tests' instance 0
 
 
-class _UdpGcs(_Gcs):
-    """A ground station on the port ArduCopter's SERIAL0 sends to (before the companion takes that port)."""
-
-    def __init__(self, port: int, sysid: int) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", port))
-        self.sock.settimeout(0.1)
-        self.addr = None
-        self.sysid = sysid
-        self.mav = M.MAVLink(self, srcSystem=255, srcComponent=190)
-        self.parser = M.MAVLink(None)
-        self.parser.robust_parsing = True
-
-    def write(self, buf: bytes) -> None:
-        if self.addr is not None:
-            self.sock.sendto(bytes(buf), self.addr)
-
-    def recv(self) -> list:
-        try:
-            data, self.addr = self.sock.recvfrom(65536)
-        except TimeoutError:
-            return []
-        msgs = [m for m in self.parser.parse_buffer(data) or [] if m.get_type() != "BAD_DATA"]
-        return [m for m in msgs if m.get_srcSystem() == self.sysid]
-
-
 @pytest.mark.skipif(ARDUCOPTER is None, reason=ARDUCOPTER_WHY)
-def test_arducopter_flies_the_mission_and_fence_a_ground_station_uploaded(tmp_path, monkeypatch):
+def test_arducopter_flies_the_mission_and_fence_a_ground_station_uploaded(tmp_path):
     """ArduCopter SITL: item 0 of its mission is home (uploaded as such, skipped by the companion), its earth is
     ArduPilot's (6378.1 km). The ground station talks on the port ArduCopter's SERIAL0 sends to, before the
     companion takes it. Measured 2026-12-03: completed, time to goal 11.5 s, the four points placed within 4 mm."""
-    monkeypatch.setattr(sys.modules[__name__], "INSTANCE", AP_INSTANCE)  # _Gcs's system id: 1 + instance
     port = free_port()
     proc = sitl_external.start_arducopter(tmp_path, port, instance=AP_INSTANCE, payload=False)
     try:
-        gcs = _UdpGcs(port, 1 + AP_INSTANCE)
+        gcs = MissionGcs(port, 1 + AP_INSTANCE, listen=True, resend_s=2.0, timeout_s=30.0)
         home = gcs.home()
         mission, fence = _items(home, "ardupilot")
         mission.insert(0, (M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_WAYPOINT, (0, 0, 0, 0), round(home[0] * 1e7),

@@ -82,11 +82,7 @@ def arducopter(tmp_path):
     port = free_udp_port()
     proc = sitl_external.start_arducopter(tmp_path, port, payload=True)
     yield port
-    try:
-        os.killpg(proc.pid, signal.SIGTERM)
-        proc.wait(20)
-    except (ProcessLookupError, subprocess.TimeoutExpired):
-        os.killpg(proc.pid, signal.SIGKILL)
+    _stop(proc)
 
 
 @needs_arducopter
