@@ -46,7 +46,8 @@ def fly_spec(run_dir: Path, plots: bool, gains: Path | None = None, swing_input:
 
     setup = FlightSetup(lockstep=True, gains=load_gains(gains or DEFAULT_GAINS),
                         swing_input=swing_input or "auto", profile=profile_by_name("bundled"))
-    return FlySpec(setup=setup, sitl=True, run_dir=run_dir, plots=plots, narrate=False, world=world)
+    return FlySpec(setup=setup, sitl=True, run_dir=run_dir, plots=plots, narrate=False, world=world,
+                   identify_payload=False)
 
 
 LOST_CONTROL_SWING_RAD = math.pi / 2  # the model's own bound on the swing angles (eq. 1)

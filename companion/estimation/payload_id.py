@@ -54,7 +54,8 @@ class PayloadId:
     payload_mass_sigma_kg: 1σ from the least-squares statistics (residual-based, optimistic when the residual is
     not white); swing_signal_mps2: RMS of the fitted swing term μ·(Rᵀr̈)_xy; residual_mps2: RMS of what the
     fit leaves; ok: enough excitation (swing signal > 3× residual) and l not at the search limits; reason:
-    why not when not ok.
+    why not when not ok; residual_tau: the residual's integrated autocorrelation time (samples, >= 1): the σ
+    above treat the residual as white, a coloured one (wind, not sensor noise) makes them √residual_tau too small.
     """
 
     cable_length_m: float
@@ -68,6 +69,7 @@ class PayloadId:
     window_s: float
     ok: bool
     reason: str = ""
+    residual_tau: float = 1.0
 
 
 def _relative_accel(a_ned: np.ndarray, R: np.ndarray, t: np.ndarray, l: float, g: float) -> np.ndarray:
@@ -251,8 +253,24 @@ def identify_payload(
     return PayloadId(
         cable_length_m=l_hat, payload_mass_kg=m_hat, mass_ratio=mu, cable_length_sigma_m=sigma_l,
         payload_mass_sigma_kg=sigma_m, swing_signal_mps2=signal, residual_mps2=resid, n_samples=n,
-        window_s=float(t[-1] - t[0]), ok=not reason, reason=reason,
+        window_s=float(t[-1] - t[0]), ok=not reason, reason=reason, residual_tau=autocorrelation_time(res, n),
     )
+
+
+def autocorrelation_time(res: np.ndarray, n: int) -> float:
+    """The integrated autocorrelation time (samples) of a residual stacked as two series of ``n`` (x, then y):
+    1 + 2·Σρ_k up to the first lag whose correlation is not positive, the larger of the two."""
+    out = 1.0
+    for r in (res[:n], res[n:]):
+        r = r - r.mean()
+        spec = np.fft.rfft(r, 2 * len(r))
+        acf = np.fft.irfft(spec * np.conj(spec))[: len(r)]
+        if acf[0] <= 0.0:
+            continue
+        rho = acf[1:] / acf[0]
+        stop = int(np.argmax(rho <= 0.0)) if np.any(rho <= 0.0) else len(rho)
+        out = max(out, 1.0 + 2.0 * float(np.sum(rho[:stop])))
+    return out
 
 
 def mass_from_hover_thrust(thrust_n, vehicle_mass_kg: float, g_mps2: float = 9.81, accel_down_mps2=None) -> float:

@@ -30,6 +30,7 @@ from companion.autopilots.profile import VehicleProfile, profile_by_name, profil
 from companion.core.mission import Mission
 from companion.core.rotations import quat_from_euler
 from companion.estimation.estimate import Estimate
+from companion.estimation.payload_watch import PayloadWatch
 from companion.estimation.swing_feed import SwingFeed, estimator_config
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
@@ -38,7 +39,7 @@ from companion.flight.health import LinkHealth, LockstepClock, RealtimeClock
 from companion.flight.mission_frame import MissionFrame
 from companion.flight.obstacle_view import ObstacleView
 from companion.flight.operator import Answer, OperatorDesk
-from companion.flight.phase import CoreOrder, Phase, State, flight_phase
+from companion.flight.phase import CoreOrder, CorePhase, Phase, State, flight_phase
 from companion.flight.requests import Request
 from companion.flight.sensing import Sensing
 from companion.flight.sequence import FlightSequence
@@ -116,6 +117,8 @@ class Pilot:
         self.sensing = Sensing(setup.perception, setup.lockstep, self.frame, self.obstacles, self.core,
                                lambda: self.state.vehicle_sysid, self.record.error_log_due)
         self.params: dict[str, dict[str, float]] = {"read": {}, "set": {}}  # the autopilot parameters read/set
+        #: the cruise's first seconds of IMU and attitude, for the report's identified payload (issue 28)
+        self.payload_watch = PayloadWatch(mission.vehicle.M, mission.vehicle.g)
         self.abort_reason: str | None = None
         self.tick_errors = 0
         self.tick_errors_in_row = 0
@@ -180,6 +183,11 @@ class Pilot:
                 self.health.on_sample("position", st.pos_t_s)
             elif kind == "ATTITUDE":
                 self.health.on_sample("attitude", st.att_t_s)
+                self.payload_watch.on_attitude(ev.t_boot_s, ev.euler_rad)
+            elif kind == "HIGHRES_IMU":
+                self.payload_watch.on_imu(ev.t_s, ev.accel_frd_mps2)
+            elif kind == "SCALED_IMU":
+                self.payload_watch.on_imu(ev.t_boot_s, ev.accel_frd_mps2)
             elif kind == "SYSTEM_TIME" and (
                     ev.t_boot_ms != self._last_marker_ms or wall_s - self._marker_seen_wall > 0.5):
                 # A repeated marker (same time) is the vehicle re-asking after a lost answer: answer again only if
@@ -275,6 +283,8 @@ class Pilot:
                                     for _, o in self.seq.orders_done[len(self.orders_log):]]
             if est is not None:
                 self.swing_feed.maybe_start(self.state)
+                if self.core.phase is CorePhase.CRUISE:
+                    self.payload_watch.start(est.t_s)
                 est = self.frame.to_mission(self.swing_feed.choose(est))
             stream, send = step.stream, step.send
             if step.configured is not None:

@@ -257,7 +257,7 @@ def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path
     if am_facts is not None:
         extra["autopilot_mission"] = am_facts
         _home_shift(am_facts, runner)
-    extra.update(run_options(runner, spec, run_dir, zt_holder))
+    extra.update(run_options(runner, spec, run_dir, zt_holder, final=True))
     extra["wall_time_s"] = wall
     flog = runner.pilot.record.log
     flog.wall_time_s = wall
@@ -291,8 +291,8 @@ def _home_shift(am_facts: dict[str, Any], runner: Runner) -> None:
                     "that much (report: autopilot_mission.home_shift_m)", math.hypot(*shift[:2]))
 
 
-def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any]) -> dict[str, Any]:
-    """The run's settings for the report (and the journal's provisional report)."""
+def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any], final: bool = False) -> dict[str, Any]:
+    """The run's settings for the report (``final``) and the journal's provisional report (each second)."""
     s, m, profile = run.setup, run.pilot.mission, run.pilot.profile
     out: dict[str, Any] = {
         "swing_input": s.swing_input,
@@ -305,10 +305,17 @@ def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any])
         "vehicle": m.vehicle.as_dict(),
         "thrust_margin": thrust_margin(m.companion_params()).as_dict(),
     }
+    declared = m.companion_params()
     true_payload = _true_payload(spec.sitl_args) if spec.sitl else {}
     if true_payload:  # the bundled vehicle flies another payload than the mission declares (issue 28)
-        out["payload_declared"] = {"mass_kg": m.companion_params().m, "cable_length_m": m.companion_params().l}
+        out["payload_declared"] = {"mass_kg": declared.m, "cable_length_m": declared.l}
         out["payload_true"] = true_payload
+    # identified after the flight only (the provisional report each second gives what is already computed)
+    out["payload"] = run.pilot.payload_watch.facts(declared.m, declared.l, run=final and spec.identify_payload)
+    if true_payload:
+        out["payload"]["true"] = true_payload
+    for line in out["payload"].get("mismatch", []) if final else []:
+        log.warning("the payload is not what the mission declares: %s", line)
     if profile.name == "bundled":  # the mission's wind is the bundled vehicle's simulation; a real one has its own
         out["wind"] = dataclasses.asdict(m.wind) if m.wind.is_physical else {"model": m.wind.model,
                                                                              "scale": m.wind.scale}

@@ -56,3 +56,6 @@ class FlySpec:
     #: with ``sitl``: the simulated world (:class:`companion.core.world.World`) the vehicle is started in
     #: (``--world``); the report then scores clearance and collisions against its trunks, the truth
     world: Any = None
+    #: identify the payload from the cruise's first seconds after the flight (~0.6 s of CPU) and report it next to
+    #: the declared one (:mod:`companion.estimation.payload_watch`); ``lab`` turns it off for its many flights
+    identify_payload: bool = True

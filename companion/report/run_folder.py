@@ -131,7 +131,7 @@ def summary_text(rep: dict[str, Any]) -> str:
         f"  min clearance       {_fmt(rep.get('min_clearance_m'), ' m', 3)}   collisions {rep.get('collisions')}",
         f"  sim time            {_fmt(rep.get('sim_time_s'), ' s')}   wall time {_fmt(rep.get('wall_time_s'), ' s')}",
     ]
-    lines += waypoint_lines(rep)
+    lines += waypoint_lines(rep) + payload_lines(rep.get("payload"))
     if loop:
         lines.append(
             f"  loop                {loop.get('ticks')} ticks, tick p50 {_fmt(loop.get('tick_ms_p50'), ' ms', 3)}, "
@@ -141,3 +141,23 @@ def summary_text(rep: dict[str, Any]) -> str:
     if rep.get("run_dir"):
         lines.append(f"  run folder          {rep['run_dir']}")
     return "\n".join(lines)
+
+
+def payload_lines(pay: dict[str, Any] | None) -> list[str]:
+    """The summary's payload line: declared, identified (± 1σ, or why not), true when the simulator says."""
+    if not pay or "declared" not in pay:
+        return []
+    d = pay["declared"]
+    line = f"  payload             declared {_fmt(d.get('mass_kg'), ' kg', 3)} on {_fmt(d.get('cable_length_m'), ' m')}"
+    idf = pay.get("identified")
+    if idf is None:
+        line += f"; not identified ({pay.get('identified_detail', '')})"
+    elif not idf.get("ok"):
+        line += f"; identification unsure ({idf.get('reason')})"
+    else:
+        line += (f"; identified {_fmt(idf.get('mass_kg'), '', 3)} ± {_fmt(idf.get('mass_sigma_kg'), ' kg', 3)} on "
+                 f"{_fmt(idf.get('cable_length_m'))} ± {_fmt(idf.get('cable_length_sigma_m'), ' m')}")
+    if pay.get("true"):
+        t = pay["true"]
+        line += f"; true {_fmt(t.get('mass_kg'), ' kg', 3)} on {_fmt(t.get('cable_length_m'), ' m')}"
+    return [line] + [f"  payload mismatch    {m}" for m in pay.get("mismatch", [])]
