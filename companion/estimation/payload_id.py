@@ -37,11 +37,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+from numba import njit
 from scipy.signal import butter, filtfilt
 
+from companion.core.kernel_cache import use_kernel_cache
 from companion.estimation.swing_model import rotation_from_euler
+
+use_kernel_cache(Path(__file__))
 
 _GOLDEN = 0.5 * (math.sqrt(5.0) - 1.0)
 
@@ -72,50 +77,53 @@ class PayloadId:
     residual_tau: float = 1.0
 
 
-def _relative_accel(a_ned: np.ndarray, R: np.ndarray, t: np.ndarray, l: float, g: float) -> np.ndarray:
+@njit(cache=True, nogil=True)
+def _pendulum_acc(al, be, dal, dbe, ax, ay, az, l, g):  # pragma: no cover - compiled
+    """(α̈, β̈, r̈ north, east, down) of the point payload for swing (α, β, α̇, β̇) and pivot acceleration a."""
+    sa, ca, sb, cb = math.sin(al), math.cos(al), math.sin(be), math.cos(be)
+    # (JᵀJ)·s̈ = Jᵀ·(g·e_z − a − a_c) with JᵀJ = l²·diag(cβ², 1)
+    ac0 = l * (-sa * cb * (dal * dal + dbe * dbe) - 2.0 * ca * sb * dal * dbe)
+    ac1 = l * sb * dbe * dbe
+    ac2 = l * (-ca * cb * (dal * dal + dbe * dbe) + 2.0 * sa * sb * dal * dbe)
+    w0, w1, w2 = -ax - ac0, -ay - ac1, g - az - ac2
+    dda = (ca * cb * w0 - sa * cb * w2) / (l * max(cb * cb, 1e-6))
+    ddb = (-sa * sb * w0 - cb * w1 - ca * sb * w2) / l
+    # relative acceleration r̈ = J·s̈ + a_c
+    p0 = l * (ca * cb * dda - sa * sb * ddb) + ac0
+    p1 = -l * cb * ddb + ac1
+    p2 = l * (-sa * cb * dda - ca * sb * ddb) + ac2
+    return dda, ddb, p0, p1, p2
+
+
+@njit(cache=True, nogil=True)
+def _relative_accel(a_ned, R, t, l, g):  # pragma: no cover - compiled
     """(Rᵀ·r̈)_xy (N, 2): the payload's acceleration relative to the pivot, seen in the body frame, for a point
     payload on a rigid cable of length l hanging from rest from a pivot with acceleration a_ned (N, 3), integrated
-    with RK4 over the samples (a linear in between)."""
+    with RK4 over the samples (a linear in between). All NaN when the swing leaves ±1.5 rad. Compiled without the
+    GIL: a flight identifies beside its control loop."""
     n = len(t)
     out = np.zeros((n, 2))
     al = be = dal = dbe = 0.0
-
-    def acc(al, be, dal, dbe, ax, ay, az):
-        sa, ca, sb, cb = math.sin(al), math.cos(al), math.sin(be), math.cos(be)
-        # (JᵀJ)·s̈ = Jᵀ·(g·e_z − a − a_c) with JᵀJ = l²·diag(cβ², 1)
-        ac0 = l * (-sa * cb * (dal * dal + dbe * dbe) - 2.0 * ca * sb * dal * dbe)
-        ac1 = l * sb * dbe * dbe
-        ac2 = l * (-ca * cb * (dal * dal + dbe * dbe) + 2.0 * sa * sb * dal * dbe)
-        w0, w1, w2 = -ax - ac0, -ay - ac1, g - az - ac2
-        dda = (ca * cb * w0 - sa * cb * w2) / (l * max(cb * cb, 1e-6))
-        ddb = (-sa * sb * w0 - cb * w1 - ca * sb * w2) / l
-        # relative acceleration r̈ = J·s̈ + a_c
-        p0 = l * (ca * cb * dda - sa * sb * ddb) + ac0
-        p1 = -l * cb * ddb + ac1
-        p2 = l * (-sa * cb * dda - ca * sb * ddb) + ac2
-        return dda, ddb, p0, p1, p2
-
     for k in range(n):
-        ax, ay, az = a_ned[k]
-        _, _, p0, p1, p2 = acc(al, be, dal, dbe, ax, ay, az)
-        Rk = R[k]
-        out[k, 0] = Rk[0, 0] * p0 + Rk[1, 0] * p1 + Rk[2, 0] * p2
-        out[k, 1] = Rk[0, 1] * p0 + Rk[1, 1] * p1 + Rk[2, 1] * p2
+        ax, ay, az = a_ned[k, 0], a_ned[k, 1], a_ned[k, 2]
+        _, _, p0, p1, p2 = _pendulum_acc(al, be, dal, dbe, ax, ay, az, l, g)
+        out[k, 0] = R[k, 0, 0] * p0 + R[k, 1, 0] * p1 + R[k, 2, 0] * p2
+        out[k, 1] = R[k, 0, 1] * p0 + R[k, 1, 1] * p1 + R[k, 2, 1] * p2
         if k + 1 < n:  # classical RK4 on (α, β, α̇, β̇), the pivot acceleration linear between samples
             h = t[k + 1] - t[k]
-            bx, by, bz = a_ned[k + 1]
+            bx, by, bz = a_ned[k + 1, 0], a_ned[k + 1, 1], a_ned[k + 1, 2]
             mx, my, mz = 0.5 * (ax + bx), 0.5 * (ay + by), 0.5 * (az + bz)
-            k1 = acc(al, be, dal, dbe, ax, ay, az)
-            y2 = (al + 0.5 * h * dal, be + 0.5 * h * dbe, dal + 0.5 * h * k1[0], dbe + 0.5 * h * k1[1])
-            k2 = acc(*y2, mx, my, mz)
-            y3 = (al + 0.5 * h * y2[2], be + 0.5 * h * y2[3], dal + 0.5 * h * k2[0], dbe + 0.5 * h * k2[1])
-            k3 = acc(*y3, mx, my, mz)
-            y4 = (al + h * y3[2], be + h * y3[3], dal + h * k3[0], dbe + h * k3[1])
-            k4 = acc(*y4, bx, by, bz)
-            al += h / 6.0 * (dal + 2.0 * y2[2] + 2.0 * y3[2] + y4[2])
-            be += h / 6.0 * (dbe + 2.0 * y2[3] + 2.0 * y3[3] + y4[3])
-            dal += h / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
-            dbe += h / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
+            k1a, k1b, _, _, _ = _pendulum_acc(al, be, dal, dbe, ax, ay, az, l, g)
+            a2, b2, da2, db2 = al + 0.5 * h * dal, be + 0.5 * h * dbe, dal + 0.5 * h * k1a, dbe + 0.5 * h * k1b
+            k2a, k2b, _, _, _ = _pendulum_acc(a2, b2, da2, db2, mx, my, mz, l, g)
+            a3, b3, da3, db3 = al + 0.5 * h * da2, be + 0.5 * h * db2, dal + 0.5 * h * k2a, dbe + 0.5 * h * k2b
+            k3a, k3b, _, _, _ = _pendulum_acc(a3, b3, da3, db3, mx, my, mz, l, g)
+            a4, b4, da4, db4 = al + h * da3, be + h * db3, dal + h * k3a, dbe + h * k3b
+            k4a, k4b, _, _, _ = _pendulum_acc(a4, b4, da4, db4, bx, by, bz, l, g)
+            al += h / 6.0 * (dal + 2.0 * da2 + 2.0 * da3 + da4)
+            be += h / 6.0 * (dbe + 2.0 * db2 + 2.0 * db3 + db4)
+            dal += h / 6.0 * (k1a + 2.0 * k2a + 2.0 * k3a + k4a)
+            dbe += h / 6.0 * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)
             if not (abs(be) < 1.5 and abs(al) < 1.5):
                 return out * np.nan
     return out
@@ -149,7 +157,7 @@ def _design(t: np.ndarray, p: np.ndarray, R: np.ndarray, l: float, g: float) -> 
 
 
 def _fit(t, f_xy, a_ned, R, l, g):
-    p = _relative_accel(a_ned, R, t, l, g)
+    p = _relative_accel(a_ned, R, t, float(l), float(g))
     if not np.all(np.isfinite(p)):
         return math.inf, None, None, None
     X = _design(t, p, R, l, g)
