@@ -30,6 +30,7 @@ PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "c
                  "companion.flight.loop_stats", "companion.flight.arrival", "companion.flight.command",
                  "companion.report.scoring", "companion.flight.legs",
                  "companion.flight.operator",  # the ground station's commands, decided (issue 27)
+                 "companion.flight.identification",  # the payload identified, and what the flight does with it
                  "companion.perception")  # scans into a local map: sockets and sessions feed it from outside
 IO_FRAMEWORKS = ("asyncio", "pymavlink", "zenoh", "socket")
 #: What the bundled vehicle may use of the companion: the shared model and MAVLink helpers.

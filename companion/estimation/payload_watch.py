@@ -90,6 +90,8 @@ class PayloadWatch:
                 self._result = identify_payload(t, imu[inside, 1:4], euler, self.vehicle_mass_kg, self.g_mps2)
             except ValueError as exc:
                 self._error = f"identification refused its samples: {exc}"
+            except Exception as exc:  # a bug must cost the identification, never the flight (it may run in a thread)
+                self._error = f"identification failed: {exc!r}"
         return self._result
 
     def facts(self, declared_mass_kg: float, declared_cable_m: float, run: bool = True) -> dict[str, Any]:

@@ -21,22 +21,22 @@ from companion.control import (
     SwingAccelEstimator,
     attitude_from_force,
     limit_force_xyz,
-    make_position_controller,
 )
-from companion.control.adapt import adapt_to_payload
-from companion.core.envelope import full_cable_r_max_m, r_max_m
+from companion.core.envelope import r_max_m
 from companion.core.mission import Mission
+from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
 from companion.estimation.estimate import Estimate, swing_sigma_rad, widened_swing
 from companion.estimation.loop_lag import LoopLagEstimator, lag_trust
 from companion.flight.arrival import ARRIVE_DWELL_S, ARRIVE_VERT_M, ArrivalRule, arrival_tolerance_m
 from companion.flight.command import LIFT_MARGIN_M, Command, LagStats, climb_altitude_ned_m
+from companion.flight.core_hop import HopMixin
 from companion.flight.core_orders import DESCENT_MPS, TIMED_PHASES, CoreOrders
 from companion.flight.legs import Legs, capped, leg_plan, legs_done, planned_swing_acc
 from companion.flight.phase import CorePhase
-from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator, make_planner
+from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator
 from companion.planning.fence_guard import fence_obstacles
-from companion.planning.stop_cap import LATENCY_S, SeenCap, travel_headings_rad
+from companion.planning.stop_cap import SeenCap, travel_headings_rad
 
 log = logging.getLogger(__name__)
 
@@ -46,21 +46,31 @@ PHASES = tuple(CorePhase)
 SWING_READY_FADE = 0.9  # the swing estimate carries this much feed-forward: trusted enough to start the cruise
 
 
-class FlightCore(CoreOrders):
+class FlightCore(CoreOrders, HopMixin):
     """Per-tick flight logic for one mission; call :meth:`update` with each new estimate.
 
     ``period_s``: the control period (s): the loop lag is counted in it, and the first tick steps by it."""
 
+    # built for the payload flown (companion.flight.core_hop.HopMixin._build), rebuilt when it is identified
+    cfg: ControllerConfig
+    params: VehicleParams
+    planner: Planner
+    controller: PositionController
+    #: the speed cap inside the space the range sensor saw free (the pilot sets ``cap.seen`` on each mapped scan)
+    cap: SeenCap
+
     def __init__(self, mission: Mission, gains: ControllerConfig | None = None, profile: VehicleProfile | None = None,
                  period_s: float = 0.004):
         self.mission = mission
-        # the swing-bounded accelerations follow the payload the companion believes it carries (issue 28)
-        self.cfg = adapt_to_payload(gains or ControllerConfig(), mission.companion_params())
+        self._gains = gains or ControllerConfig()
         self.profile = profile or VehicleProfile()
-        self.params = mission.vehicle
         self.period_s = period_s
-        self.planner: Planner = make_planner(mission.planner, self.cfg.planner, self.params)
-        self._timed = self.planner.time_parameterised
+        #: where the identification hop hovers to (None: not flown; see companion.flight.core_hop)
+        self.hop_target_ned_m: np.ndarray | None = None
+        self.hop_length_m: float | None = None
+        # the model flown is the mission's vehicle; the swing-bounded accelerations follow the payload the
+        # companion believes it carries (issue 28): planner, controller, thrust limits, envelope, speed cap
+        self._build(mission.vehicle, mission.companion_params())
         self._moving_mission = any(o.vx_mps != 0.0 or o.vy_mps != 0.0 for o in mission.obstacles)
         self.no_route = False
         self.t_no_route_s: float | None = None
@@ -68,7 +78,6 @@ class FlightCore(CoreOrders):
         #: the mission phase a hold_here stopped and where it hovered then (resume goes back to both)
         self._paused_from: tuple[CorePhase, np.ndarray] | None = None
         self._braking = False  # a pause: the reference brakes at its own limits, the hold is where it stops
-        self.controller: PositionController = make_position_controller(mission.controller, self.cfg, self.params)
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
         self.loop_lag = LoopLagEstimator(period_s)
         self.lag_trust = 1.0  # the feed-forward's trust from the measured loop lag (this tick)
@@ -89,25 +98,11 @@ class FlightCore(CoreOrders):
         #: the arrival rule of this flight, for the report: tolerance (m), dwell (s), the accuracy it came from
         self.arrival = self._arrival.facts
         self.yaw_rad = 0.0
-        hover = self.params.hover_thrust_n
-        lim = self.cfg.limits
-        self._thrust_min = lim.thrust_min_frac * hover
-        self._thrust_max = lim.thrust_max_frac * hover
-        self._full_cable_r_max = full_cable_r_max_m(self.params)
-        self._airframe_r = self.params.r_uav + self.params.L_uav
         self._goal_xy = np.array(mission.goal_ned_m[:2], dtype=np.float64)
         self._hold_ned_m = np.array(mission.goal_ned_m, dtype=np.float64)  # where hold / done / hold_here hover
         #: a multi-leg mission's waypoints (None without: straight to the goal), the fence's keep-out discs
         self.legs = Legs(mission, self.cfg.planner.v_max_mps) if mission.waypoints else None
         self._fence_obs = fence_obstacles(mission.fence)
-        #: the speed cap inside the space the range sensor saw free (the pilot sets ``cap.seen`` on each mapped
-        #: scan; none without perception). What passes before a lower cap takes effect: a scan, a re-plan, and
-        #: the reference's own lag behind the plan (shaped: half its shaper's widths; a velocity planner's
-        #: reference lags its desired velocity: the safe planner's goal braking looks goal_lookahead_s ahead)
-        pl = self.cfg.planner
-        self.cap = SeenCap(pl.shaped_a_max_mps2 if self._timed else pl.a_goal_mps2,
-                           LATENCY_S + (0.5 * sum(pl.shaper_tau_s) if self._timed else pl.goal_lookahead_s),
-                           self._airframe_r)
 
     # ------------------------------------------------------------------------------------------------
     @property
@@ -150,7 +145,8 @@ class FlightCore(CoreOrders):
         m = self.mission
         t = est.t_s
         if (self.t0_s is not None and t - self.t0_s > m.timeout_s
-                and self.phase in (CorePhase.CLIMB, CorePhase.CRUISE, CorePhase.HOLD, CorePhase.NO_ROUTE)):
+                and self.phase in (CorePhase.CLIMB, CorePhase.IDENTIFY, CorePhase.CRUISE, CorePhase.HOLD,
+                                   CorePhase.NO_ROUTE)):
             log.warning("mission %s: timeout after %.1f s in phase %s", m.name, m.timeout_s, self.phase)
             self.timed_out = True
             self.phase = CorePhase.DONE
@@ -159,7 +155,7 @@ class FlightCore(CoreOrders):
             if abs(float(est.pos_ned_m[2]) - self._climb_z) < ARRIVE_VERT_M and abs(
                 self.ref.p[2] - self._climb_z
             ) < 0.02 and self._swing_ready(est):
-                self.phase = CorePhase.CRUISE
+                self.phase = self._after_climb()
         elif self.phase == CorePhase.CRUISE:
             plan_xy = (self.ref.p[0], self.ref.p[1]) if self._timed and self.ref is not None else None
             arrived = self._arrival.arrived(est) if legs_done(self.legs, est, plan_xy) else None
@@ -216,6 +212,8 @@ class FlightCore(CoreOrders):
         self._advance_phase(est)
         obs = self._advance_obstacles(obs, est.t_s)
         obs = [*obs, *self._fence_obs] if self._fence_obs else obs
+        if self.phase == CorePhase.IDENTIFY and self.hop_target_ned_m is None:
+            self._plan_hop(obs)
         self._update_lag_trust()
         swing, r_max, mode, swing_acc = self._envelope(est)
         f_att, f_rep, plan_mode, acc_ctl = self._reference(est, obs, swing, r_max, dt)
@@ -249,7 +247,7 @@ class FlightCore(CoreOrders):
         self.yaw_rad = float(est.euler_rad[2])
         self._climb_z = climb_altitude_ned_m(z, float(self.mission.start_ned_m[2]), self.params.l)
         if abs(z - self._climb_z) < ARRIVE_VERT_M:
-            self.phase = CorePhase.CRUISE
+            self.phase = self._after_climb()
 
     def _update_lag_trust(self) -> None:
         """This tick's feed-forward trust (and the SMC's gain scale) from the loop lag measured up to the last tick."""

@@ -40,7 +40,7 @@ class CoreOrders:
         With a time-parameterised planner flying, "now" is the planner's own stop: along its checked path at
         the swing-bounded deceleration (from 3.6 m/s a straight-line stop at the reference generator's limits
         overshoots by 6 m, through whatever is ahead, and flies back)."""
-        resumable = self.phase in (CorePhase.CLIMB, CorePhase.CRUISE, CorePhase.HOLD)
+        resumable = self.phase in (CorePhase.CLIMB, CorePhase.IDENTIFY, CorePhase.CRUISE, CorePhase.HOLD)
         self._paused_from = (self.phase, self._hold_ned_m) if resumable else None
         if self.ref is not None:
             self._hold_ned_m = np.array(self.ref.p, dtype=np.float64)

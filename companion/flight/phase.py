@@ -32,6 +32,7 @@ class CorePhase(StrEnum):
     """Where the flight core is during the mission (``companion.flight.core``)."""
 
     CLIMB = "climb"  # vertical, to the mission's start altitude
+    IDENTIFY = "identify"  # a hop that identifies an unknown payload, then a hover until it is identified
     CRUISE = "cruise"  # the planner towards the goal
     HOLD = "hold"  # at the goal for the mission's hold time
     NO_ROUTE = "no_route"  # the planner found no route: holding where it stopped

@@ -30,16 +30,16 @@ from companion.autopilots.profile import VehicleProfile, profile_by_name, profil
 from companion.core.mission import Mission
 from companion.core.rotations import quat_from_euler
 from companion.estimation.estimate import Estimate
-from companion.estimation.payload_watch import PayloadWatch
 from companion.estimation.swing_feed import SwingFeed, estimator_config
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import Command, FlightCore
 from companion.flight.flight_record import FlightRecord
 from companion.flight.health import LinkHealth, LockstepClock, RealtimeClock
+from companion.flight.identification import Identification
 from companion.flight.mission_frame import MissionFrame
 from companion.flight.obstacle_view import ObstacleView
 from companion.flight.operator import Answer, OperatorDesk
-from companion.flight.phase import CoreOrder, CorePhase, Phase, State, flight_phase
+from companion.flight.phase import CoreOrder, Phase, State, flight_phase
 from companion.flight.requests import Request
 from companion.flight.sensing import Sensing
 from companion.flight.sequence import FlightSequence
@@ -117,8 +117,9 @@ class Pilot:
         self.sensing = Sensing(setup.perception, setup.lockstep, self.frame, self.obstacles, self.core,
                                lambda: self.state.vehicle_sysid, self.record.error_log_due)
         self.params: dict[str, dict[str, float]] = {"read": {}, "set": {}}  # the autopilot parameters read/set
-        #: the cruise's first seconds of IMU and attitude, for the report's identified payload (issue 28)
-        self.payload_watch = PayloadWatch(mission.vehicle.M, mission.vehicle.g)
+        #: the payload identified from the IMU: in the report, and before the cruise when the mission says it is
+        #: unknown (issue 28; the runner runs it when ``identification.due``, then calls :meth:`identified`)
+        self.identification = Identification(mission)
         self.abort_reason: str | None = None
         self.tick_errors = 0
         self.tick_errors_in_row = 0
@@ -179,15 +180,11 @@ class Pilot:
         src = ev.src_system
         if src == st.vehicle_sysid:
             self.health.on_frame(src, ev.src_component, ev.seq)
+            self.identification.on_event(kind, ev)
             if kind == "LOCAL_POSITION_NED":
                 self.health.on_sample("position", st.pos_t_s)
             elif kind == "ATTITUDE":
                 self.health.on_sample("attitude", st.att_t_s)
-                self.payload_watch.on_attitude(ev.t_boot_s, ev.euler_rad)
-            elif kind == "HIGHRES_IMU":
-                self.payload_watch.on_imu(ev.t_s, ev.accel_frd_mps2)
-            elif kind == "SCALED_IMU":
-                self.payload_watch.on_imu(ev.t_boot_s, ev.accel_frd_mps2)
             elif kind == "SYSTEM_TIME" and (
                     ev.t_boot_ms != self._last_marker_ms or wall_s - self._marker_seen_wall > 0.5):
                 # A repeated marker (same time) is the vehicle re-asking after a lost answer: answer again only if
@@ -229,6 +226,13 @@ class Pilot:
         if ans is not None and ans.order is not None:
             self.seq.order(ans.order, f"{ans.order} ordered by the ground station (system {ev.src_system})")
         return ans
+
+    def identified(self) -> None:
+        """The runner ran the due identification: the flight goes on with what it found (or lands when the
+        vehicle cannot lift it with margin)."""
+        reason = self.identification.conclude(self.core)
+        if reason is not None:
+            self.request_abort(reason)
 
     def request_abort(self, reason: str = "operator abort (Ctrl-C)") -> None:
         """Stop the mission: hold, land if configured, finish. Safe to call from a signal handler."""
@@ -283,8 +287,7 @@ class Pilot:
                                     for _, o in self.seq.orders_done[len(self.orders_log):]]
             if est is not None:
                 self.swing_feed.maybe_start(self.state)
-                if self.core.phase is CorePhase.CRUISE:
-                    self.payload_watch.start(est.t_s)
+                self.identification.on_tick(self.core.phase, est.t_s)
                 est = self.frame.to_mission(self.swing_feed.choose(est))
             stream, send = step.stream, step.send
             if step.configured is not None:

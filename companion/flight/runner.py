@@ -12,6 +12,7 @@ because on a busy machine the kernel may run the receiving simulator inside our 
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol
@@ -109,6 +110,7 @@ class Runner:
         self.gc_pacer = GcPacer()  # the garbage collector runs between ticks, not inside them
         self._marker_pending = False
         self._last_tick_wall = 0.0
+        self._identifying: threading.Thread | None = None  # the payload identification running beside the loop
         self._connected_hook_done = False
 
     # ------------------------------------------------------------------ views for sinks and reports
@@ -289,7 +291,26 @@ class Runner:
             self.stats.ingest_s.append(time.perf_counter() - start)
         # real time: a deferred scan, a slice at a time (a failure drops it and is counted with perception's)
         self.pilot.sensing.work(time.perf_counter() + PERCEPTION_BUDGET_S, time.perf_counter, time.monotonic())
+        self._identify()
         self.gc_pacer.step()
+
+    def _identify(self) -> None:
+        """A due payload identification (companion.flight.identification): in lockstep at once (simulated time
+        waits); in real time in a thread (the compiled fit runs without the GIL), concluded at the first gap between
+        ticks after it ends. A daemon thread: it never outlives the process."""
+        pilot = self.pilot
+        if not pilot.identification.due:
+            return
+        if self.setup.lockstep:
+            pilot.identification.watch.identify()
+            pilot.identified()
+        elif self._identifying is None:
+            self._identifying = threading.Thread(target=pilot.identification.watch.identify, daemon=True,
+                                                 name="payload-identification")
+            self._identifying.start()
+        elif not self._identifying.is_alive():
+            self._identifying = None
+            pilot.identified()
 
     def _finished(self) -> None:
         """The sequence is done: the subclass stops its loop."""

@@ -311,7 +311,10 @@ def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any],
         out["payload_declared"] = {"mass_kg": declared.m, "cable_length_m": declared.l}
         out["payload_true"] = true_payload
     # identified after the flight only (the provisional report each second gives what is already computed)
-    out["payload"] = run.pilot.payload_watch.facts(declared.m, declared.l, run=final and spec.identify_payload)
+    ident = run.pilot.identification
+    out["payload"] = ident.watch.facts(declared.m, declared.l, run=final and spec.identify_payload)
+    if ident.used is not None:  # identified before the cruise ([payload] identify = true): what was flown
+        out["payload"]["flown"] = ident.used
     if true_payload:
         out["payload"]["true"] = true_payload
     for line in out["payload"].get("mismatch", []) if final else []:

@@ -43,7 +43,7 @@ COLUMNS = (("t", 1), ("pos", 3), ("vel", 3), ("euler", 3), ("swing", 4), ("swing
            ("ref_vel", 3), ("ref_acc", 3), ("euler_cmd", 3), ("thrust_n", 1), ("ff_accel", 3), ("force_att", 2),
            ("force_rep", 2), ("r_max_m", 1), ("phase", 1), ("envelope_mode", 1))
 N_COLUMNS = sum(w for _, w in COLUMNS)
-PHASE_CODES = ("", "climb", "cruise", "hold", "done", "hold_here", "descend", "takeoff")
+PHASE_CODES = ("", "climb", "cruise", "hold", "done", "hold_here", "descend", "takeoff", "identify")
 ENVELOPE_CODES = ("", "swing", "full_cable")
 
 

@@ -1,0 +1,84 @@
+"""The pilot's payload identification: what the IMU saw, when it is due, and what the flight does with it.
+
+Every flight keeps the cruise's IMU and attitude for the report's identified payload
+(:mod:`companion.estimation.payload_watch`, identified after the flight). A mission whose payload is unknown
+(``[payload] identify = true``) hops first (phase ``identify``, :mod:`companion.flight.core_hop`); once the hop's
+window is over the identification is *due*: the runner runs :meth:`PayloadWatch.identify` beside the control loop
+(inline in lockstep, in a thread in real time, where the compiled fit does not hold the GIL) and then calls
+:meth:`Identification.conclude`, which hands the flight core the payload found (the values the mission does not
+give), or the declared one when the verdict does not trust it, and says to land when the vehicle cannot lift it
+with margin.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import replace
+from typing import Any
+
+from companion.core.mission import Mission
+from companion.core.payload_check import thrust_margin
+from companion.estimation.payload_watch import WINDOW_S, PayloadWatch, verdict
+from companion.flight.core import FlightCore
+from companion.flight.core_hop import HOP_WINDOW_S
+from companion.flight.phase import CorePhase
+from companion.mavlink_io.telemetry import TelemetryEvent
+
+
+class Identification:
+    """One flight's identification: feed it the vehicle's messages and each tick's core phase and time."""
+
+    def __init__(self, mission: Mission) -> None:
+        self.mission = mission
+        self.hop = mission.payload.identify
+        self.watch = PayloadWatch(mission.vehicle.M, mission.vehicle.g, HOP_WINDOW_S if self.hop else WINDOW_S)
+        self.due = False  # the hop's window is over: the runner should run the identification now
+        self.concluded = False
+        self.used: dict[str, Any] | None = None  # what the flight did with it (the report's ``payload.flown``)
+
+    def on_event(self, kind: str, ev: TelemetryEvent) -> None:
+        """A message from the vehicle, accepted by the vehicle state (``kind``: its type name)."""
+        if kind == "ATTITUDE":
+            self.watch.on_attitude(ev.t_boot_s, ev.euler_rad)
+        elif kind == "HIGHRES_IMU":
+            self.watch.on_imu(ev.t_s, ev.accel_frd_mps2)
+        elif kind == "SCALED_IMU":
+            self.watch.on_imu(ev.t_boot_s, ev.accel_frd_mps2)
+
+    def on_tick(self, phase: CorePhase, t_s: float) -> None:
+        """The core's phase at vehicle time ``t_s`` (s): the window starts with the hop (or the cruise)."""
+        if phase == (CorePhase.IDENTIFY if self.hop else CorePhase.CRUISE):
+            self.watch.start(t_s)
+        t0 = self.watch.t0_s
+        if self.hop and not self.concluded and t0 is not None and t_s >= t0 + self.watch.window_s:
+            self.due = True
+
+    def conclude(self, core: FlightCore) -> str | None:
+        """The identification ran (:meth:`PayloadWatch.identify`): fly on with what it found, or with the declared
+        payload; returns why the flight must end instead (a payload the vehicle cannot lift with margin), or None."""
+        self.due, self.concluded = False, True
+        r = self.watch.identify()
+        declared = self.mission.companion_params()
+        flown = None
+        why = self.watch.facts(declared.m, declared.l, run=False).get("identified_detail", "")
+        if r is not None:
+            k = math.sqrt(r.residual_tau)
+            ok, why = verdict(r, r.payload_mass_sigma_kg * k, r.cable_length_sigma_m * k)
+            if ok:
+                p = self.mission.payload
+                flown = replace(declared, m=r.payload_mass_kg if p.mass_kg is None else p.mass_kg,
+                                l=r.cable_length_m if p.cable_length_m is None else p.cable_length_m)
+        if flown is None:
+            logging.getLogger(__name__).warning("the payload was not identified (%s): flying with %.3f kg on "
+                                                "%.2f m as declared", why, declared.m, declared.l)
+        core.end_identify(flown)
+        vp = flown or declared
+        self.used = {"identified": flown is not None, "mass_kg": round(vp.m, 4), "cable_length_m": round(vp.l, 4),
+                     "hop_m": core.hop_length_m, "reason": "" if flown is not None else why}
+        margin = thrust_margin(vp)
+        if not margin.ok:
+            return (f"the identified payload ({vp.m:.3f} kg) needs {margin.fraction:.2f} of the vehicle's maximum "
+                    f"thrust (limit {margin.limit:.2f})")
+        return None
+

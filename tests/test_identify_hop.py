@@ -1,0 +1,125 @@
+"""A payload the mission says is unknown (``[payload] identify = true``): the hop before the cruise, the
+identification beside the loop, and the flight going on with what it found (issue 28). The pieces on their own,
+then whole flights against the bundled vehicle carrying 0.35 kg on 1.3 m while the mission's vehicle says
+0.25 kg on 1 m: lockstep, and real time (the identification in its thread)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.core.mission import PayloadConfig, load_mission
+from companion.core.obstacles import Obstacle
+from companion.estimation.payload_id import PayloadId
+from companion.flight.core import FlightCore
+from companion.flight.core_hop import HOP_M, HOP_WINDOW_S, hop_room_m
+from companion.flight.identification import Identification
+from companion.flight.phase import CorePhase
+
+ROOT = Path(__file__).resolve().parents[1]
+FOREST = ROOT / "config" / "missions" / "forest.toml"
+
+
+def _unknown_payload_mission(**payload):
+    m = load_mission(FOREST)
+    return replace(m, payload=PayloadConfig(identify=True, **payload))
+
+
+def test_hop_room_stops_short_of_a_trunk_and_is_whole_in_the_open():
+    east = np.array([0.0, 1.0])
+    trunk = Obstacle(x_m=0.0, y_m=2.0, radius_m=0.3, safe_distance_m=0.1)
+    assert hop_room_m(np.zeros(2), east, [], 1.0) == pytest.approx(HOP_M)
+    # the point must stay 1.0 m outside the 0.4 m ring: room up to y = 2.0 - 1.4 = 0.6 m
+    assert hop_room_m(np.zeros(2), east, [trunk], 1.0) == pytest.approx(0.6, abs=0.051)
+    assert hop_room_m(np.zeros(2), east, [trunk], 2.0) == 0.0
+
+
+def test_the_climb_ends_in_the_hop_only_when_the_mission_asks():
+    assert FlightCore(load_mission(FOREST))._after_climb() is CorePhase.CRUISE
+    core = FlightCore(_unknown_payload_mission())
+    assert core._after_climb() is CorePhase.IDENTIFY
+    core.hop_target_ned_m = np.zeros(3)  # flown once
+    assert core._after_climb() is CorePhase.CRUISE
+
+
+def test_an_identified_long_cable_rebuilds_the_flight_for_it():
+    mission = _unknown_payload_mission()
+    core = FlightCore(mission)
+    a_tuned = core.cfg.planner.shaped_a_max_mps2
+    core.phase = CorePhase.IDENTIFY
+    core.end_identify(replace(mission.vehicle, m=0.5, l=2.0))
+    assert core.phase is CorePhase.CRUISE
+    assert core.params.m == 0.5 and core.params.l == 2.0
+    assert core.cfg.planner.shaped_a_max_mps2 < a_tuned  # the longer pendulum: gentler accelerations
+    assert core._full_cable_r_max > FlightCore(mission)._full_cable_r_max
+    assert core._thrust_max > FlightCore(mission)._thrust_max  # the heavier total: more thrust allowed
+
+
+def test_no_imu_no_identification_the_declared_payload_flies_on():
+    mission = _unknown_payload_mission()
+    core = FlightCore(mission)
+    core.phase = CorePhase.IDENTIFY
+    ident = Identification(mission)
+    ident.on_tick(CorePhase.IDENTIFY, 10.0)
+    assert not ident.due
+    ident.on_tick(CorePhase.IDENTIFY, 10.0 + HOP_WINDOW_S)
+    assert ident.due
+    assert ident.conclude(core) is None
+    assert core.phase is CorePhase.CRUISE and core.params.m == mission.vehicle.m
+    assert ident.used["identified"] is False and "too few samples" in ident.used["reason"]
+    assert not ident.due
+
+
+def test_a_given_mass_is_kept_and_a_payload_too_heavy_to_lift_ends_the_flight():
+    mission = _unknown_payload_mission(mass_kg=0.3)  # the mass is measured, the cable is not
+    ident = Identification(mission)
+    core = FlightCore(mission)
+    ident.watch._result = PayloadId(cable_length_m=1.6, payload_mass_kg=0.9, mass_ratio=0.42,
+                                    cable_length_sigma_m=0.01, payload_mass_sigma_kg=0.01, swing_signal_mps2=0.3,
+                                    residual_mps2=0.01, n_samples=400, window_s=8.0, ok=True)
+    assert ident.conclude(core) is None
+    assert core.params.m == 0.3 and core.params.l == 1.6
+    heavy = Identification(_unknown_payload_mission())
+    heavy.watch._result = replace(ident.watch._result, payload_mass_kg=2.0, mass_ratio=0.6)
+    reason = heavy.conclude(FlightCore(heavy.mission))
+    assert reason is not None and "needs 0.8" in reason and "limit 0.75" in reason
+
+
+def _fly(tmp_path: Path, *extra: str) -> tuple[subprocess.CompletedProcess, dict]:
+    text = FOREST.read_text().replace('model = "paper"', 'model = "none"') + "\n[payload]\nidentify = true\n"
+    mission = tmp_path / "unknown_payload.toml"
+    mission.write_text(text)
+    run = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--mission", str(mission),
+                        "--no-zenoh", "--no-plots", "--planner", "shaped", "--run-dir", str(run),
+                        "--true-payload-mass-kg", "0.35", "--true-cable-length-m", "1.3", *extra],
+                       capture_output=True, text=True, timeout=300, cwd=ROOT)
+    return r, json.loads((run / "report.json").read_text())
+
+
+def _assert_identified_and_flown(r: subprocess.CompletedProcess, rep: dict) -> None:
+    assert r.returncode == 0, (rep.get("outcome"), rep.get("outcome_detail"), r.stderr[-2000:])
+    assert rep["outcome"] == "completed" and rep["collisions"] == 0
+    flown = rep["payload"]["flown"]
+    assert flown["identified"] and 0.5 <= flown["hop_m"] <= HOP_M
+    assert flown["mass_kg"] == pytest.approx(0.35, rel=0.05)
+    assert flown["cable_length_m"] == pytest.approx(1.3, rel=0.05)
+    assert rep["payload"]["identified"]["ok"] and rep["payload"]["identified"]["window_s"] <= HOP_WINDOW_S
+
+
+@pytest.mark.slow
+def test_lockstep_flight_hops_identifies_and_flies_the_identified_payload(tmp_path):
+    _assert_identified_and_flown(*_fly(tmp_path))
+
+
+@pytest.mark.slow
+def test_real_time_flight_identifies_beside_the_loop(tmp_path):
+    r, rep = _fly(tmp_path, "--realtime")
+    _assert_identified_and_flown(r, rep)
+    assert rep["loop"]["tick_errors"] == 0
