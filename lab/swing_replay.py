@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from companion.core.mission import load_mission
-from companion.estimation.swing_estimator import SwingEstimatorConfig
+from companion.estimation.swing_config import SwingEstimatorConfig
 from companion.estimation.swing_feed import ESTIMATOR_INPUTS, SLACK_FRACTION, SwingFeed, estimator_config
 from companion.estimation.swing_model import swing_from_offset
 from companion.estimation.vehicle_state import VehicleState

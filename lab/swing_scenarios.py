@@ -17,7 +17,7 @@ import numpy as np
 from companion.core.mission import Mission
 from companion.core.model import VehicleParams
 from companion.core.wind import WindConfig
-from companion.estimation.swing_estimator import SwingEstimatorConfig
+from companion.estimation.swing_config import SwingEstimatorConfig
 from lab.inprocess import fly_inprocess
 from lab.swing_sim import EstimatorDriver, SensorConfig, SensorSuite, TruthLog
 

@@ -27,7 +27,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from companion.core.model import VehicleParams, rotation_body_to_ned
-from companion.estimation.swing_estimator import SwingEstimate, SwingEstimator, SwingEstimatorConfig
+from companion.estimation.swing_config import SwingEstimate, SwingEstimatorConfig
+from companion.estimation.swing_estimator import SwingEstimator
 
 G_E = np.array([0.0, 0.0, 1.0])
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from companion.core.model import VehicleParams, accelerations, payload_offset_ned_m, rk4_step
-from companion.estimation.swing_estimator import SwingEstimator, SwingEstimatorConfig
+from companion.estimation.swing_config import SwingEstimatorConfig
+from companion.estimation.swing_estimator import SwingEstimator
 from companion.estimation.two_model import TwoModelEstimator
 
 P = VehicleParams()

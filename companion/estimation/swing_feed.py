@@ -44,7 +44,8 @@ import numpy as np
 from companion.core.mission import Mission
 from companion.core.model import VehicleParams
 from companion.estimation.estimate import Estimate
-from companion.estimation.swing_estimator import SwingEstimate, SwingEstimator, SwingEstimatorConfig
+from companion.estimation.swing_config import SwingEstimate, SwingEstimatorConfig
+from companion.estimation.swing_estimator import SwingEstimator
 from companion.estimation.swing_model import payload_offset_from_global, swing_from_offset
 from companion.estimation.two_model import TwoModelEstimator
 from companion.mavlink_io.telemetry import (

@@ -28,7 +28,8 @@ from dataclasses import replace
 import numpy as np
 
 from companion.core.model import VehicleParams
-from companion.estimation.swing_estimator import SwingEstimate, SwingEstimator, SwingEstimatorConfig
+from companion.estimation.swing_config import SwingEstimate, SwingEstimatorConfig
+from companion.estimation.swing_estimator import SwingEstimator
 
 log = logging.getLogger(__name__)
 
