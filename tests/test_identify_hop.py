@@ -17,6 +17,9 @@ import pytest
 from companion.core.mission import PayloadConfig, load_mission
 from companion.core.obstacles import Obstacle
 from companion.estimation.payload_id import PayloadId
+from companion.estimation.swing_estimator import SwingEstimator
+from companion.estimation.swing_feed import SwingFeed
+from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import FlightCore
 from companion.flight.core_hop import HOP_M, HOP_WINDOW_S, hop_room_m
 from companion.flight.identification import Identification
@@ -83,8 +86,13 @@ def test_a_given_mass_is_kept_and_a_payload_too_heavy_to_lift_ends_the_flight():
     ident.watch._result = PayloadId(cable_length_m=1.6, payload_mass_kg=0.9, mass_ratio=0.42,
                                     cable_length_sigma_m=0.01, payload_mass_sigma_kg=0.01, swing_signal_mps2=0.3,
                                     residual_mps2=0.01, n_samples=400, window_s=8.0, ok=True)
-    assert ident.conclude(core) is None
+    feed = SwingFeed(mission.companion_params())
+    feed.estimator = SwingEstimator(mission.companion_params())  # a sensorless flight's estimator, running
+    state = VehicleState(cable_length_m=1.0)
+    assert ident.conclude(core, feed, state) is None
     assert core.params.m == 0.3 and core.params.l == 1.6
+    assert feed.estimator is None and feed.params.l == 1.6  # restarts on the identified cable at the next tick
+    assert state.cable_length_m == 1.6
     heavy = Identification(_unknown_payload_mission())
     heavy.watch._result = replace(ident.watch._result, payload_mass_kg=2.0, mass_ratio=0.6)
     reason = heavy.conclude(FlightCore(heavy.mission))

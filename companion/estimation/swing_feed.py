@@ -144,6 +144,14 @@ class SwingFeed:
         log.warning("swing estimator failed (%r, %d times): restarting it", exc, self.counts["estimator_failed"])
         self.estimator = None
 
+    def use_payload(self, params: VehicleParams) -> None:
+        """The estimator's model from now on (an identified payload): a running estimator is dropped and
+        :meth:`maybe_start` starts a fresh one on ``params`` at the next tick (its feed-forward fades in again)."""
+        self.params = params
+        if self.estimator is not None:
+            self.estimator = None
+            self._count("restarted_for_identified_payload")
+
     # ------------------------------------------------------------------------------------------ start
     def maybe_start(self, state: VehicleState) -> None:
         """Start the estimator at lift-off (airborne and armed), if this swing input wants it and — for

@@ -7,7 +7,8 @@ window is over the identification is *due*: the runner runs :meth:`PayloadWatch.
 (inline in lockstep, in a thread in real time, where the compiled fit does not hold the GIL) and then calls
 :meth:`Identification.conclude`, which hands the flight core the payload found (the values the mission does not
 give), or the declared one when the verdict does not trust it, and says to land when the vehicle cannot lift it
-with margin.
+with margin; the swing estimator restarts on the identified model and the vehicle state takes its cable length
+(payload fixes into angles).
 """
 
 from __future__ import annotations
@@ -18,8 +19,11 @@ from dataclasses import replace
 from typing import Any
 
 from companion.core.mission import Mission
+from companion.core.model import VehicleParams
 from companion.core.payload_check import thrust_margin
 from companion.estimation.payload_watch import WINDOW_S, PayloadWatch, verdict
+from companion.estimation.swing_feed import SwingFeed
+from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import FlightCore
 from companion.flight.core_hop import HOP_WINDOW_S
 from companion.flight.phase import CorePhase
@@ -36,6 +40,7 @@ class Identification:
         self.due = False  # the hop's window is over: the runner should run the identification now
         self.concluded = False
         self.used: dict[str, Any] | None = None  # what the flight did with it (the report's ``payload.flown``)
+        self.flown: VehicleParams | None = None  # the identified payload the flight goes on with (None: declared)
 
     def on_event(self, kind: str, ev: TelemetryEvent) -> None:
         """A message from the vehicle, accepted by the vehicle state (``kind``: its type name)."""
@@ -54,9 +59,11 @@ class Identification:
         if self.hop and not self.concluded and t0 is not None and t_s >= t0 + self.watch.window_s:
             self.due = True
 
-    def conclude(self, core: FlightCore) -> str | None:
+    def conclude(self, core: FlightCore, feed: SwingFeed | None = None,
+                 state: VehicleState | None = None) -> str | None:
         """The identification ran (:meth:`PayloadWatch.identify`): fly on with what it found, or with the declared
-        payload; returns why the flight must end instead (a payload the vehicle cannot lift with margin), or None."""
+        payload (the core, the swing ``feed``'s estimator and the vehicle ``state``'s cable length); returns why the
+        flight must end instead (a payload the vehicle cannot lift with margin), or None."""
         self.due, self.concluded = False, True
         r = self.watch.identify()
         declared = self.mission.companion_params()
@@ -73,6 +80,10 @@ class Identification:
             logging.getLogger(__name__).warning("the payload was not identified (%s): flying with %.3f kg on "
                                                 "%.2f m as declared", why, declared.m, declared.l)
         core.end_identify(flown)
+        self.flown = flown
+        if flown is not None and feed is not None and state is not None:
+            feed.use_payload(flown)
+            state.cable_length_m = flown.l
         vp = flown or declared
         self.used = {"identified": flown is not None, "mass_kg": round(vp.m, 4), "cable_length_m": round(vp.l, 4),
                      "hop_m": core.hop_length_m, "reason": "" if flown is not None else why}

@@ -230,7 +230,7 @@ class Pilot:
     def identified(self) -> None:
         """The runner ran the due identification: the flight goes on with what it found (or lands when the
         vehicle cannot lift it with margin)."""
-        reason = self.identification.conclude(self.core)
+        reason = self.identification.conclude(self.core, self.swing_feed, self.state)
         if reason is not None:
             self.request_abort(reason)
 
