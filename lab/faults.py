@@ -2,126 +2,40 @@
 and whatever fault it needs (a kill signal, a fuzzer, a Zenoh flood, a lossy proxy), and returns the figures
 the fault suite bounds (``tests/test_faults.py``) and ``slungpilot bench faults`` prints.
 
-Everything runs on loopback with free ports. Scenarios write their run folders under the ``workdir`` given.
+Everything runs on loopback with free ports. Scenarios write their run folders under the ``workdir`` given. The
+harness (ports, processes, run folders): :mod:`lab.procs`; the scenarios on the vehicle's side of the link:
+:mod:`lab.faults_vehicle`; the flooding Zenoh peer: :mod:`lab.zenoh_flooder`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import random
 import signal
 import socket
 import subprocess
 import sys
-import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from companion import proclife
-from companion.core.mission import load_mission
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def free_udp_port() -> int:
-    """A UDP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def free_tcp_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-@dataclass
-class Proc:
-    """A subprocess whose stderr lines are collected by a thread (with the monotonic time each arrived)."""
-
-    proc: subprocess.Popen
-    lines: list[tuple[float, str]] = field(default_factory=list)
-
-    @classmethod
-    def start(cls, argv: list[str], env: dict[str, str] | None = None, cwd: Path = ROOT) -> Proc:
-        p = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd,
-                             env={**os.environ, **(env or {})}, preexec_fn=proclife.preexec())
-        me = cls(p)
-        threading.Thread(target=me._pump, daemon=True).start()
-        return me
-
-    def _pump(self) -> None:
-        assert self.proc.stderr is not None
-        for line in self.proc.stderr:
-            self.lines.append((time.monotonic(), line.rstrip("\n")))
-
-    def wait_for(self, text: str, timeout_s: float = 120.0) -> float:
-        """Monotonic time of the first stderr line containing ``text``; raises TimeoutError."""
-        end = time.monotonic() + timeout_s
-        i = 0
-        while time.monotonic() < end:
-            while i < len(self.lines):
-                t, line = self.lines[i]
-                i += 1
-                if text in line:
-                    return t
-            if self.proc.poll() is not None and i >= len(self.lines):
-                time.sleep(0.2)
-                if i >= len(self.lines):
-                    break
-            time.sleep(0.01)
-        tail = "\n".join(line for _, line in self.lines[-30:])
-        raise TimeoutError(f"never saw {text!r} (exit {self.proc.poll()}); last lines:\n{tail}")
-
-    def children(self) -> list[int]:
-        """Process ids of the direct children (the bundled vehicle of ``fly --sitl``)."""
-        pid = self.proc.pid
-        try:
-            return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
-        except OSError:
-            return []
-
-    def finish(self, timeout_s: float = 120.0) -> int:
-        """Wait for the exit code (kill after ``timeout_s``)."""
-        try:
-            return self.proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            return self.proc.wait(10)
-
-    def kill_all(self) -> None:
-        """SIGKILL the process and its children (cleanup)."""
-        for pid in [*self.children(), self.proc.pid]:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGKILL)
-
-    @property
-    def stderr(self) -> str:
-        return "\n".join(line for _, line in self.lines)
-
-
-def fly_argv(run_dir: Path, *args: str) -> list[str]:
-    """``slungpilot -v fly`` with a run folder, no plots (faster), plus ``args``."""
-    return [sys.executable, "-m", "companion.cli", "-v", "fly", "--no-plots", "--run-dir", str(run_dir), *args]
-
-
-def read_report(run_dir: Path) -> dict[str, Any]:
-    return json.loads((run_dir / "report.json").read_text())
-
-
-def _done_wall(rep: dict[str, Any]) -> float | None:
-    for t in rep.get("transitions", []):
-        if t["to"] == "done":
-            return float(t["wall_s"])
-    return None
+from lab.faults_vehicle import jitter
+from lab.procs import (
+    ROOT,
+    Proc,
+    companion_port,
+    descent_from_tlog,
+    done_wall,
+    fly_argv,
+    free_tcp_port,
+    read_report,
+    stop_helper,
+    vehicle_port,
+)
 
 
 # ------------------------------------------------------------------------------------------------ scenarios
@@ -140,7 +54,7 @@ def vehicle_killed(workdir: Path, *, realtime: bool = False, after_s: float = 0.
     finally:
         fly.kill_all()
     rep = read_report(run_dir)
-    done = _done_wall(rep)
+    done = done_wall(rep)
     return {"exit_code": code, "outcome": rep["outcome"], "final_phase": rep["final_phase"],
             "detect_s": None if done is None else done - t_kill, "exit_s": t_exit - t_kill,
             "detail": rep.get("outcome_detail")}
@@ -178,15 +92,6 @@ def _mutations(rng: random.Random) -> list[bytes]:
     return out
 
 
-def _companion_port(fly: Proc) -> int:
-    """The companion's UDP port, from the vehicle's command line in the ``-v`` log of ``fly --sitl``."""
-    fly.wait_for("starting the bundled vehicle")
-    for _, line in fly.lines:
-        if "--onboard-remote" in line:
-            return int(line.split("--onboard-remote")[1].split()[0].rsplit(":", 1)[1])
-    raise RuntimeError("no --onboard-remote in the log")
-
-
 def fuzz(workdir: Path, *, n: int = 100_000, seed: int = 7) -> dict[str, Any]:
     """The forest in lockstep twice, the second time with ``n`` spoofed/mutated frames sent to the companion's
     port mid-flight from another socket: the flight must be bit-identical and the companion must not crash."""
@@ -196,7 +101,7 @@ def fuzz(workdir: Path, *, n: int = 100_000, seed: int = 7) -> dict[str, Any]:
     fly = Proc.start(fly_argv(fz_dir, "--sitl", "--no-zenoh"))
     sent = 0
     try:
-        port = _companion_port(fly)
+        port = companion_port(fly)
         fly.wait_for("takeover → mission")
         frames = _mutations(random.Random(seed))
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -233,7 +138,7 @@ def tick_exception(workdir: Path, *, at_s: float = 6.0) -> dict[str, Any]:
     fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh"), env={"SLUNGPILOT_INJECT_TICK_ERROR_AT_S": str(at_s)})
     code = fly.finish(180)
     rep = read_report(run_dir)
-    vz_max, z_max = _descent_from_tlog(run_dir / "flight.tlog")
+    vz_max, z_max = descent_from_tlog(run_dir / "flight.tlog")
     return {"exit_code": code, "outcome": rep["outcome"], "final_phase": rep["final_phase"],
             "tick_errors": rep["loop"]["tick_errors"], "states": [t["to"] for t in rep["transitions"]],
             "max_descent_mps": vz_max, "max_altitude_m": z_max}
@@ -259,23 +164,12 @@ def diverged(workdir: Path, *, realtime: bool = False) -> dict[str, Any]:
                               *(["--realtime"] if realtime else [])))
     code = fly.finish(180)
     rep = read_report(run_dir)
-    vz_max, z_max = _descent_from_tlog(run_dir / "flight.tlog")
+    vz_max, z_max = descent_from_tlog(run_dir / "flight.tlog")
     times = {t["to"]: t["t_s"] for t in rep["transitions"]}
     return {"exit_code": code, "outcome": rep["outcome"], "detail": rep["outcome_detail"],
             "final_phase": rep["final_phase"], "states": [t["to"] for t in rep["transitions"]],
             "hold_at_s": times.get("hold"), "max_descent_mps": vz_max, "max_altitude_m": z_max,
             "collisions": rep["collisions"], "rejected_telemetry": rep["rejected_telemetry"]}
-
-
-def _descent_from_tlog(tlog: Path) -> tuple[float, float]:
-    """Fastest downward speed (m/s) and highest altitude (m above home) the vehicle reported."""
-    from companion.mavlink_io.link import tlog_messages
-
-    vz, z = 0.0, 0.0
-    for _, m in tlog_messages(tlog):
-        if m.get_type() == "LOCAL_POSITION_NED" and m.get_srcSystem() == 1:
-            vz, z = max(vz, m.vz), max(z, -m.z)
-    return vz, z
 
 
 def companion_killed_report(workdir: Path, *, after_s: float = 3.0) -> dict[str, Any]:
@@ -349,14 +243,14 @@ def zenoh_flood(workdir: Path, *, rate_hz: float = 1000.0, trunks: int = 256, rt
     flood = None
     try:
         fly.wait_for("zenoh: publishing under")
-        flood_argv = [sys.executable, "-m", "lab.faults", "flood", "--connect", ep, "--rate-hz", str(rate_hz),
+        flood_argv = [sys.executable, "-m", "lab.zenoh_flooder", "--connect", ep, "--rate-hz", str(rate_hz),
                       "--trunks", str(trunks), *(["--vary"] if vary else [])]
         flood = subprocess.Popen(flood_argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                  preexec_fn=proclife.preexec())
         code = fly.finish(180)
     finally:
-        flood_said = _stop(flood)
-        hog_said = _stop(hog)
+        flood_said = stop_helper(flood)
+        hog_said = stop_helper(hog)
         fly.kill_all()
     sent = (flood_said or {}).get("sent", 0)
     rep = read_report(run_dir)
@@ -384,250 +278,6 @@ def disk_storm(workdir: Path) -> dict[str, Any]:
     return zenoh_flood(workdir, disk_hog=True)
 
 
-def _stop(proc: subprocess.Popen | None) -> dict[str, Any] | None:
-    """SIGINT a helper process of a scenario; returns the JSON object its last stdout line holds (its counts), or
-    None if there was no process or it printed nothing."""
-    if proc is None:
-        return None
-    proc.send_signal(signal.SIGINT)
-    try:
-        out, _ = proc.communicate(timeout=60)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-    return json.loads(out.strip().splitlines()[-1]) if out.strip() else None
-
-
-def flood_main(argv: list[str]) -> int:
-    """``python -m lab.faults flood``: put obstacle lists as fast as asked until SIGINT; prints the count."""
-    import argparse
-
-    import zenoh
-
-    p = argparse.ArgumentParser(prog="python -m lab.faults flood")
-    p.add_argument("--connect", required=True)
-    p.add_argument("--rate-hz", type=float, default=1000.0)
-    p.add_argument("--trunks", type=int, default=256, help="far-away trunks per list (without --payload)")
-    p.add_argument("--payload", default=None, help="the JSON to put instead of far-away trunks")
-    p.add_argument("--key", default="slungpilot/1/obstacles/in/flood")
-    p.add_argument("--vary", action="store_true", help="the first trunk moves by 1 µm per list: every list differs")
-    p.add_argument("--user", default=None, help="log in with this user (Zenoh usrpwd authentication) ...")
-    p.add_argument("--password", default=None, help="... and password; client mode")
-    a = p.parse_args(argv)
-    payload = (a.payload.encode() if a.payload is not None else
-               json.dumps({"obstacles": [{"x_m": 200.0 + 2.0 * i, "y_m": 150.0, "radius_m": 0.3}
-                                         for i in range(a.trunks - (1 if a.vary else 0))]}).encode())
-    cfg = zenoh.Config()
-    cfg.insert_json5("mode", '"client"' if a.user else '"peer"')
-    cfg.insert_json5("connect/endpoints", json.dumps([a.connect]))
-    cfg.insert_json5("scouting/multicast/enabled", "false")
-    if a.user:
-        cfg.insert_json5("transport/auth/usrpwd", json.dumps({"user": a.user, "password": a.password or ""}))
-        cfg.insert_json5("connect/timeout_ms", "5000")  # a router still starting: keep trying for 5 s
-        cfg.insert_json5("connect/retry", json.dumps({"period_init_ms": 250, "period_max_ms": 1000}))
-    stop = []
-    signal.signal(signal.SIGINT, lambda *_: stop.append(1))
-    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
-    sent = 0
-    try:
-        session = zenoh.open(cfg)
-    except Exception as exc:  # e.g. the router refused our credentials
-        print(json.dumps({"sent": 0, "error": str(exc)}), flush=True)
-        return 3
-    print("flooding", file=sys.stderr, flush=True)
-    with session as s:
-        pub = s.declare_publisher(a.key)
-        period = 1.0 / a.rate_hz
-        t_next = time.monotonic()
-        while not stop:
-            if a.vary and a.payload is None:
-                head = json.dumps({"x_m": 100.0 + 1e-6 * sent, "y_m": 150.0, "radius_m": 0.3}).encode()
-                pub.put(payload[:len(b'{"obstacles": [')] + head + b", " + payload[len(b'{"obstacles": ['):])
-            else:
-                pub.put(payload)
-            sent += 1
-            t_next += period
-            delay = t_next - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-    print(json.dumps({"sent": sent}), flush=True)
-    return 0
-
-
-def flown_figures(run_dir: Path, rep: dict[str, Any]) -> dict[str, float | None]:
-    """What a flight did while the companion flew its mission, from the run folder's log:
-
-    - ``max_alt_error_m``: largest altitude error (m) from the mission altitude, from the moment the climb reached
-      it to the end of the hold (arrival + the mission's hold_s, vehicle time) or, without an arrival, as long as
-      the companion recorded a reference. Not the autopilot's landing after the hold: on a slow link the land mode
-      is confirmed up to a second after the vehicle has started down, and those rows are not ours (they once made
-      up the whole 0.25–0.45 m this figure read).
-    - ``max_tilt_in_hold_rad``: largest tilt (rad) during the hold (None without an arrival): a steady hold tilts
-      against the wind by a few hundredths, a loop out of margin cycles at the 0.6 rad tilt limit.
-    """
-    log = np.load(run_dir / "flight_log.npz")
-    mission = load_mission(run_dir / "mission.toml")
-    t = log["t_s"]
-    z = log["pos_ned_m"][:, 2]
-    goal_z = float(mission.goal_ned_m[2])
-    reached = np.flatnonzero(z <= goal_z + 0.1)
-    flown = np.zeros(len(z), dtype=bool)
-    if reached.size:
-        flown[reached[0]:] = True
-    flown &= np.isfinite(log["ref_pos_ned_m"][:, 2])
-    arrival = (rep.get("arrival") or {}).get("t_s")
-    tilt = None
-    if arrival is not None:
-        hold_end = float(arrival) + mission.hold_s
-        flown &= t <= hold_end
-        e = log["euler_rad"][(t >= float(arrival)) & (t <= hold_end)]
-        tilt = float(np.max(np.hypot(e[:, 0], e[:, 1]))) if e.size else None
-    return {"max_alt_error_m": float(np.max(np.abs(z[flown] - goal_z))) if flown.any() else None,
-            "max_tilt_in_hold_rad": tilt}
-
-
-def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, drop: float = 0.0,
-           vehicle: str = "bundled") -> dict[str, Any]:
-    """The forest in real time through a proxy that delays each datagram by ``delay ± jitter`` (reordering
-    them): the altitude must stay within 0.5 m of the mission's and the outcome must be honest. ``vehicle``
-    ``ardupilot``: ArduCopter SITL with its payload (``forest_arducopter_sitl``) instead of the bundled vehicle."""
-    from lab.udp_proxy import _addr  # noqa: F401  (the proxy runs as its own process; imported to fail early)
-
-    run_dir = workdir / (f"jitter-{delay_ms:g}-{jitter_ms:g}" + ("" if vehicle == "bundled" else f"-{vehicle}"))
-    veh_port, vside, comp_port = free_udp_port(), free_udp_port(), free_udp_port()
-    # the vehicle sends to the proxy's vehicle side (ArduCopter dials it from an ephemeral port)
-    sim, extra = _start_vehicle(vehicle, vside, 0, workdir, onboard_port=veh_port)
-    if vehicle == "ardupilot":
-        extra = [*extra, "--mission", "forest_arducopter_sitl", "--ready-timeout", "120"]
-    proxy = subprocess.Popen([sys.executable, "-m", "lab.udp_proxy", "--vehicle",
-                              f"127.0.0.1:{veh_port}" if vehicle == "bundled" else "first",
-                              "--companion", f"127.0.0.1:{comp_port}", "--listen-vehicle-side", str(vside),
-                              "--delay-ms", str(delay_ms), "--jitter-ms", str(jitter_ms), "--drop", str(drop)],
-                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                             preexec_fn=proclife.preexec())
-    fly = None
-    try:
-        assert proxy.stdout is not None
-        if not proxy.stdout.readline().startswith("PROXY"):
-            raise RuntimeError("proxy did not start")
-        fly = Proc.start(fly_argv(run_dir, "--connect", f"udpin://127.0.0.1:{comp_port}", "--no-zenoh", *extra))
-        code = fly.finish(240 if vehicle == "bundled" else 400)
-    finally:
-        for p in (sim, proxy):
-            p.send_signal(signal.SIGTERM)
-        counts = {}
-        try:
-            out, _ = proxy.communicate(timeout=10)
-            counts = json.loads(out.strip().splitlines()[-1])
-        except (subprocess.TimeoutExpired, ValueError, IndexError):
-            proxy.kill()
-        sim.wait(10)
-        if fly is not None:
-            fly.kill_all()
-    rep = read_report(run_dir)
-    return {"exit_code": code, "outcome": rep["outcome"], "reached_goal": rep["reached_goal"],
-            "goal_visited": rep.get("goal_visited"), "time_to_goal_s": rep["time_to_goal_s"],
-            **flown_figures(run_dir, rep),
-            "max_swing_rad": rep["max_swing_rad"], "collisions": rep["collisions"], "proxy": counts,
-            "link": rep["link"], "loop_lag": rep.get("loop_lag")}
-
-
-def _start_vehicle(kind: str, comp_port: int, instance: int, workdir: Path,
-                   onboard_port: int | None = None) -> tuple[subprocess.Popen, list[str]]:
-    """A real-time vehicle sending its onboard link to ``comp_port``: the bundled one (its onboard link bound to
-    ``onboard_port``, any free one by default; returned once it says it is ready), PX4 SIH (port 14540+I) or
-    ArduCopter SITL (:mod:`lab.sitl_external`); and the ``fly`` options it needs."""
-    if kind == "bundled":
-        argv = [sys.executable, "-m", "sim_bridge", "--onboard-port", str(onboard_port or free_udp_port()),
-                "--onboard-remote", f"127.0.0.1:{comp_port}", "--gcs-port", str(free_udp_port()), "--gcs-remote",
-                f"127.0.0.1:{free_udp_port()}"]
-        sim = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                               start_new_session=True, preexec_fn=proclife.preexec())
-        assert sim.stdout is not None
-        if not sim.stdout.readline().startswith("SITL READY"):
-            sim.kill()
-            raise RuntimeError("the bundled vehicle did not start")
-        return sim, ["--profile", "bundled"]
-    from lab import sitl_external
-
-    if kind == "px4":
-        return sitl_external.start_px4_sih(workdir, instance), []
-    return sitl_external.start_arducopter(workdir, comp_port, instance=0), []
-
-
-def companion_killed_vehicle_failsafe(workdir: Path, *, vehicle: str = "bundled", after_s: float = 3.0,
-                                      watch_s: float = 60.0, instance: int = 6) -> dict[str, Any]:
-    """kill -9 the companion while the vehicle flies its setpoints (real time), then watch the vehicle from the
-    companion's port: how long until it leaves offboard, into which mode, and whether it lands and disarms."""
-    from pymavlink.dialects.v20 import common as mavlink2
-
-    from companion.autopilots.profile import profile_for_autopilot
-    from companion.estimation.vehicle_state import px4_mode_name
-
-    comp_port = 14540 + instance if vehicle == "px4" else free_udp_port()
-    veh, extra = _start_vehicle(vehicle, comp_port, instance, workdir)
-    run_dir = workdir / f"companion-killed-{vehicle}"
-    fly = Proc.start(fly_argv(run_dir, "--connect", f"udpin://127.0.0.1:{comp_port}", "--no-zenoh",
-                              "--ready-timeout", "120", *extra))
-    events: list[tuple[float, str]] = []
-    try:
-        fly.wait_for("→ mission", timeout_s=180)
-        time.sleep(after_s)
-        fly.proc.kill()
-        t_kill = time.monotonic()
-        fly.proc.wait(10)
-        mav = mavlink2.MAVLink(None)
-        mav.robust_parsing = True
-        last_mode, armed, z_min, vz_max = None, True, 0.0, 0.0
-        t_land = t_disarm = None
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            s.bind(("127.0.0.1", comp_port))
-            s.settimeout(0.2)
-            while time.monotonic() - t_kill < watch_s:
-                try:
-                    data, _ = s.recvfrom(65535)
-                except TimeoutError:
-                    continue
-                for m in mav.parse_buffer(data) or []:
-                    t = m.get_type()
-                    if t == "HEARTBEAT" and m.autopilot != 8 and m.get_srcComponent() == 1:
-                        fam = profile_for_autopilot(m.autopilot).family
-                        name = px4_mode_name(m.custom_mode) if fam.name == "px4" else f"mode {m.custom_mode}"
-                        if name != last_mode:
-                            events.append((time.monotonic() - t_kill, f"{name} ({fam.mode_class(m.custom_mode)})"))
-                            last_mode = name
-                        was, armed = armed, bool(m.base_mode & 128)
-                        if was and not armed and t_disarm is None:
-                            t_disarm = time.monotonic() - t_kill
-                    elif t == "EXTENDED_SYS_STATE" and m.landed_state == 1 and t_land is None:
-                        t_land = time.monotonic() - t_kill
-                    elif t == "LOCAL_POSITION_NED" and m.get_srcComponent() == 1:
-                        z_min, vz_max = min(z_min, m.z), max(vz_max, m.vz)
-                if t_disarm is not None:
-                    break
-    finally:
-        fly.kill_all()
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(veh.pid, signal.SIGTERM)
-        try:
-            veh.wait(15)
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(veh.pid, signal.SIGKILL)
-    leave = next((t for t, name in events if not name.endswith("(offboard)")), None)
-    return {"vehicle": vehicle, "mode_changes_s": events, "left_offboard_s": leave, "landed_s": t_land,
-            "disarmed_s": t_disarm, "max_descent_mps": vz_max, "max_altitude_m": -z_min}
-
-
-def _vehicle_port(fly: Proc) -> int:
-    """The bundled vehicle's onboard port, from its command line in the ``-v`` log of ``fly --sitl``."""
-    fly.wait_for("starting the bundled vehicle")
-    for _, line in fly.lines:
-        if "--onboard-port" in line:
-            return int(line.split("--onboard-port")[1].split()[0])
-    raise RuntimeError("no --onboard-port in the log")
-
-
 def signed_forced_disarm(workdir: Path, *, n: int = 20) -> dict[str, Any]:
     """With MAVLink signing on both ends, a local attacker sends forced disarms to the vehicle and spoofed
     telemetry to the companion, unsigned and signed with a wrong key, mid-flight: all must be dropped and counted,
@@ -642,7 +292,7 @@ def signed_forced_disarm(workdir: Path, *, n: int = 20) -> dict[str, Any]:
     run_dir = workdir / "signed-forced-disarm"
     fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh", "--no-recording", "--signing-key", str(key_file)))
     try:
-        veh_port, comp_port = _vehicle_port(fly), _companion_port(fly)
+        veh_port, comp_port = vehicle_port(fly), companion_port(fly)
         fly.wait_for("takeover → mission")
 
         class _Out:
@@ -703,10 +353,3 @@ def run_fault_bench(workdir: Path, names: list[str] | None = None) -> dict[str, 
     for name in names or list(SCENARIOS):
         out[name] = SCENARIOS[name](workdir)
     return out
-
-
-if __name__ == "__main__":
-    if len(sys.argv) > 1 and sys.argv[1] == "flood":
-        sys.exit(flood_main(sys.argv[2:]))
-    print("usage: python -m lab.faults flood --connect ENDPOINT [--rate-hz R] [--trunks N]", file=sys.stderr)
-    sys.exit(2)

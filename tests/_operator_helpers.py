@@ -24,7 +24,7 @@ from pymavlink.dialects.v20 import common as M
 
 from companion.core.autopilot_mission import earth_radii_m
 from companion.core.fence import Fence, FenceCircle, FencePolygon, fence_margin_m
-from lab.faults import free_udp_port
+from lab.procs import free_udp_port
 
 ROOT = Path(__file__).resolve().parents[1]
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"

@@ -29,7 +29,7 @@ from pymavlink.dialects.v20 import common as M
 
 from companion.core.autopilot_mission import earth_radii_m
 from lab import sitl_external
-from lab.faults import free_udp_port as free_port
+from lab.procs import free_udp_port as free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow

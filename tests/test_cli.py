@@ -78,7 +78,7 @@ def test_missions_lists_the_shipped_ones_and_fly_finds_them_by_name():
 
 
 def test_obstacles_publish_with_nobody_listening_sends_nothing_and_says_so():
-    from lab.faults import free_tcp_port
+    from lab.procs import free_tcp_port
 
     out = _cli("obstacles", "publish", "trunk", "--zenoh-connect", f"tcp/127.0.0.1:{free_tcp_port()}",
                "--wait-s", "1")
@@ -88,7 +88,7 @@ def test_obstacles_publish_with_nobody_listening_sends_nothing_and_says_so():
 @pytest.mark.slow
 def test_the_readme_live_obstacle_example_changes_the_path(tmp_path):
     """README: a shipped trunk published while the open field is flown; the vehicle flies around it."""
-    from lab.faults import free_tcp_port
+    from lab.procs import free_tcp_port
 
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
     pub = subprocess.Popen([sys.executable, "-m", "companion.cli", "obstacles", "publish", "trunk",

@@ -142,7 +142,7 @@ def test_tlog_records_reach_the_file_in_order(tmp_path):
 def test_a_flight_goes_on_while_its_journal_cannot_write(tmp_path):
     """The journal's first write blocks (a FIFO with no reader where the provisional report is written): the
     companion still connects, arms, climbs and takes over; the journal catches up once the disk answers."""
-    from lab.faults import Proc, fly_argv, read_report
+    from lab.procs import Proc, fly_argv, read_report
 
     run_dir = tmp_path / "run"
     run_dir.mkdir()

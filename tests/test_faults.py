@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from lab import faults
+from lab import faults, faults_vehicle
 
 pytestmark = pytest.mark.slow
 
@@ -76,7 +76,7 @@ def test_zenoh_flood_of_valid_obstacles_does_not_starve_the_loop(workdir):
 
 
 def test_50_ms_jitter_and_reordering_do_not_make_it_diverge(workdir):
-    r = faults.jitter(workdir, delay_ms=50.0, jitter_ms=25.0)
+    r = faults_vehicle.jitter(workdir, delay_ms=50.0, jitter_ms=25.0)
     assert r["proxy"]["reordered"] > 100  # the proxy really reordered datagrams
     assert r["max_alt_error_m"] is not None and r["max_alt_error_m"] < 0.5, r
     # no limit cycle at the goal: a steady hold tilts < 0.25 rad here, a loop out of margin cycles at the 0.6 limit
@@ -101,7 +101,7 @@ def test_with_signing_forged_and_unsigned_disarms_and_spoofs_are_ignored(workdir
 def test_companion_killed_the_bundled_vehicle_holds_then_lands(workdir):
     """kill -9 of the companion in flight (real time): the vehicle's own failsafe, PX4's way — hold after
     COM_OF_LOSS_T (1 s), land after COM_FAIL_ACT_T (5 s), disarm on the ground. Never a fall, never hovering on."""
-    r = faults.companion_killed_vehicle_failsafe(workdir, vehicle="bundled", watch_s=40.0)
+    r = faults_vehicle.companion_killed_vehicle_failsafe(workdir, vehicle="bundled", watch_s=40.0)
     modes = [name for _, name in r["mode_changes_s"]]
     assert any(m.endswith("(other)") or m.endswith("(hold)") for m in modes), r  # left OFFBOARD for a hold
     assert any(m.endswith("(land)") for m in modes), r

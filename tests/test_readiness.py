@@ -15,7 +15,7 @@ import numpy as np
 from companion.estimation import readiness
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.sequence import FlightSequence, Observation, SequenceConfig, State
-from lab.faults import free_udp_port
+from lab.procs import free_udp_port
 
 ROOT = Path(__file__).resolve().parents[1]
 PREARM = readiness.MAV_SYS_STATUS_PREARM_CHECK

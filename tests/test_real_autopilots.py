@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from lab import sitl_external
-from lab.faults import free_udp_port
+from lab.procs import free_udp_port
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow
@@ -118,7 +118,7 @@ def test_arducopter_without_param_writes_is_refused_with_what_to_set(arducopter,
 
 @needs_px4
 def test_px4_lands_by_itself_when_the_companion_is_killed(tmp_path):
-    from lab.faults import companion_killed_vehicle_failsafe
+    from lab.faults_vehicle import companion_killed_vehicle_failsafe
 
     r = companion_killed_vehicle_failsafe(tmp_path, vehicle="px4", instance=6, watch_s=60.0)
     print(json.dumps(r, indent=1))
@@ -128,7 +128,7 @@ def test_px4_lands_by_itself_when_the_companion_is_killed(tmp_path):
 
 @needs_arducopter
 def test_arducopter_lands_by_itself_when_the_companion_is_killed(tmp_path):
-    from lab.faults import companion_killed_vehicle_failsafe
+    from lab.faults_vehicle import companion_killed_vehicle_failsafe
 
     r = companion_killed_vehicle_failsafe(tmp_path, vehicle="ardupilot", watch_s=60.0)
     print(json.dumps(r, indent=1))

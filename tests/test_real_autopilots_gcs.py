@@ -20,7 +20,7 @@ import pytest
 from pymavlink import mavutil
 
 from lab import sitl_external
-from lab.faults import free_udp_port
+from lab.procs import free_udp_port
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow

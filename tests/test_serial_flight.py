@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lab.faults import free_udp_port
+from lab.procs import free_udp_port
 from lab.pty_pair import PtyPair
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -188,7 +188,7 @@ MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
 def test_a_router_shares_the_serial_port_mavproxy(tmp_path):
     """The usual bench wiring: the autopilot on a serial TELEM port owned by a router (MAVProxy, master on the pty at
     921600 baud), the companion on one of its UDP outputs; real time. The forest completes."""
-    from lab.faults import free_udp_port as udp_port
+    from lab.procs import free_udp_port as udp_port
 
     comp = udp_port()
     pair = PtyPair(tmp_path / "fc", tmp_path / "cc").start()

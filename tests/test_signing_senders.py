@@ -153,7 +153,7 @@ def test_signed_flight_with_an_unsigned_payload_sender(tmp_path):
     import threading
     from pathlib import Path
 
-    from lab.faults import free_udp_port
+    from lab.procs import free_udp_port
 
     root = Path(__file__).resolve().parents[1]
     key = tmp_path / "key.hex"

@@ -183,7 +183,7 @@ def test_a_world_trunk_is_scored_where_it_is_on_the_vehicle_clock():
 def test_the_raw_scan_reaches_a_zenoh_subscriber_on_loopback():
     import zenoh
 
-    from lab.faults import free_tcp_port
+    from lab.procs import free_tcp_port
 
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
     cfg = zenoh.Config()

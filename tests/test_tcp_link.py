@@ -28,7 +28,7 @@ from pymavlink.dialects.v20 import common as M
 from companion.errors import LinkError
 from companion.mavlink_io.framing import StreamFramer
 from companion.mavlink_io.link import MavlinkLink
-from lab.faults import free_tcp_port
+from lab.procs import free_tcp_port
 from lab.pty_pair import PtyPair
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -194,7 +194,7 @@ class TcpBridge(threading.Thread):
 def _vehicle_on_pty(tmp_path: Path, device: Path) -> subprocess.Popen:
     from companion.core.mission import load_mission
     from companion.launch.sitl import vehicle_toml
-    from lab.faults import free_udp_port
+    from lab.procs import free_udp_port
 
     vfile = tmp_path / "vehicle.toml"
     vfile.write_text(vehicle_toml(load_mission(ROOT / "config" / "missions" / "forest.toml")))

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from lab.faults import free_udp_port
+from lab.procs import free_udp_port
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lab.faults import free_tcp_port
+from lab.procs import free_tcp_port
 
 pytestmark = pytest.mark.slow  # every test here flies a mission or a peer against the vehicle
 
@@ -26,7 +26,7 @@ PLANTED = {"x_m": 3.0, "y_m": 0.0, "radius_m": 0.3}
 
 
 def _publisher(ep: str, user: str, password: str, key: str, payload: dict, rate_hz: float = 20.0):
-    return subprocess.Popen([sys.executable, "-m", "lab.faults", "flood", "--connect", ep, "--user", user,
+    return subprocess.Popen([sys.executable, "-m", "lab.zenoh_flooder", "--connect", ep, "--user", user,
                              "--password", password, "--key", key, "--payload", json.dumps(payload),
                              "--rate-hz", str(rate_hz)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
