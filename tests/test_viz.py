@@ -331,7 +331,8 @@ def _listeners() -> list[tuple[str, int]]:
 @pytest.mark.slow
 def test_view_records_every_vehicle_on_zenoh_under_its_own_path(tmp_path):
     from companion.zenoh_io.session import zenoh_config
-    from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry
+    from companion.zenoh_io.telemetry import ZenohTelemetry
+    from companion.zenoh_io.telemetry_options import TelemetryOptions
 
     ep1, ep2 = (f"tcp/127.0.0.1:{_free_port()}" for _ in range(2))
     out = tmp_path / "fleet.rrd"

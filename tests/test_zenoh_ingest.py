@@ -10,7 +10,8 @@ import zenoh
 
 from companion.cli.bench_zenoh import free_tcp_port
 from companion.zenoh_io.session import zenoh_config
-from companion.zenoh_io.telemetry import INBOX_RING, TelemetryOptions, ZenohTelemetry
+from companion.zenoh_io.telemetry import INBOX_RING, ZenohTelemetry
+from companion.zenoh_io.telemetry_options import TelemetryOptions
 
 KEY = "slungpilot/6/obstacles/in/cam"
 

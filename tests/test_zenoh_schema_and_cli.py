@@ -19,7 +19,8 @@ from companion.core.obstacles import Obstacle
 from companion.errors import ConfigError, LinkError
 from companion.zenoh_io import schema as ts
 from companion.zenoh_io.session import add_zenoh_arguments, zenoh_config, zenoh_config_from_args
-from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry, _Every
+from companion.zenoh_io.telemetry import ZenohTelemetry
+from companion.zenoh_io.telemetry_options import TelemetryOptions, _Every
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -223,7 +224,7 @@ def test_sink_publishes_a_tick_of_the_app_types() -> None:
     from companion.core.model import payload_offset_ned_m
     from companion.estimation.estimate import Estimate
     from companion.flight.core import Command
-    from companion.zenoh_io.telemetry import ZenohTelemetrySink
+    from companion.zenoh_io.telemetry_sink import ZenohTelemetrySink
 
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
     got: dict[str, dict] = {}

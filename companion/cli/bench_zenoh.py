@@ -32,7 +32,8 @@ import zenoh
 from companion import proclife
 from companion.core.obstacles import Obstacle
 from companion.zenoh_io.session import add_zenoh_arguments, zenoh_config, zenoh_config_from_args
-from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry
+from companion.zenoh_io.telemetry import ZenohTelemetry
+from companion.zenoh_io.telemetry_options import TelemetryOptions
 
 MISSION_OBSTACLES = (Obstacle(3.0, 0.5, 0.3), Obstacle(8.0, -0.5, 0.25))
 

@@ -28,7 +28,7 @@ from companion.launch.fly import DEFAULT_GAINS, FlyResult, effective_config, fly
 from companion.launch.spec import FlySpec, ZenohSpec
 from companion.mavlink_io.signing import load_key_file
 from companion.zenoh_io.session import zenoh_config_from_args
-from companion.zenoh_io.telemetry import parse_rates
+from companion.zenoh_io.telemetry_options import parse_rates
 
 __all__ = ["DEFAULT_GAINS", "FlyResult", "fly_async", "load_gains", "mission_from_args", "new_run_dir", "run_fly",
            "spec_from_args"]

@@ -210,7 +210,9 @@ async def _run_async(runner: RealtimeRunner) -> None:
 def _zenoh_hook(spec: FlySpec, mission: Mission, stack: contextlib.ExitStack, zt_holder: list[Any],
                 view: Any) -> Any:
     """``on_connected``: open the Zenoh streams under the vehicle id (default: the autopilot's system id)."""
-    from companion.zenoh_io.telemetry import TelemetryOptions, ZenohTelemetry, ZenohTelemetrySink
+    from companion.zenoh_io.telemetry import ZenohTelemetry
+    from companion.zenoh_io.telemetry_options import TelemetryOptions
+    from companion.zenoh_io.telemetry_sink import ZenohTelemetrySink
 
     z = spec.zenoh
     assert z is not None

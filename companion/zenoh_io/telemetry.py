@@ -17,20 +17,21 @@ budget (``ingest_budget_s``, 0.3 ms): a list too long for one budget is parsed o
 (:class:`~companion.zenoh_io.obstacle_store.SampleParser`). So a flood — any rate, any size — costs each control
 period at most the budget (plus one slice of a few obstacles), never the tick itself, and the newest list of
 every publisher still gets through.
+
+Keys and rates: :mod:`companion.zenoh_io.telemetry_options`; the flight's sink over it:
+:mod:`companion.zenoh_io.telemetry_sink`.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import logging
 import math
 import queue
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -40,7 +41,8 @@ from companion.core.obstacles import Obstacle
 from companion.errors import ConfigError
 from companion.zenoh_io import schema as ts
 from companion.zenoh_io.obstacle_store import ObstacleStore, SampleParser
-from companion.zenoh_io.session import DEFAULT_PREFIX, check_key_part, open_session
+from companion.zenoh_io.session import open_session
+from companion.zenoh_io.telemetry_options import TelemetryOptions, _Every
 
 log = logging.getLogger(__name__)
 
@@ -52,88 +54,6 @@ INBOX_RING = 64
 INGEST_BUDGET_S = 0.3e-3  # parsing time one control tick may spend on live obstacle input
 MAX_QUEUE = 2000
 Vec = Sequence[float] | np.ndarray
-
-
-RATE_STREAMS = ("swing", "state", "setpoint", "status")
-
-
-def parse_rates(text: str | None) -> dict[str, float]:
-    """``"swing=25,state=10"`` → ``{"swing_hz": 25.0, "state_hz": 10.0}`` (:class:`TelemetryOptions` fields);
-    raises ``ValueError`` naming the bad part."""
-    out: dict[str, float] = {}
-    for part in (text or "").split(","):
-        if not part.strip():
-            continue
-        name, sep, value = part.partition("=")
-        name = name.strip()
-        if not sep or name not in RATE_STREAMS:
-            raise ValueError(f"{part.strip()!r}: expected STREAM=HZ with STREAM one of {', '.join(RATE_STREAMS)}")
-        try:
-            hz = float(value)
-        except ValueError:
-            raise ValueError(f"{part.strip()!r}: {value.strip()!r} is not a number of Hz") from None
-        if not (math.isfinite(hz) and hz >= 0.0):
-            raise ValueError(f"{part.strip()!r}: a rate must be finite and >= 0 Hz")
-        out[f"{name}_hz"] = hz
-    return out
-
-
-@dataclass(frozen=True, slots=True)
-class TelemetryOptions:
-    """Keys and rates of the telemetry streams (rates in Hz of sim time; 0 means every call).
-
-    ``express`` off by default: with Zenoh's batching a starved TX thread does not drop samples (with
-    express each sample takes one of the 16 queue slots, and samples were lost under CPU load), and the
-    latency is the same in our measurements. ``background``: encode and put in a worker thread.
-    """
-
-    prefix: str = DEFAULT_PREFIX
-    vehicle_id: str = "1"
-    swing_hz: float = 0.0  # 0: every control tick
-    state_hz: float = 50.0
-    setpoint_hz: float = 50.0
-    status_hz: float = 1.0
-    obstacles_min_hz: float = 1.0
-    obstacles_max_hz: float = 20.0
-    express: bool = False
-    subscribe_obstacles: bool = True
-    background: bool = True
-
-    def validate(self) -> None:
-        """Raise ``ValueError("<key>: ...")`` on bad keys or rates."""
-        for key in ("prefix", "vehicle_id"):
-            try:
-                check_key_part(key, getattr(self, key))
-            except ConfigError as exc:
-                raise ValueError(str(exc)) from None
-        for key in ("swing_hz", "state_hz", "setpoint_hz", "status_hz", "obstacles_min_hz", "obstacles_max_hz"):
-            v = getattr(self, key)
-            if not math.isfinite(v) or v < 0.0:
-                raise ValueError(f"{key}: must be a finite rate >= 0 Hz, got {v!r}")
-        if self.obstacles_min_hz <= 0.0:
-            raise ValueError("obstacles_min_hz: must be > 0 Hz (the obstacles stream is sent at least this often)")
-
-
-class _Every:
-    """Decimation by the caller's clock: due at most once per ``period_s``, phase-locked to the schedule;
-    a clock that jumps back or far ahead restarts the schedule."""
-
-    def __init__(self, rate_hz: float) -> None:
-        self.period_s = 1.0 / rate_hz if rate_hz > 0.0 else 0.0
-        self._last = -math.inf
-        self._next = -math.inf
-
-    def due(self, t_s: float) -> bool:
-        if self.period_s == 0.0:
-            return True
-        if self._last <= t_s < self._next - 1e-9:
-            return False
-        if t_s < self._last or t_s >= self._next + self.period_s:
-            self._next = t_s + self.period_s
-        else:
-            self._next += self.period_s
-        self._last = t_s
-        return True
 
 
 def _tup(v: Vec) -> tuple[float, ...]:
@@ -476,54 +396,3 @@ class ZenohTelemetry:
                 query.reply_err(f"config provider failed: {exc}".encode())
         finally:
             query.drop()
-
-
-class ZenohTelemetrySink:
-    """The app's ``TelemetrySink`` (``on_tick(est, cmd, app)``) over a :class:`ZenohTelemetry`.
-
-    Per tick: swing (``est.swing``, ``cmd.r_max_m``, ``cmd.envelope_mode``), state (payload position from the
-    swing and ``cable_l_m``), setpoint (every field of ``cmd``), status (``status_fn(app)``, default empty)
-    and the obstacle set last returned by ``zt.obstacles_current`` (use ``zt.obstacle_source(...)`` as the
-    app's obstacle source and ``zt.ingest`` as its obstacle ingest), or, once the pilot maps what its sensors
-    see (``app.pilot.perception``), the set the planner was given last with the perceived trunks. Duck-typed:
-    only those attribute names are read.
-    """
-
-    def __init__(self, zt: ZenohTelemetry, cable_l_m: float,
-                 status_fn: Callable[[Any], Mapping[str, Any]] | None = None) -> None:
-        self.zt = zt
-        self.cable_l_m = cable_l_m
-        self.status_fn = status_fn
-
-    def on_transition(self, t: Any, app: Any) -> None:
-        """Nothing: the sequence's state reaches subscribers in the 1 Hz status sample."""
-
-    def on_tick(self, est: Any, cmd: Any, app: Any) -> None:
-        """Publish this tick's samples (decimation happens inside :class:`ZenohTelemetry`)."""
-        zt, t = self.zt, float(est.t_s)
-        r_max = float(getattr(cmd, "r_max_m", math.nan)) if cmd is not None else math.nan
-        mode = str(getattr(cmd, "envelope_mode", "none")) if cmd is not None else "none"
-        src = getattr(est, "swing_source", None)
-        truth = sigma = fade = None
-        if src == "estimate":
-            truth = app.state.measured_swing()
-            last = app.swing_feed.last
-            if last is not None:
-                sigma, fade = float(last.sigma_rad), float(last.fade)
-        zt.publish_swing(t, est.swing, r_max, mode, src, truth, sigma, fade)
-        payload = None
-        if est.swing is not None:
-            a, b = float(est.swing[0]), float(est.swing[1])
-            # = companion.core.model.payload_offset_ned_m (eqs. 3-4), inlined to keep numba out of the CLI tools
-            payload = np.asarray(est.pos_ned_m, dtype=float) + self.cable_l_m * np.array(
-                [math.sin(a) * math.cos(b), -math.sin(b), math.cos(a) * math.cos(b)])
-        zt.publish_state(t, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, payload)
-        if cmd is not None and dataclasses.is_dataclass(cmd):
-            zt.publish_setpoint(t, {f.name: getattr(cmd, f.name) for f in dataclasses.fields(cmd) if f.name != "t_s"})
-        zt.publish_status(t, self.status_fn(app) if self.status_fn is not None else {})
-        obstacles = zt.last_obstacles
-        pilot = getattr(app, "pilot", None)
-        if pilot is not None and getattr(pilot, "perception", None) is not None:
-            obstacles = pilot.obstacles.in_use  # the perceived trunks too (source "perception")
-        if obstacles is not None:
-            zt.publish_obstacles(t, obstacles)
