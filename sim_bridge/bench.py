@@ -31,7 +31,8 @@ from companion.mavlink_io.codec import (
 )
 from sim_bridge.link import MavUdpLink
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
-from sim_bridge.vehicle import SitlConfig, SitlVehicle
+from sim_bridge.sitl_config import SitlConfig
+from sim_bridge.vehicle import SitlVehicle
 
 M = mavlink2
 _ID_SYSTEM_TIME = M.MAVLINK_MSG_ID_SYSTEM_TIME

@@ -14,7 +14,8 @@ from companion.core.wind import WindConfig
 from companion.errors import ConfigError
 from companion.mavlink_io.signing import load_key_file
 from sim_bridge.imu import ImuNoise
-from sim_bridge.vehicle import SitlConfig, SitlVehicle
+from sim_bridge.sitl_config import SitlConfig
+from sim_bridge.vehicle import SitlVehicle
 from sim_bridge.world_cli import add_world_arguments, attached_scanner, scanner_from_args
 
 log = logging.getLogger(__name__)

@@ -4,6 +4,7 @@ Owns flight modes, the offboard rule and its loss failsafe, arming, home, land d
 scheduling, MAVLink signing set-up and the two clocks:
 real time (physics on a monotonic wall clock) and lockstep (one control period per SET_ATTITUDE_TARGET
 from the onboard link, then the due telemetry, then SYSTEM_TIME as end-of-step marker). See docs/sitl.md.
+Its settings: :mod:`sim_bridge.sitl_config`; what it does when commanded: :mod:`sim_bridge.vehicle_control`.
 """
 
 from __future__ import annotations
@@ -13,7 +14,6 @@ import gc
 import logging
 import math
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
@@ -23,14 +23,14 @@ from companion.core.model import VehicleParams, rotation_body_to_ned
 from companion.core.rotations import wrap_pi
 from companion.core.wind import WindConfig
 from companion.errors import ModelError
-from companion.mavlink_io.signing import SigningVerifier
 from sim_bridge import commands, mission_server, telemetry
-from sim_bridge.imu import ImuModel, ImuNoise
-from sim_bridge.inner_loop import eq49_torque_problem
+from sim_bridge.imu import ImuModel
 from sim_bridge.link import MavUdpLink, RejectCounters
 from sim_bridge.params import build_param_table, gains_from_params
-from sim_bridge.physics import InnerLoopGains, RotorConfig, VehicleSim
+from sim_bridge.physics import InnerLoopGains, VehicleSim
 from sim_bridge.position_hold import PositionHoldGains, position_control_target
+from sim_bridge.sitl_config import SitlConfig
+from sim_bridge.vehicle_control import VehicleControl
 
 log = logging.getLogger(__name__)
 M = mavlink2
@@ -45,67 +45,7 @@ OFFBOARD_GAINS = PositionHoldGains(vmax_xy_mps=12.0, vmax_up_mps=3.0, vmax_down_
                                    tilt_max_rad=math.radians(45.0))
 
 
-@dataclass(frozen=True)
-class SitlConfig:
-    """Everything the vehicle needs to start (the CLI fills it from flags)."""
-
-    params: VehicleParams = field(default_factory=VehicleParams)
-    wind: WindConfig = field(default_factory=WindConfig)
-    rotor: RotorConfig = field(default_factory=RotorConfig)
-    lockstep: bool = False
-    control_period_us: int = 4000
-    physics_dt_us: int = 1000
-    thr_hover: float | None = None  # default 1 / thrust_to_weight
-    offboard_timeout_s: float = 1.0  # COM_OF_LOSS_T (PX4 v1.15 default)
-    obl_action: int = 0  # COM_OBL_RC_ACT
-    fail_act_t_s: float = 5.0  # COM_FAIL_ACT_T: hold after offboard loss, then land
-    takeoff_alt_m: float = 2.5
-    home: tuple[float, float, float] = (47.397742, 8.545594, 488.0)
-    onboard_bind: tuple[str, int] = ("127.0.0.1", 14580)
-    onboard_remote: tuple[str, int] = ("127.0.0.1", 14540)
-    gcs_bind: tuple[str, int] = ("127.0.0.1", 18570)
-    gcs_remote: tuple[str, int] = ("127.0.0.1", 14550)
-    sysid: int = 1
-    compid: int = M.MAV_COMP_ID_AUTOPILOT1
-    payload_sysid: int = 2
-    payload_compid: int = M.MAV_COMP_ID_USER11  # 35, as ArduPilot's SIM_SlungPayload
-    payload_interval_us: int = 100_000
-    duration_s: float | None = None
-    onboard_peer: tuple[str, int] | None = None  # lock the link to this peer from the start
-    gcs_peer: tuple[str, int] | None = None
-    onboard_serial: tuple[str, int] | None = None  # (device, baud bit/s): the onboard link on a serial device
-    signing_key: bytes | None = None
-    prearm_checks: bool = True  # False: SYS_STATUS as ArduCopter's ARMING_CHECK 0 (pre-arm bit present, not enabled)
-    imu: ImuNoise = field(default_factory=ImuNoise)
-    #: the hover thrust (N) MPC_THR_HOVER was calibrated for: the declared vehicle's when the true payload differs
-    #: (``--payload-mass-kg``: the autopilot was tuned with what it was told); None: the simulated vehicle's own
-    thrust_ref_n: float | None = None
-
-    def validate(self) -> None:
-        """Raise ``ValueError("<key>: ...")`` for inconsistent settings."""
-        if self.control_period_us <= 0 or self.control_period_us % self.physics_dt_us:
-            raise ValueError("control_period_ms: must be a positive multiple of the 1 ms physics step")
-        for k in ("sysid", "payload_sysid"):
-            if not 1 <= getattr(self, k) <= 255:
-                raise ValueError(f"{k}: must be in 1..255")
-        if self.sysid == self.payload_sysid:
-            raise ValueError("payload_sysid: must differ from the vehicle's sysid")
-        if not 0.05 <= (self.thr_hover or 0.4) <= 0.95:
-            raise ValueError("thr_hover: must be in [0.05, 0.95]")
-        if not 0 <= self.obl_action <= 4:
-            raise ValueError("obl_action: COM_OBL_RC_ACT must be 0..4 (5 hold, 6 terminate, 7 disarm: refused)")
-        if not 0.0 <= self.fail_act_t_s <= 25.0:
-            raise ValueError("fail_act_t: must be in [0, 25] s")
-        if self.signing_key is not None and len(self.signing_key) != 32:
-            raise ValueError("signing_key: must be 32 bytes")
-        self.imu.validate()
-        if self.wind.model == "paper":
-            problem = eq49_torque_problem(self.wind.scale, self.rotor, self.params)
-            if problem is not None:
-                raise ValueError(problem)
-
-
-class SitlVehicle:
+class SitlVehicle(VehicleControl):
     """The running vehicle. Create, then ``run()`` (returns the exit code): lockstep runs a plain blocking loop
     (:mod:`sim_bridge.lockstep`), real time an asyncio loop (:mod:`sim_bridge.realtime`); both drive the same
     vehicle logic here through :meth:`attach_links`, :meth:`on_message` and :meth:`advance`."""
@@ -304,164 +244,6 @@ class SitlVehicle:
                 telemetry.send_payload_messages(pm, self, hb, snap)
         if hb:
             self._last_hb_wall = time.monotonic()
-
-    # ------------------------------------------------------------------ arming and modes
-    def arm(self) -> tuple[int, str]:
-        if self.armed:
-            return commands.ACCEPTED, ""
-        if self.mode == px4_modes.OFFBOARD and not self._stream_ok():
-            return commands.DENIED, "Arming denied: no offboard setpoint stream"
-        self.sim.armed = True
-        self._airborne = not self.sim.landed
-        self._landed_since_us = None
-        if self.sim.landed:  # PX4 sets home where it arms on the ground
-            self.home_local_ned_m = self.sim.pos_ned_m
-            self.home_yaw_rad = float(self.sim.euler_rad[2])
-            self.home_time_us = self.t_us
-        if self.mode != px4_modes.OFFBOARD:
-            self._hold_here()
-        self.statustext(M.MAV_SEVERITY_INFO, "Armed")
-        return commands.ACCEPTED, ""
-
-    def disarm(self, force: bool = False) -> tuple[int, str]:
-        if not self.armed:
-            return commands.ACCEPTED, ""
-        if not self.sim.landed and not force:
-            return commands.DENIED, "Disarming denied: not landed (use force)"
-        self._do_disarm("Disarmed" + (" (forced)" if force else ""))
-        return commands.ACCEPTED, ""
-
-    def _do_disarm(self, why: str) -> None:
-        self.sim.armed = False
-        self._airborne = False
-        self._landed_since_us = None
-        self.statustext(M.MAV_SEVERITY_INFO, why)
-
-    def set_mode(self, mode: px4_modes.Px4Mode) -> tuple[int, str]:
-        if mode not in px4_modes.SUPPORTED_MODES:
-            return commands.DENIED, f"Mode {mode.name} not supported by the SITL vehicle"
-        if mode == self.mode:
-            return commands.ACCEPTED, ""
-        if mode == px4_modes.OFFBOARD:
-            if not self._stream_ok():
-                return commands.DENIED, "Offboard denied: no setpoint stream"
-            self._yaw_sp_rad = float(self.sim.euler_rad[2])
-            if self._sp_kind == "attitude" and self._last_sp is not None:
-                self.sim.set_attitude_target(*self._sp_newtons(self._last_sp))
-        elif mode == px4_modes.AUTO_TAKEOFF:
-            self._hold_here()
-            self.hold_pos_ned_m[2] = float(self.home_local_ned_m[2]) - self.params.value("MIS_TAKEOFF_ALT")
-        elif mode != px4_modes.AUTO_LAND:
-            self._hold_here()
-        else:
-            self._hold_here()
-        self.mode = mode
-        self.statustext(M.MAV_SEVERITY_INFO, f"Mode: {mode.name}")
-        return commands.ACCEPTED, ""
-
-    def takeoff(self, alt_amsl_m: float) -> tuple[int, str]:
-        """MAV_CMD_NAV_TAKEOFF: climb to param7 (AMSL, NaN = MIS_TAKEOFF_ALT above home)."""
-        if not self.armed:
-            return commands.DENIED, "Takeoff denied: arm first"
-        alt = self.params.value("MIS_TAKEOFF_ALT")
-        home_amsl = self.origin[2] - float(self.home_local_ned_m[2])
-        if math.isfinite(alt_amsl_m) and alt_amsl_m > home_amsl:
-            alt = alt_amsl_m - home_amsl
-        res, why = self.set_mode(px4_modes.AUTO_TAKEOFF)
-        if res == commands.ACCEPTED:
-            self.hold_pos_ned_m[2] = float(self.home_local_ned_m[2]) - alt
-        return res, why
-
-    def reboot(self) -> tuple[int, str]:
-        if self.armed:
-            return commands.DENIED, "Reboot denied: disarm first"
-        p = dataclasses.replace(self.sim.params, m=self.params.value("SIM_PLD_MASS"),
-                                l=self.params.value("SIM_CABLE_LEN"))
-        self.sim = self._new_sim(p, self.t_us * 1e-6)
-        self.mode = px4_modes.AUTO_LOITER
-        self._hold_here()
-        return commands.ACCEPTED, f"Rebooted: payload {p.m:g} kg, cable {p.l:g} m"
-
-    def _hold_here(self) -> None:
-        self.hold_pos_ned_m = self.sim.pos_ned_m
-        self.hold_yaw_rad = float(self.sim.euler_rad[2])
-
-    # ------------------------------------------------------------------ offboard setpoints
-    def _stream_ok(self) -> bool:
-        """PX4's offboard rule (offboardCheck.cpp): one setpoint no older than COM_OF_LOSS_T is enough."""
-        return self._sp_time_us is not None and self.t_us - self._sp_time_us <= self._timeout_us()
-
-    def _timeout_us(self) -> int:
-        return round(self.params.value("COM_OF_LOSS_T") * 1e6)
-
-    def _sp_newtons(self, sp):
-        q, n, rates = sp
-        t = None if n is None else n * self.hover_thrust_n / self.params.value("MPC_THR_HOVER")
-        return q, t, rates
-
-    def on_attitude_target(self, link: MavUdpLink, msg) -> None:
-        """SET_ATTITUDE_TARGET (a message object, already checked for its target)."""
-        self._attitude_target(link, *commands.parse_attitude_target(msg))
-
-    def on_attitude_fields(self, link: MavUdpLink, f: tuple) -> None:
-        """SET_ATTITUDE_TARGET as the link's hot path unpacks it (``codec.P_SET_ATTITUDE_TARGET``'s fields:
-        time_boot_ms, q[4], body rates[3], thrust, target_system, target_component, type_mask): the same
-        target checks as :meth:`on_message`, then as :meth:`on_attitude_target`."""
-        if f[9] not in (0, self.sysid):
-            self.counters.reject("other_target", f"SET_ATTITUDE_TARGET for system {f[9]}")
-            return
-        if f[10] not in (0, self.cfg.compid):
-            self.counters.reject("other_target", f"SET_ATTITUDE_TARGET for component {f[10]}")
-            return
-        self._attitude_target(link, *commands.parse_attitude_fields(f[11], f[1], f[2], f[3], f[4], f[5], f[6],
-                                                                    f[7], f[8]))
-
-    def _attitude_target(self, link: MavUdpLink, kind: str | None, q, rates, thrust) -> None:
-        if kind is not None:
-            self.counters.reject(kind, "SET_ATTITUDE_TARGET")
-            return
-        if q is not None or rates is not None or thrust is not None:
-            self._sp_time_us = self.t_us
-            self._sp_kind = "attitude"
-            self._last_sp = (q, thrust, rates)
-            if self._offboard:
-                self.sim.set_attitude_target(*self._sp_newtons(self._last_sp))
-        if self.cfg.lockstep and link is self.onboard:
-            self._lockstep_step()
-
-    def on_position_target(self, msg) -> None:
-        """SET_POSITION_TARGET_LOCAL_NED: an offboard setpoint (stream and flight) as in PX4."""
-        kind, sp = commands.parse_position_target(msg, float(self.sim.euler_rad[2]))
-        if kind is not None:
-            self.counters.reject(kind, "SET_POSITION_TARGET_LOCAL_NED")
-            return
-        if self._sp_kind != "position":
-            self._yaw_sp_rad = float(self.sim.euler_rad[2])
-        self._sp_time_us = self.t_us
-        self._sp_kind = "position"
-        self._pos_sp = sp
-
-    def on_setup_signing(self, link: MavUdpLink, msg) -> None:
-        """SETUP_SIGNING (as PX4's MavlinkSignControl): a 32-byte key and initial timestamp for every link;
-        an all-zero key with timestamp 0 turns signing off. Only messages that passed the link's checks get
-        here: from its locked peer, and signed with the current key when signing is on. No reply (none is
-        defined)."""
-        key = bytes(msg.secret_key)
-        ts = int(msg.initial_timestamp)
-        if not any(key) and ts == 0:
-            for lk in self._links():
-                lk.set_signing(None)
-            self.statustext(M.MAV_SEVERITY_NOTICE, "MAVLink signing disabled (SETUP_SIGNING)")
-            return
-        self._enable_signing(key, ts)
-        self.statustext(M.MAV_SEVERITY_NOTICE, "MAVLink signing key set (SETUP_SIGNING)")
-
-    def _enable_signing(self, key: bytes, initial_timestamp: int = 0) -> None:
-        verifier = SigningVerifier(key)
-        verifier.newest = initial_timestamp
-        for lk in self._links():
-            lk.set_signing(verifier)
-            lk.signer.timestamp = initial_timestamp
 
     # ------------------------------------------------------------------ one control period
     def advance(self) -> None:

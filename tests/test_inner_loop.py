@@ -189,7 +189,7 @@ def test_eq49_beyond_the_airframes_yaw_authority_is_refused_with_the_numbers():
     vehicle diverged (spun up, climbed away 25 m). Now the vehicle refuses such a world before it starts."""
     from companion.core.wind import WindConfig
     from sim_bridge.inner_loop import eq49_peak, eq49_torque_problem, yaw_authority_at_hover_nm
-    from sim_bridge.vehicle import SitlConfig
+    from sim_bridge.sitl_config import SitlConfig
 
     rotor = RotorConfig()
     assert eq49_peak() == pytest.approx(0.592, abs=1e-3)

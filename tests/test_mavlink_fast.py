@@ -318,7 +318,8 @@ def test_sim_bridge_streamed_messages_are_byte_identical_to_pymavlink() -> None:
 
     from companion.core.rotations import quat_from_euler
     from sim_bridge import telemetry as tm
-    from sim_bridge.vehicle import SitlConfig, SitlVehicle
+    from sim_bridge.sitl_config import SitlConfig
+    from sim_bridge.vehicle import SitlVehicle
 
     v = SitlVehicle(SitlConfig())
     sim = v.sim

@@ -15,7 +15,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.autopilots import px4_modes
 from sim_bridge.link import MavUdpLink
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
-from sim_bridge.vehicle import SitlConfig, SitlVehicle
+from sim_bridge.sitl_config import SitlConfig
+from sim_bridge.vehicle import SitlVehicle
 
 M = mavlink2
 

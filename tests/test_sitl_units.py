@@ -133,7 +133,8 @@ def test_attitude_angles_are_sent_in_mavlinks_range_even_when_the_model_has_spun
     from pymavlink.dialects.v20 import common as M
 
     from sim_bridge import telemetry as tm
-    from sim_bridge.vehicle import SitlConfig, SitlVehicle
+    from sim_bridge.sitl_config import SitlConfig
+    from sim_bridge.vehicle import SitlVehicle
 
     v = SitlVehicle(SitlConfig())
     v.sim.x[3], v.sim.x[4], v.sim.x[5] = 3.5, 0.2, 61.85
