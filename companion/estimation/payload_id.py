@@ -41,7 +41,6 @@ from pathlib import Path
 
 import numpy as np
 from numba import njit
-from scipy.signal import butter, filtfilt
 
 from companion.core.kernel_cache import use_kernel_cache
 from companion.estimation.swing_model import rotation_from_euler
@@ -197,6 +196,8 @@ def identify_payload(
     R = np.array([rotation_from_euler(*row) for row in e])
     a = np.einsum("nij,nj->ni", R, f) + np.array([0.0, 0.0, g_mps2])
     if pivot_cutoff_hz > 0.0:
+        from scipy.signal import butter, filtfilt  # here: importing scipy.signal costs ~1 s, a flight needs it once
+
         fs = (n - 1) / (t[-1] - t[0])
         if pivot_cutoff_hz < 0.45 * fs:
             b, a_f = butter(2, pivot_cutoff_hz / (0.5 * fs))
