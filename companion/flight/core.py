@@ -24,6 +24,7 @@ from companion.control import (
     make_position_controller,
 )
 from companion.control.adapt import adapt_to_payload
+from companion.control.swing_bias import SwingBias, feedforward_offsets
 from companion.core.envelope import full_cable_r_max_m, r_max_m
 from companion.core.mission import Mission
 from companion.core.obstacles import Obstacle
@@ -36,6 +37,7 @@ from companion.flight.legs import Legs, capped, leg_plan, legs_done, planned_swi
 from companion.flight.phase import CorePhase
 from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator, make_planner
 from companion.planning.fence_guard import fence_obstacles
+from companion.planning.shaping import pendulum_omega_rad_s
 from companion.planning.stop_cap import LATENCY_S, SeenCap, travel_headings_rad
 
 log = logging.getLogger(__name__)
@@ -70,6 +72,10 @@ class FlightCore(CoreOrders):
         self._braking = False  # a pause: the reference brakes at its own limits, the hold is where it stops
         self.controller: PositionController = make_position_controller(mission.controller, self.cfg, self.params)
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
+        #: the swing's slow equilibrium (a steady wind's drag), which the feed-forward leaves alone (issue 28)
+        self.swing_bias = SwingBias(self.params.g / pendulum_omega_rad_s(self.params, "held") ** 2, self.params.g,
+                                    self.cfg.feedforward.rate_filter_s)
+        self._swing_nom: tuple | None = None  # this tick's planned swing (a timed plan's), else None
         self.loop_lag = LoopLagEstimator(period_s)
         self.lag_trust = 1.0  # the feed-forward's trust from the measured loop lag (this tick)
         self.lag_stats = LagStats(period_s)
@@ -217,14 +223,20 @@ class FlightCore(CoreOrders):
         obs = self._advance_obstacles(obs, est.t_s)
         obs = [*obs, *self._fence_obs] if self._fence_obs else obs
         self._update_lag_trust()
+        self._swing_nom = None
         swing, r_max, mode, swing_acc = self._envelope(est)
         f_att, f_rep, plan_mode, acc_ctl = self._reference(est, obs, swing, r_max, dt)
         ref = self.ref
         ctl_swing = swing if est.swing_source in ("cable_sensor", "estimate") else None
         trust = self._swing_trust(est)
+        swing_acc_raw = swing_acc
         if ctl_swing is not None and trust < 1.0:  # an untrusted estimate or a lagging loop: less (or no) feed-forward
             ctl_swing = ctl_swing * trust
             swing_acc = (swing_acc[0] * trust, swing_acc[1] * trust)
+        if self.controller.swing_feedforward:
+            feedforward_offsets(self.controller, self.swing_bias, est.t_s, None if ctl_swing is None else swing,
+                                swing_acc_raw, est.vel_ned_mps, self._swing_nom, trust, self.cfg.feedforward,
+                                self.params.l)
         ctl = self.controller.update(
             est.pos_ned_m, est.vel_ned_mps, ref.p, ref.v, ref.a if acc_ctl is None else acc_ctl, ctl_swing,
             swing_acc if ctl_swing is not None else (0.0, 0.0), max(dt, 1e-4),
@@ -339,6 +351,7 @@ class FlightCore(CoreOrders):
                 log.warning("mission %s: no route to the goal; holding at (%.2f, %.2f)", m.name, ref.p[0], ref.p[1])
         r = out.reference
         assert r is not None
+        self._swing_nom = r.swing_nom
         if dt > 0.0:
             if self.phase == CorePhase.DESCEND:
                 ref.step_vertical(DESCENT_MPS, dt)
