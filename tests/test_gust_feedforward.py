@@ -12,7 +12,6 @@ import pytest
 
 from companion.control.swing_bias import DEADBAND_RAD, SwingBias
 from companion.core.mission import Mission, load_mission
-from companion.core.model import VehicleParams
 from companion.core.wind import WindConfig
 from lab.envelope import Cell, cell_mission
 from lab.forests import ForestSpec
@@ -80,4 +79,3 @@ def test_calm_flights_keep_the_feedforward_untouched():
     mis = _crosswind_line(1.0, 0.25, 0.0).with_(wind=WindConfig("none", 0.0))
     fly_inprocess(mis, on_tick=lambda core, t: seen.append(core.controller.ff_bias))
     assert seen and all(b == (0.0, 0.0) for b in seen)
-    assert VehicleParams().l == 1.0
