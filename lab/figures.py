@@ -186,7 +186,9 @@ def plot_envelope(summary: Mapping[str, Any], path: Path) -> Path:
             ax = axes[i][j]
             im = ax.imshow(grid, cmap=cmap, vmin=lo, vmax=hi, origin="lower", aspect="auto")
             for (a, b), v in np.ndenumerate(grid):
-                ax.text(b, a, "—" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", fontsize=7)
+                dark = not np.isnan(v) and sum(im.cmap(im.norm(v))[:3]) < 1.2  # white figures on dark cells
+                ax.text(b, a, "—" if np.isnan(v) else f"{v:.2f}", ha="center", va="center", fontsize=7,
+                        color="white" if dark else "black")
             ax.set_xticks(range(len(cables)), [f"{v:g}" for v in cables])
             ax.set_yticks(range(len(masses)), [f"{v:g}" for v in masses])
             ax.set_xlabel("cable (m)")

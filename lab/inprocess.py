@@ -29,6 +29,7 @@ from companion.control import ControllerConfig
 from companion.core.mission import Mission
 from companion.core.model import VehicleParams
 from companion.estimation.estimate import Estimate
+from companion.estimation.vehicle_state import SLACK_FRACTION
 from companion.flight.core import FlightCore
 from companion.report.metrics import FlightLog
 from lab.swing_sim import EstimatorDriver, TruthLog, TruthRecorder
@@ -76,6 +77,18 @@ class SlowLink:
         while self._down and self._down[0][0] <= tick:
             out.append(heapq.heappop(self._down)[2])
         return out
+
+
+def _cable_sensor(sim: VehicleSim) -> np.ndarray:
+    """The swing [α, β, α̇, β̇] (rad, rad/s) the companion reads from the bundled vehicle's cable-angle sensor: the
+    sim's angles, and zeros while the payload lies on the ground nearer than
+    :data:`~companion.estimation.vehicle_state.SLACK_FRACTION` of the cable (the sensor sends that reach and the
+    companion reads a slack cable as no swing; the direction of a cable a few micrometres long is not one)."""
+    if sim.payload_on_ground:
+        reach = float(np.linalg.norm(sim.payload_pos_ned_m - sim.pos_ned_m))
+        if reach < SLACK_FRACTION * sim.params.l:
+            return np.zeros(4)
+    return sim.swing
 
 
 def fly_inprocess(
@@ -138,7 +151,7 @@ def fly_inprocess(
                 swing_fade=1.0 if se is None else se.fade, swing_bound_rad=None if se is None else se.bound_rad,
             )
         else:
-            swing = sim.swing if source == "cable_sensor" else None
+            swing = _cable_sensor(sim) if source == "cable_sensor" else None
             est = Estimate(
                 t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,
                 rates_frd_rad_s=sim.body_rates_frd_rad_s, swing=swing, swing_source=source,
@@ -153,7 +166,8 @@ def fly_inprocess(
         if truth is not None and sample is not None:
             truth.samples.append(TruthRecorder.commanded(sample, cmd.thrust_n))
         if record or len(flog) == 0:
-            flog.append(sim.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, sim.swing, sim.payload_pos_ned_m, cmd)
+            flog.append(sim.t_s, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, _cable_sensor(sim),
+                        sim.payload_pos_ned_m, cmd)
         if stop_when_done and core.phase == "done":
             break
         for applied in (link.to_vehicle(tick, cmd) if link is not None else (cmd,)):

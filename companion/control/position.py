@@ -199,6 +199,12 @@ class SmcPositionController:
         self._ki = float(gains.ki)
         self._i_lim = float(gains.i_limit_mps2)
         self._integral = [0.0, 0.0]  # horizontal integral action (m/s²), with ki > 0
+        #: (m/s², x y) the feed-forward of the swing a timed plan intends (the flight core takes it off the reference
+        #: acceleration, :func:`companion.flight.legs.planned_swing_acc`): ``max_mps2`` bounds the rest only
+        self.ff_center = (0.0, 0.0)
+        #: (m/s², x y) the angle term's share of the swing's slow equilibrium (:mod:`companion.control.swing_bias`),
+        #: taken off the feed-forward: it damps the swing about where a steady wind makes the payload hang
+        self.ff_bias = (0.0, 0.0)
 
     @property
     def swing_feedforward(self) -> bool:
@@ -217,10 +223,16 @@ class SmcPositionController:
             f_pay = _payload_reaction(al, be, dal, dbe, dda, ddb, p.m, p.l)
             if self.ff is not None:
                 ff = _feedforward(al, be, dal, dbe, dda, ddb, self.ff, p.l, self.ff_sign)
-                h_ff = math.hypot(ff[0], ff[1])
+                bx, by = self.ff_bias
+                if bx != 0.0 or by != 0.0:  # the swing's slow equilibrium (a steady wind's drag): not a swing
+                    ff = (ff[0] - bx, ff[1] - by, ff[2])
+                # the bound acts on what the feed-forward adds beyond the planned swing's own part
+                cx, cy = self.ff_center
+                dx, dy = ff[0] - cx, ff[1] - cy
+                h_ff = math.hypot(dx, dy)
                 if h_ff > self.ff.max_mps2:
                     k = self.ff.max_mps2 / h_ff
-                    ff = (ff[0] * k, ff[1] * k, ff[2])
+                    ff = (cx + dx * k, cy + dy * k, ff[2])
             else:
                 ff = (0.0, 0.0, 0.0)
         else:

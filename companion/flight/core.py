@@ -22,6 +22,7 @@ from companion.control import (
     attitude_from_force,
     limit_force_xyz,
 )
+from companion.control.swing_bias import SwingBias, feedforward_offsets
 from companion.core.envelope import r_max_m
 from companion.core.mission import Mission
 from companion.core.model import VehicleParams
@@ -58,6 +59,8 @@ class FlightCore(CoreOrders, HopMixin):
     controller: PositionController
     #: the speed cap inside the space the range sensor saw free (the pilot sets ``cap.seen`` on each mapped scan)
     cap: SeenCap
+    #: the swing's slow equilibrium (a steady wind's drag), which the feed-forward leaves alone (issue 28)
+    swing_bias: SwingBias
 
     def __init__(self, mission: Mission, gains: ControllerConfig | None = None, profile: VehicleProfile | None = None,
                  period_s: float = 0.004):
@@ -79,6 +82,7 @@ class FlightCore(CoreOrders, HopMixin):
         self._paused_from: tuple[CorePhase, np.ndarray] | None = None
         self._braking = False  # a pause: the reference brakes at its own limits, the hold is where it stops
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
+        self._swing_nom: tuple | None = None  # this tick's planned swing (a timed plan's), else None
         self.loop_lag = LoopLagEstimator(period_s)
         self.lag_trust = 1.0  # the feed-forward's trust from the measured loop lag (this tick)
         self.lag_stats = LagStats(period_s)
@@ -215,14 +219,20 @@ class FlightCore(CoreOrders, HopMixin):
         if self.phase == CorePhase.IDENTIFY and self.hop_target_ned_m is None:
             self._plan_hop(obs)
         self._update_lag_trust()
+        self._swing_nom = None
         swing, r_max, mode, swing_acc = self._envelope(est)
         f_att, f_rep, plan_mode, acc_ctl = self._reference(est, obs, swing, r_max, dt)
         ref = self.ref
         ctl_swing = swing if est.swing_source in ("cable_sensor", "estimate") else None
         trust = self._swing_trust(est)
+        swing_acc_raw = swing_acc
         if ctl_swing is not None and trust < 1.0:  # an untrusted estimate or a lagging loop: less (or no) feed-forward
             ctl_swing = ctl_swing * trust
             swing_acc = (swing_acc[0] * trust, swing_acc[1] * trust)
+        if self.controller.swing_feedforward:
+            feedforward_offsets(self.controller, self.swing_bias, est.t_s, None if ctl_swing is None else swing,
+                                swing_acc_raw, est.vel_ned_mps, self._swing_nom, trust, self.cfg.feedforward,
+                                self.params.l)
         ctl = self.controller.update(
             est.pos_ned_m, est.vel_ned_mps, ref.p, ref.v, ref.a if acc_ctl is None else acc_ctl, ctl_swing,
             swing_acc if ctl_swing is not None else (0.0, 0.0), max(dt, 1e-4),
@@ -337,6 +347,7 @@ class FlightCore(CoreOrders, HopMixin):
                 log.warning("mission %s: no route to the goal; holding at (%.2f, %.2f)", m.name, ref.p[0], ref.p[1])
         r = out.reference
         assert r is not None
+        self._swing_nom = r.swing_nom
         if dt > 0.0:
             if self.phase == CorePhase.DESCEND:
                 ref.step_vertical(DESCENT_MPS, dt)

@@ -21,11 +21,13 @@ import numpy as np
 
 from companion.control import make_position_controller
 from companion.control.adapt import adapt_to_payload
+from companion.control.swing_bias import SwingBias
 from companion.core.envelope import full_cable_r_max_m
 from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
 from companion.flight.phase import CorePhase
 from companion.planning import make_planner
+from companion.planning.shaping import pendulum_omega_rad_s
 from companion.planning.stop_cap import LATENCY_S, SeenCap
 
 log = logging.getLogger(__name__)
@@ -91,7 +93,8 @@ class HopMixin:
 
     def _build(self, params: VehicleParams, believed: VehicleParams) -> None:
         """The parts that follow the payload: ``params`` the model flown (planner, controller, thrust limits,
-        envelope), ``believed`` the payload the swing-bounded accelerations are scaled for."""
+        envelope, the swing's wind equilibrium), ``believed`` the payload the swing-bounded accelerations are
+        scaled for."""
         self.cfg = adapt_to_payload(self._gains, believed)
         self.params = params
         self.planner = make_planner(self.mission.planner, self.cfg.planner, params)
@@ -101,6 +104,8 @@ class HopMixin:
         self._thrust_min = self.cfg.limits.thrust_min_frac * hover
         self._thrust_max = self.cfg.limits.thrust_max_frac * hover
         self._full_cable_r_max = full_cable_r_max_m(params)
+        self.swing_bias = SwingBias(params.g / pendulum_omega_rad_s(params, "held") ** 2, params.g,
+                                    self.cfg.feedforward.rate_filter_s)
         self._airframe_r = params.r_uav + params.L_uav
         # the speed cap inside the space the range sensor saw free: what passes before a lower cap takes effect is
         # a scan, a re-plan, and the reference's lag behind the plan (shaped: half its shapers' widths; a velocity
