@@ -138,6 +138,8 @@ class Clusterer:
                 break
             segs = [g for g in cut if len(g) >= MIN_POINTS]
             self.skipped["few_points"] += len(cut) - len(segs)
+            if not segs:
+                return []
             p, cov, ok = self._fit(pts, segs)
         out: list[Detection] = []
         for k, seg in enumerate(segs):
@@ -168,7 +170,7 @@ class Clusterer:
         starts = np.cumsum(np.append(0, n[:-1]))
         ssr = residual_ss(pts.xy_m[np.concatenate(segs)], starts, np.where(ok[:, None], p, 0.0))
         dof = np.maximum(n - 3, 1)
-        bad = np.flatnonzero((n >= MIN_PIECE + MIN_POINTS)
+        bad = np.flatnonzero((n >= 2 * MIN_PIECE)
                              & (~ok | (ssr > self.noise_m ** 2 * chi2_quantile(dof, SPLIT_Z))))
         if len(bad) == 0:
             return segs
@@ -179,19 +181,33 @@ class Clusterer:
                 owner.append(k)
         pssr = self._pieces_ssr(pts, pieces)
         both = pssr[0::2] + pssr[1::2]
-        best: dict[int, tuple[float, int]] = {}
-        for j, k in enumerate(owner):
-            if both[j] < best.get(k, (np.inf, -1))[0]:
-                best[k] = (float(both[j]), j)
+        owner_a = np.array(owner)
         out: list[np.ndarray] = []
         for k, seg in enumerate(segs):
-            cut = best.get(k)
-            if cut is not None and (not ok[k] or SPLIT_GAIN * cut[0] < ssr[k]):
-                out += [pieces[2 * cut[1]], pieces[2 * cut[1] + 1]]
+            js = np.flatnonzero(owner_a == k)
+            if not len(js) or not np.isfinite(both[js].min()):
+                out.append(seg)
+                continue
+            floor = self.noise_m ** 2 * float(chi2_quantile(max(n[k] - 6, 1), SPLIT_Z))  # what noise leaves
+            j = self._pick_cut(pts, pieces, js, both[js], floor)
+            if not ok[k] or SPLIT_GAIN * both[j] < ssr[k]:
+                out += [pieces[2 * j], pieces[2 * j + 1]]
                 self.cuts += 1
             else:
                 out.append(seg)
         return out
+
+    @staticmethod
+    def _pick_cut(pts: ScanPoints, pieces: list[np.ndarray], js: np.ndarray, ssr: np.ndarray, floor: float) -> int:
+        """Of one segment's cuts ``js`` (pairs in ``pieces``) with residuals ``ssr`` (m²): the least residual, or
+        where the residuals cannot tell (within :data:`SPLIT_GAIN` of the least, or below ``floor``, m², what the
+        noise leaves: pieces of 3 returns fit any three points), the one across the largest range step (m) between
+        two consecutive returns (the seam)."""
+        close = js[ssr <= max(SPLIT_GAIN * float(ssr.min()), floor)]
+        if len(close) == 1:
+            return int(close[0])
+        step = [abs(float(pts.range_m[pieces[2 * j + 1][0]] - pts.range_m[pieces[2 * j][-1]])) for j in close]
+        return int(close[int(np.argmax(step))])
 
     def _pieces_ssr(self, pts: ScanPoints, pieces: list[np.ndarray]) -> np.ndarray:
         """Per piece the residuals' sum of squares (m²) of its circle: 0 for a piece too short to fit, inf when
