@@ -86,3 +86,12 @@ def fit_circles(xy: np.ndarray, starts: np.ndarray, sensor_xy: tuple[float, floa
     h, _ = _normal(xy, starts, n, seg, p, noise_m, r0, w0)
     h[~ok] = np.eye(3)
     return p, np.linalg.inv(h), ok
+
+
+def residual_ss(xy: np.ndarray, starts: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(S,) per segment sum of squared geometric residuals (m²): distance of each point to its segment's circle
+    ``p`` (S, 3: cx, cy, r; m) minus the radius."""
+    n = np.diff(np.append(starts, len(xy))).astype(int)
+    seg = np.repeat(np.arange(len(starts)), n)
+    res = np.hypot(xy[:, 0] - p[seg, 0], xy[:, 1] - p[seg, 1]) - p[seg, 2]
+    return _sums(res * res, starts)

@@ -9,6 +9,12 @@ geometric residuals (distance to the circle minus the radius) with a prior on th
 ``radius_prior_sigma_m``), started from the Kåsa fit when it is sane, else from the arc's centroid pushed away from
 the sensor by the prior radius. The covariance of (centre, radius) is the residuals' variance (at least the
 sensor's noise) times the inverse normal matrix: a short arc has a large one, along the line of sight mostly.
+
+Two trunks side by side with a gap narrower than a ray's spacing (two crossing trunks passing each other, a moving
+one passing a still one) give one segment: no ray passes between them and the range at the seam changes less
+than the jump. One circle does not fit such a segment: its residuals exceed what the range noise explains (a χ²
+test at 99.9 %). Such a segment is cut in two where the two circles fitted to the pieces leave the least residual,
+when that cuts the residuals by :data:`SPLIT_GAIN` at least (:meth:`Clusterer.split`; counted in ``cuts``).
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.perception.circle_batch import fit_circles
+from companion.perception.circle_batch import fit_circles, residual_ss
 from companion.perception.points import ScanPoints
 
 JUMP_M = 0.25  # range jump (m) that starts a new segment ...
@@ -27,6 +33,10 @@ JUMP_FRAC = 0.03  # ... plus this fraction of the range
 MIN_POINTS = 3  # returns a circle needs
 MAX_RADIUS_M = 1.5  # a segment wider than a trunk of this radius is not a trunk (a wall, a bush)
 NOISE_FLOOR_M = 0.01  # the range noise assumed at least (m, 1σ)
+SPLIT_Z = 3.09  # a segment's residuals beyond this quantile (normal z: 99.9 %) of the noise's χ² are two trunks
+SPLIT_GAIN = 4.0  # a cut must divide the residuals' sum of squares by this much at least
+MIN_PIECE = 2  # a cut may leave this few returns on one side (a neighbour's edge)
+SPLIT_ROUNDS = 2  # cuts per segment at most 2**rounds - 1 (three trunks in a row)
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,7 +109,7 @@ def fit_circle(xy: np.ndarray, sensor_xy: tuple[float, float], r0: float, r0_sig
 
 class Clusterer:
     """:class:`ScanPoints` → :class:`Detection` list; segments that are no trunk are counted in ``skipped`` by
-    reason (``few_points``, ``too_wide``, ``no_fit``)."""
+    reason (``few_points``, ``too_wide``, ``no_fit``), segments cut in two (two trunks) in ``cuts``."""
 
     def __init__(self, radius_prior_m: float = 0.25, radius_prior_sigma_m: float = 0.15,
                  noise_m: float = NOISE_FLOOR_M) -> None:
@@ -107,9 +117,10 @@ class Clusterer:
         self.r0_sigma = radius_prior_sigma_m
         self.noise_m = noise_m
         self.skipped: Counter[str] = Counter()
+        self.cuts = 0
 
     def detect(self, pts: ScanPoints) -> list[Detection]:
-        """The trunks one placed scan shows: every segment fitted at once."""
+        """The trunks one placed scan shows: every segment fitted at once, a segment that is two trunks cut."""
         segs = []
         for seg in segments(pts):
             if len(seg) < MIN_POINTS:
@@ -120,9 +131,16 @@ class Clusterer:
                 segs.append(seg)
         if not segs:
             return []
-        idx = np.concatenate(segs)
-        starts = np.cumsum([0] + [len(g) for g in segs[:-1]])
-        p, cov, ok = fit_circles(pts.xy_m[idx], starts, pts.origin_m, self.r0, self.r0_sigma, self.noise_m)
+        p, cov, ok = self._fit(pts, segs)
+        for _ in range(SPLIT_ROUNDS):
+            cut = self.split(pts, segs, p, ok)
+            if len(cut) == len(segs):
+                break
+            segs = [g for g in cut if len(g) >= MIN_POINTS]
+            self.skipped["few_points"] += len(cut) - len(segs)
+            if not segs:
+                return []
+            p, cov, ok = self._fit(pts, segs)
         out: list[Detection] = []
         for k, seg in enumerate(segs):
             if not ok[k] or not 0.0 < p[k, 2] <= MAX_RADIUS_M:
@@ -135,3 +153,77 @@ class Clusterer:
                                  math.sqrt(max(float(cov[k, 2, 2]), 0.0)), len(seg), arc,
                                  float(pts.z_m[seg].mean())))
         return out
+
+    def _fit(self, pts: ScanPoints, segs: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`fit_circles` of ``segs`` (index arrays into ``pts``): (S, 3) circles, (S, 3, 3) covariances, (S,)
+        success."""
+        idx = np.concatenate(segs)
+        starts = np.cumsum([0] + [len(g) for g in segs[:-1]])
+        return fit_circles(pts.xy_m[idx], starts, pts.origin_m, self.r0, self.r0_sigma, self.noise_m)
+
+    def split(self, pts: ScanPoints, segs: list[np.ndarray], p: np.ndarray, ok: np.ndarray) -> list[np.ndarray]:
+        """``segs`` with every segment that one circle (``p``, fitted; ``ok``) does not fit cut in two: where
+        the two pieces' circles (a plausible radius; a piece of :data:`MIN_PIECE` returns, a trunk's edge, fits
+        any) leave the least residual, if that is :data:`SPLIT_GAIN` times less than one circle's (or one circle
+        failed). A piece under :data:`MIN_POINTS` returns is later skipped (``few_points``)."""
+        n = np.array([len(g) for g in segs])
+        starts = np.cumsum(np.append(0, n[:-1]))
+        ssr = residual_ss(pts.xy_m[np.concatenate(segs)], starts, np.where(ok[:, None], p, 0.0))
+        dof = np.maximum(n - 3, 1)
+        bad = np.flatnonzero((n >= 2 * MIN_PIECE)
+                             & (~ok | (ssr > self.noise_m ** 2 * chi2_quantile(dof, SPLIT_Z))))
+        if len(bad) == 0:
+            return segs
+        pieces, owner = [], []
+        for k in bad.tolist():
+            for c in range(MIN_PIECE, n[k] - MIN_PIECE + 1):
+                pieces += [segs[k][:c], segs[k][c:]]
+                owner.append(k)
+        pssr = self._pieces_ssr(pts, pieces)
+        both = pssr[0::2] + pssr[1::2]
+        owner_a = np.array(owner)
+        out: list[np.ndarray] = []
+        for k, seg in enumerate(segs):
+            js = np.flatnonzero(owner_a == k)
+            if not len(js) or not np.isfinite(both[js].min()):
+                out.append(seg)
+                continue
+            floor = self.noise_m ** 2 * float(chi2_quantile(max(n[k] - 6, 1), SPLIT_Z))  # what noise leaves
+            j = self._pick_cut(pts, pieces, js, both[js], floor)
+            if not ok[k] or SPLIT_GAIN * both[j] < ssr[k]:
+                out += [pieces[2 * j], pieces[2 * j + 1]]
+                self.cuts += 1
+            else:
+                out.append(seg)
+        return out
+
+    @staticmethod
+    def _pick_cut(pts: ScanPoints, pieces: list[np.ndarray], js: np.ndarray, ssr: np.ndarray, floor: float) -> int:
+        """Of one segment's cuts ``js`` (pairs in ``pieces``) with residuals ``ssr`` (m²): the least residual, or
+        where the residuals cannot tell (within :data:`SPLIT_GAIN` of the least, or below ``floor``, m², what the
+        noise leaves: pieces of 3 returns fit any three points), the one across the largest range step (m) between
+        two consecutive returns (the seam)."""
+        close = js[ssr <= max(SPLIT_GAIN * float(ssr.min()), floor)]
+        if len(close) == 1:
+            return int(close[0])
+        step = [abs(float(pts.range_m[pieces[2 * j + 1][0]] - pts.range_m[pieces[2 * j][-1]])) for j in close]
+        return int(close[int(np.argmax(step))])
+
+    def _pieces_ssr(self, pts: ScanPoints, pieces: list[np.ndarray]) -> np.ndarray:
+        """Per piece the residuals' sum of squares (m²) of its circle: 0 for a piece too short to fit, inf when
+        the fit fails or its radius is implausible."""
+        out = np.zeros(len(pieces))
+        fit = [i for i, g in enumerate(pieces) if len(g) >= MIN_POINTS]
+        if fit:
+            idx = np.concatenate([pieces[i] for i in fit])
+            starts = np.cumsum([0] + [len(pieces[i]) for i in fit[:-1]])
+            pp, _, ok = fit_circles(pts.xy_m[idx], starts, pts.origin_m, self.r0, self.r0_sigma, self.noise_m)
+            ok &= (pp[:, 2] > 0.0) & (pp[:, 2] <= MAX_RADIUS_M)
+            out[fit] = np.where(ok, residual_ss(pts.xy_m[idx], starts, np.where(ok[:, None], pp, 0.0)), np.inf)
+        return out
+
+
+def chi2_quantile(dof: np.ndarray, z: float) -> np.ndarray:
+    """The χ² quantile of ``dof`` degrees of freedom at the normal quantile ``z`` (Wilson-Hilferty)."""
+    k = np.asarray(dof, dtype=float)
+    return k * (1.0 - 2.0 / (9.0 * k) + z * np.sqrt(2.0 / (9.0 * k))) ** 3

@@ -8,7 +8,9 @@ acceleration noise ``accel_sigma_mps2``) plus a radius averaged by its uncertain
   centres (χ² gate for 2 dof, or within the two radii plus :data:`GATE_M` for a track still uncertain), each
   track and detection used once; a detection left over starts a tentative track (at most ``max_tracks``: beyond,
   counted in ``full``);
-- **confirm** a track after ``confirm_hits`` hits; only confirmed tracks are published;
+- **confirm** a track after ``confirm_hits`` hits, or after two when they show it moving (its speed above 3σ of
+  its uncertainty: a trunk crossing the path, often hidden again behind a nearer one before a third scan sees it,
+  is worth publishing early with its velocity); only confirmed tracks are published;
 - **retire** a track unseen in ``retire_misses`` scans *that could have seen it*: its centre within range and the
   ray towards it passing beyond its near side (free space where it should stand). A trunk behind another one, or
   out of range, is occluded, not missed. A tentative track unseen for ``tentative_s`` goes too.
@@ -214,7 +216,7 @@ class LocalMap:
         tr.hits += 1
         tr.misses = 0
         tr.last_seen_s = tr.t_s
-        if not tr.confirmed and tr.hits >= self.confirm_hits:
+        if not tr.confirmed and (tr.hits >= self.confirm_hits or (tr.hits >= 2 and tr.moving)):
             tr.confirmed = True
             self.counts["confirmed"] += 1
 

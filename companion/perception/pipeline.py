@@ -177,7 +177,8 @@ class Perception:
             "scans_mapped": self.scans_mapped, "parts": self.assembler.parts,
             "partial_scans": self.assembler.partial_scans, "refused": dict(sorted(refused.items())),
             "refused_total": sum(refused.values()), "returns_dropped": dict(self.points.dropped),
-            "segments_skipped": dict(self.clusterer.skipped), "map": dict(self.map.counts),
+            "segments_skipped": dict(self.clusterer.skipped),
+            "segments_cut": self.clusterer.cuts, "map": dict(self.map.counts),
             "tracks": len(self.map.tracks), "trunks": len(self.map.obstacles),
             "pose_samples_ignored": self.poses.ignored, "restamped": self.restamped, "superseded": self.superseded,
             # the map as it ended (mission frame; at most 64): what an evaluation scores against the truth
