@@ -31,6 +31,7 @@ from companion.core.model import VehicleParams
 from companion.estimation.estimate import Estimate
 from companion.estimation.vehicle_state import SLACK_FRACTION
 from companion.flight.core import FlightCore
+from companion.flight.phase import CorePhase
 from companion.report.metrics import FlightLog
 from lab.swing_sim import EstimatorDriver, TruthLog, TruthRecorder
 from sim_bridge.physics import VehicleSim
@@ -161,6 +162,9 @@ def fly_inprocess(
         if on_tick is not None:  # what the flight sequence would order now (a test's pause, a hold)
             on_tick(core, sim.t_s)
         cmd = core.update(est, mission.obstacles)
+        if core.phase == CorePhase.IDENTIFY:  # no IMU stream here: the hop is skipped, the declared payload flies
+            log.info("in-process flights do not identify the payload ([payload] identify): flying the declared one")
+            core.end_identify(None)
         if driver is not None:
             driver.command(sim.t_s, cmd.thrust_n)
         if truth is not None and sample is not None:

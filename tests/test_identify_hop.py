@@ -131,3 +131,12 @@ def test_real_time_flight_identifies_beside_the_loop(tmp_path):
     r, rep = _fly(tmp_path, "--realtime")
     _assert_identified_and_flown(r, rep)
     assert rep["loop"]["tick_errors"] == 0
+
+
+def test_in_process_flights_skip_the_hop_and_fly_the_declared_payload():
+    from lab.inprocess import fly_inprocess
+
+    mission = replace(_unknown_payload_mission(), timeout_s=20.0, hold_s=0.5)
+    flog = fly_inprocess(mission, stop_when_done=True)
+    assert flog.phase.count("identify") == 1  # the tick that entered it, then straight on
+    assert "cruise" in flog.phase and flog.phase[-1] == "done"
