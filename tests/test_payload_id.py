@@ -91,3 +91,18 @@ def test_bad_input_is_refused():
         identify_payload(t, f, e, -1.0)
     r = identify_payload(t, f, e, 1.25)  # a perfectly still vehicle: nothing to identify
     assert not r.ok
+
+
+@pytest.mark.parametrize("wn", [0.06, 0.12, 0.5])
+def test_the_zero_phase_filter_is_scipys(wn):
+    """The identification's own 2nd-order Butterworth and filtfilt (a flight need not import scipy.signal for them)
+    give what scipy.signal's do."""
+    from scipy.signal import butter, filtfilt
+
+    from companion.estimation.payload_id import _filtfilt2, butter2
+
+    b, a = butter(2, wn)
+    b2, a2 = butter2(wn)
+    assert np.allclose(b, b2, rtol=0, atol=1e-15) and np.allclose(a, a2, rtol=0, atol=1e-15)
+    x = np.cumsum(np.random.default_rng(0).normal(size=(500, 3)), axis=0)
+    assert np.max(np.abs(filtfilt(b, a, x, axis=0) - _filtfilt2(b2, a2, x))) < 1e-9

@@ -76,6 +76,51 @@ class PayloadId:
     residual_tau: float = 1.0
 
 
+def butter2(wn: float) -> tuple[np.ndarray, np.ndarray]:
+    """A 2nd-order Butterworth low-pass (b, a) for the cut-off ``wn`` as a fraction of Nyquist (0 < wn < 1): the
+    bilinear transform with pre-warping, as ``scipy.signal.butter(2, wn)`` gives it (importing scipy.signal costs a
+    flight ~1 s; ``tests/test_payload_id.py`` holds the two equal)."""
+    k = math.tan(0.5 * math.pi * wn)
+    n = 1.0 / (1.0 + math.sqrt(2.0) * k + k * k)
+    b0 = k * k * n
+    return (np.array([b0, 2.0 * b0, b0]),
+            np.array([1.0, 2.0 * (k * k - 1.0) * n, (1.0 - math.sqrt(2.0) * k + k * k) * n]))
+
+
+@njit(cache=True, nogil=True)
+def _lfilter2(b, a, x, z0, z1):  # pragma: no cover - compiled
+    """A 2nd-order IIR over ``x`` (transposed direct form II) from the state (z0, z1); a new array."""
+    y = np.empty_like(x)
+    for n in range(len(x)):
+        yn = b[0] * x[n] + z0
+        z0 = b[1] * x[n] - a[1] * yn + z1
+        z1 = b[2] * x[n] - a[2] * yn
+        y[n] = yn
+    return y
+
+
+@njit(cache=True, nogil=True)
+def _filtfilt2(b, a, x):  # pragma: no cover - compiled
+    """Zero-phase 2nd-order IIR along axis 0 of ``x`` (N, k), as ``scipy.signal.filtfilt(b, a, x, axis=0)``:
+    odd extension by 9 samples at each end, each pass started in its steady state for the first sample."""
+    edge = 9
+    s = a[0] + a[1] + a[2]
+    zi0 = ((b[1] - a[1] * b[0]) + (b[2] - a[2] * b[0])) / s
+    zi1 = (b[2] - a[2] * b[0]) - a[2] * zi0
+    n = x.shape[0]
+    out = np.empty_like(x)
+    for c in range(x.shape[1]):
+        ext = np.empty(n + 2 * edge)
+        for i in range(edge):
+            ext[i] = 2.0 * x[0, c] - x[edge - i, c]
+            ext[n + edge + i] = 2.0 * x[n - 1, c] - x[n - 2 - i, c]
+        ext[edge:edge + n] = x[:, c]
+        y = _lfilter2(b, a, ext, zi0 * ext[0], zi1 * ext[0])
+        y = _lfilter2(b, a, y[::-1].copy(), zi0 * y[-1], zi1 * y[-1])[::-1]
+        out[:, c] = y[edge:edge + n]
+    return out
+
+
 @njit(cache=True, nogil=True)
 def _pendulum_acc(al, be, dal, dbe, ax, ay, az, l, g):  # pragma: no cover - compiled
     """(α̈, β̈, r̈ north, east, down) of the point payload for swing (α, β, α̇, β̇) and pivot acceleration a."""
@@ -196,13 +241,11 @@ def identify_payload(
     R = np.array([rotation_from_euler(*row) for row in e])
     a = np.einsum("nij,nj->ni", R, f) + np.array([0.0, 0.0, g_mps2])
     if pivot_cutoff_hz > 0.0:
-        from scipy.signal import butter, filtfilt  # here: importing scipy.signal costs ~1 s, a flight needs it once
-
         fs = (n - 1) / (t[-1] - t[0])
         if pivot_cutoff_hz < 0.45 * fs:
-            b, a_f = butter(2, pivot_cutoff_hz / (0.5 * fs))
-            a = filtfilt(b, a_f, a, axis=0)
-            f = filtfilt(b, a_f, f, axis=0)
+            b, a_f = butter2(pivot_cutoff_hz / (0.5 * fs))
+            a = _filtfilt2(b, a_f, np.ascontiguousarray(a))
+            f = _filtfilt2(b, a_f, np.ascontiguousarray(f))
     f_xy = f[:, 0:2]
 
     # grid in log(l), then golden section around the best point
