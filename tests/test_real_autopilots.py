@@ -133,3 +133,29 @@ def test_arducopter_lands_by_itself_when_the_companion_is_killed(tmp_path):
     r = companion_killed_vehicle_failsafe(tmp_path, vehicle="ardupilot", watch_s=60.0)
     print(json.dumps(r, indent=1))
     assert r["landed_s"] is not None and r["disarmed_s"] is not None and r["max_descent_mps"] < 1.5
+
+
+@needs_arducopter
+def test_arducopter_carrying_an_unknown_payload_hops_identifies_and_flies_it(tmp_path):
+    """Issue 28 against a real autopilot: ArduCopter's slung payload is 0.35 kg on 1.3 m, the mission declares the
+    vehicle's 0.25 kg on 1 m and says the payload is unknown (``[payload] identify = true``): the companion hops,
+    identifies from ArduCopter's own IMU and attitude, and flies on; the report says what it found and flew."""
+    port = free_udp_port()
+    proc = sitl_external.start_arducopter(tmp_path, port, payload=True, mass_kg=0.35, cable_m=1.3)
+    try:
+        text = (ROOT / "config" / "missions" / "forest_arducopter_sitl.toml").read_text()
+        mission = tmp_path / "unknown_payload.toml"
+        mission.write_text(text.replace("[payload]\n", "[payload]\nidentify = true\n"))
+        out, rep = _fly(tmp_path / "run", port, "--mission", str(mission))
+    finally:
+        _stop(proc)
+    print(json.dumps(rep["payload"], indent=1))
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert rep["outcome"] == "completed" and rep["collisions"] == 0
+    flown = rep["payload"]["flown"]
+    assert flown["hop_m"] is not None and flown["hop_m"] >= 0.5
+    assert rep["payload"]["identified"] is not None and rep["payload"]["identified"]["samples"] > 100
+    # each value trusted must be near the truth; one not trusted flies as declared, and the report says why
+    assert abs(flown["mass_kg"] - 0.35) < 0.15 if flown["mass_identified"] else flown["mass_kg"] == 0.25
+    assert abs(flown["cable_length_m"] - 1.3) < 0.2 if flown["cable_identified"] else flown["cable_length_m"] == 1.0
+    assert flown["reason"] or (flown["mass_identified"] and flown["cable_identified"])

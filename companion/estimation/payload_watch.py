@@ -15,6 +15,7 @@ which covered the truth in every flight measured (docs/swing-estimation.md, *Ide
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -106,37 +107,56 @@ class PayloadWatch:
             return out
         k = math.sqrt(r.residual_tau)
         sig_m, sig_l = r.payload_mass_sigma_kg * k, r.cable_length_sigma_m * k
-        ok, why = verdict(r, sig_m, sig_l)
+        v = verdict(r, sig_m, sig_l)
         out["identified"] = {
             "mass_kg": _r(r.payload_mass_kg), "mass_sigma_kg": _r(sig_m),
             "cable_length_m": _r(r.cable_length_m), "cable_length_sigma_m": _r(sig_l),
-            "ok": ok, "reason": why, "window_s": _r(r.window_s), "samples": r.n_samples,
+            "ok": v.ok, "mass_ok": v.mass_ok, "cable_ok": v.cable_ok, "reason": v.why,
+            "window_s": _r(r.window_s), "samples": r.n_samples,
             "swing_signal_mps2": _r(r.swing_signal_mps2), "residual_mps2": _r(r.residual_mps2),
             "residual_tau_samples": _r(r.residual_tau),
         }
-        out["mismatch"] = mismatches(r, sig_m, sig_l, declared_mass_kg, declared_cable_m) if ok else []
+        out["mismatch"] = mismatches(r, sig_m if v.mass_ok else math.inf, sig_l if v.cable_ok else math.inf,
+                                     declared_mass_kg, declared_cable_m)
         return out
 
 
-def verdict(r: PayloadId, sig_m: float, sig_l: float) -> tuple[bool, str]:
-    """Whether to trust an identification with corrected σ ``sig_m`` (kg) and ``sig_l`` (m), and why not. The
-    fit's own excitation test (swing signal above 3× the residual) assumes a white residual; here the corrected σ
-    judge instead, with the swing signal at least the residual."""
-    if r.reason and not r.reason.startswith("too little excitation"):
-        return False, r.reason
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    """Which identified values to trust (each on its own corrected σ), and why not the others ("" when both)."""
+
+    mass_ok: bool
+    cable_ok: bool
+    why: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.mass_ok and self.cable_ok
+
+
+def verdict(r: PayloadId, sig_m: float, sig_l: float) -> Verdict:
+    """Whether to trust the mass and the cable length of an identification with corrected σ ``sig_m`` (kg) and
+    ``sig_l`` (m). The fit's own excitation and mass tests assume a white residual; here the corrected σ judge each
+    value, with the swing signal at least the residual. A cable length the swing pins down is trusted even when the
+    mass (which the wind's force on the airframe blurs) is not."""
+    if r.reason and not r.reason.startswith(("too little excitation", "mass not determined")):
+        return Verdict(False, False, r.reason)
     if not r.swing_signal_mps2 >= r.residual_mps2:
-        return False, (f"too little excitation: swing signal {r.swing_signal_mps2:.3f} m/s² below the residual "
-                       f"{r.residual_mps2:.3f} m/s²")
-    if not (sig_m <= OK_REL_SIGMA_MASS * r.payload_mass_kg and sig_l <= OK_REL_SIGMA_CABLE * r.cable_length_m):
-        return False, (f"too uncertain: ± {sig_m:.3f} kg, ± {sig_l:.2f} m (residual correlated over "
-                       f"{r.residual_tau:.0f} samples)")
-    return True, ""
+        return Verdict(False, False, f"too little excitation: swing signal {r.swing_signal_mps2:.3f} m/s² below the "
+                                     f"residual {r.residual_mps2:.3f} m/s²")
+    mass_ok = r.payload_mass_kg > 0.0 and sig_m <= OK_REL_SIGMA_MASS * r.payload_mass_kg
+    cable_ok = sig_l <= OK_REL_SIGMA_CABLE * r.cable_length_m
+    unsure = [w for w, ok in ((f"mass ± {sig_m:.3f} kg", mass_ok), (f"cable ± {sig_l:.2f} m", cable_ok)) if not ok]
+    if not unsure:
+        return Verdict(mass_ok, cable_ok)
+    return Verdict(mass_ok, cable_ok,
+                   f"too uncertain: {', '.join(unsure)} (residual correlated over {r.residual_tau:.0f} samples)")
 
 
 def mismatches(r: PayloadId, sig_m: float, sig_l: float, declared_mass_kg: float,
                declared_cable_m: float) -> list[str]:
     """The identified values further from the declared ones than :data:`MISMATCH_SIGMA` of their corrected σ plus
-    :data:`MISMATCH_REL` of the declared value, each as a sentence."""
+    :data:`MISMATCH_REL` of the declared value, each as a sentence (an untrusted value: σ = inf, never)."""
     out = []
     for what, got, sigma, want, unit in (("payload mass", r.payload_mass_kg, sig_m, declared_mass_kg, "kg"),
                                          ("cable length", r.cable_length_m, sig_l, declared_cable_m, "m")):

@@ -71,6 +71,7 @@ class FlightCore(CoreOrders, HopMixin):
         #: where the identification hop hovers to (None: not flown; see companion.flight.core_hop)
         self.hop_target_ned_m: np.ndarray | None = None
         self.hop_length_m: float | None = None
+        self.hop_identified = False  # the identification is over (end_identify): cruise once the swing is ready
         # the model flown is the mission's vehicle; the swing-bounded accelerations follow the payload the
         # companion believes it carries (issue 28): planner, controller, thrust limits, envelope, speed cap
         self._build(mission.vehicle, mission.companion_params())
@@ -160,6 +161,9 @@ class FlightCore(CoreOrders, HopMixin):
                 self.ref.p[2] - self._climb_z
             ) < 0.02 and self._swing_ready(est):
                 self.phase = self._after_climb()
+        elif self.phase == CorePhase.IDENTIFY:
+            if self._identify_done(est):
+                self.phase = CorePhase.CRUISE
         elif self.phase == CorePhase.CRUISE:
             plan_xy = (self.ref.p[0], self.ref.p[1]) if self._timed and self.ref is not None else None
             arrived = self._arrival.arrived(est) if legs_done(self.legs, est, plan_xy) else None
@@ -314,7 +318,8 @@ class FlightCore(CoreOrders, HopMixin):
             if self._braking:  # desired velocity 0 until the reference stands, then hold there
                 self._hold_ned_m = np.array(ref.p, dtype=np.float64)
                 self._braking = self.phase == CorePhase.HOLD_HERE and math.hypot(ref.v[0], ref.v[1]) > 0.02
-            hold = self._hold_ned_m
+            hop = self.hop_target_ned_m if self.phase == CorePhase.IDENTIFY else None
+            hold = self._hold_ned_m if hop is None else hop
             vdx = ka * (float(hold[0]) - ref.p[0])
             vdy = ka * (float(hold[1]) - ref.p[1])
             vdz = DESCENT_MPS if self.phase == CorePhase.DESCEND else self._vertical_speed(float(hold[2]))

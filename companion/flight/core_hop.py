@@ -25,6 +25,7 @@ from companion.control.swing_bias import SwingBias
 from companion.core.envelope import full_cable_r_max_m
 from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
+from companion.estimation.estimate import Estimate
 from companion.flight.phase import CorePhase
 from companion.planning import make_planner
 from companion.planning.shaping import pendulum_omega_rad_s
@@ -57,6 +58,10 @@ class HopMixin:
     """The flight core's identification hop and payload adoption (mixed into
     :class:`~companion.flight.core.FlightCore`, whose attributes it uses)."""
 
+    def _identify_done(self, est: Estimate) -> bool:
+        """Whether the identify phase may end: identified, and the swing input ready (see :meth:`end_identify`)."""
+        return self.hop_identified and self._swing_ready(est)
+
     def _after_climb(self) -> CorePhase:
         """The phase the climb ends in: ``identify`` once when the mission asks for it, else ``cruise``."""
         if self.mission.payload.identify and self.hop_target_ned_m is None:
@@ -80,16 +85,16 @@ class HopMixin:
             log.info("identification hop: %.2f m towards (%.1f, %.1f)", d, target[0], target[1])
         self.hop_length_m = round(d, 3)
         self.hop_target_ned_m = np.array([start[0] + d * unit[0], start[1] + d * unit[1], ref.p[2]])
-        self._hold_ned_m = self.hop_target_ned_m.copy()
 
     def end_identify(self, params: VehicleParams | None) -> None:
-        """The identification is over: fly on with ``params`` (None: the payload the core had), cruise now."""
+        """The identification is over: fly on with ``params`` (None: the payload the core had). The cruise starts
+        once the swing input is ready again (a swing estimator restarted on the identified payload must earn its
+        trust first, as after the climb: cruising off on an untrusted estimate swung ArduCopter's payload into the
+        trunks)."""
         if params is not None:
             self.adopt_payload(params)
-        if self.phase == CorePhase.IDENTIFY:
-            self.phase = CorePhase.CRUISE
-        elif self._paused_from is not None and self._paused_from[0] == CorePhase.IDENTIFY:
-            self._paused_from = (CorePhase.CRUISE, self._paused_from[1])  # a pause: resume into the cruise
+        self.hop_identified = True
+        self.t_swing_wait_s = None
 
     def _build(self, params: VehicleParams, believed: VehicleParams) -> None:
         """The parts that follow the payload: ``params`` the model flown (planner, controller, thrust limits,

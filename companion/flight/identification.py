@@ -21,7 +21,7 @@ from typing import Any
 from companion.core.mission import Mission
 from companion.core.model import VehicleParams
 from companion.core.payload_check import thrust_margin
-from companion.estimation.payload_watch import WINDOW_S, PayloadWatch, verdict
+from companion.estimation.payload_watch import WINDOW_S, PayloadWatch, Verdict, verdict
 from companion.estimation.swing_feed import SwingFeed
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import FlightCore
@@ -67,26 +67,25 @@ class Identification:
         self.due, self.concluded = False, True
         r = self.watch.identify()
         declared = self.mission.companion_params()
-        flown = None
-        why = self.watch.facts(declared.m, declared.l, run=False).get("identified_detail", "")
+        p = self.mission.payload
+        v = Verdict(False, False, self.watch.facts(declared.m, declared.l, run=False).get("identified_detail", ""))
         if r is not None:
             k = math.sqrt(r.residual_tau)
-            ok, why = verdict(r, r.payload_mass_sigma_kg * k, r.cable_length_sigma_m * k)
-            if ok:
-                p = self.mission.payload
-                flown = replace(declared, m=r.payload_mass_kg if p.mass_kg is None else p.mass_kg,
-                                l=r.cable_length_m if p.cable_length_m is None else p.cable_length_m)
-        if flown is None:
-            logging.getLogger(__name__).warning("the payload was not identified (%s): flying with %.3f kg on "
-                                                "%.2f m as declared", why, declared.m, declared.l)
-        core.end_identify(flown)
-        self.flown = flown
-        if flown is not None and feed is not None and state is not None:
-            feed.use_payload(flown)
-            state.cable_length_m = flown.l
-        vp = flown or declared
-        self.used = {"identified": flown is not None, "mass_kg": round(vp.m, 4), "cable_length_m": round(vp.l, 4),
-                     "hop_m": core.hop_length_m, "reason": "" if flown is not None else why}
+            v = verdict(r, r.payload_mass_sigma_kg * k, r.cable_length_sigma_m * k)
+        use_m = r is not None and v.mass_ok and p.mass_kg is None
+        use_l = r is not None and v.cable_ok and p.cable_length_m is None
+        vp = replace(declared, m=r.payload_mass_kg if use_m else declared.m,
+                     l=r.cable_length_m if use_l else declared.l)
+        self.flown = vp if (use_m or use_l) else None
+        if v.why:
+            logging.getLogger(__name__).warning("the payload was not (all) identified (%s): flying with %.3f kg on "
+                                                "%.2f m", v.why, vp.m, vp.l)
+        core.end_identify(self.flown)
+        if self.flown is not None and feed is not None and state is not None:
+            feed.use_payload(self.flown)
+            state.cable_length_m = self.flown.l
+        self.used = {"mass_kg": round(vp.m, 4), "cable_length_m": round(vp.l, 4), "mass_identified": use_m,
+                     "cable_identified": use_l, "hop_m": core.hop_length_m, "reason": v.why}
         margin = thrust_margin(vp)
         if not margin.ok:
             return (f"the identified payload ({vp.m:.3f} kg) needs {margin.fraction:.2f} of the vehicle's maximum "
