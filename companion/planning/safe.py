@@ -119,8 +119,12 @@ class SafePlanner:
             ring = o.radius_m + o.safe_distance_m + base
             g0, n0x, n0y = _gap_at(x, y, o, ring)
             g, nx, ny = g0, n0x, n0y
-            gs, sx, sy = _gap_at(x + t_s * vx, y + t_s * vy, o, ring)
-            gb, bx, by = _gap_at(x + t_b * vx, y + t_b * vy, o, ring)
+            if o.vx_mps != 0.0 or o.vy_mps != 0.0:  # moving: look ahead along the velocity relative to it
+                wx, wy = vx - o.vx_mps, vy - o.vy_mps
+            else:
+                wx, wy = vx, vy
+            gs, sx, sy = _gap_at(x + t_s * wx, y + t_s * wy, o, ring)
+            gb, bx, by = _gap_at(x + t_b * wx, y + t_b * wy, o, ring)
             if gs < g:
                 g, nx, ny = gs, sx, sy
             out.append((g, nx, ny, o, gb, bx, by, g0, n0x, n0y) if gb < g else (g, nx, ny, o, g, nx, ny, g0, n0x, n0y))
@@ -189,6 +193,9 @@ class SafePlanner:
         for gn in gaps:
             g = gn[4]
             allow = p.gamma * g if g < 0.0 else min(p.gamma * g, math.sqrt(2.0 * p.a_brake_mps2 * g))
+            o = gn[3]
+            if o.vx_mps != 0.0 or o.vy_mps != 0.0:  # the gap closes at the velocity relative to the obstacle
+                allow -= o.vx_mps * gn[5] + o.vy_mps * gn[6]
             barriers.append((allow, gn[5], gn[6]))
         for _ in range(3):
             for allow, nx, ny in barriers:
