@@ -61,9 +61,6 @@ LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps 
 # an optional replan's motion may exceed a_max by the profile's discretisation (a few per cent), not by braking
 OPTIONAL_A_FACTOR = 1.06
 CAP_SLACK_MPS = 0.1  # a plan this much faster than the seen-free cap (PlanInput.v_cap_mps) is re-timed under it
-#: (m) a tracking error plus payload deviation up to this is ordinary (the Table 2 forest: at most 0.08 + 0.03 m);
-#: beyond it, the excess is added to the static rings of the plan check (:meth:`ShapedPlanner._gust_margins`)
-GUST_SLACK_M = 0.12
 CAP_STOP_MPS = 0.3  # a cap below this stops a plan faster than it (swing-bounded brake); below 0.05 m/s, any plan
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
@@ -185,27 +182,16 @@ class ShapedPlanner:
         allo = static + moving
         is_m = np.array([False] * len(static) + [True] * len(moving), dtype=np.bool_)
         r_all = np.array([o.radius_m + o.safe_distance_m for o in allo], dtype=np.float64)
-        gust_a, gust_p = self._gust_margins(inp)
         pred = Predicted(
             cx=np.array([o.x_m for o in allo], dtype=np.float64), cy=np.array([o.y_m for o in allo], dtype=np.float64),
             vx=np.array([o.vx_mps for o in allo], dtype=np.float64),
             vy=np.array([o.vy_mps for o in allo], dtype=np.float64),
-            # static: the bare safety ring (plus what a gusty flight's error and swing add beyond the ordinary);
-            # moving: plus the tracking margin, growing with the look-ahead
-            ring_airframe=r_all + r2 + np.where(is_m, margin, -0.01 + gust_a),
-            ring_payload=r_all + np.where(is_m, margin, -0.01 + gust_p),
+            # static: the bare safety ring; moving: plus the tracking margin, growing with the look-ahead
+            ring_airframe=r_all + r2 + np.where(is_m, margin, -0.01),
+            ring_payload=r_all + np.where(is_m, margin, -0.01),
             growth=np.where(is_m, self.params.predict_growth_mps, 0.0), moving=is_m,
         )
         return c, ring, bare, contact, moving, pred
-
-    def _gust_margins(self, inp: PlanInput) -> tuple[float, float]:
-        """(airframe, payload) metres the observed excursions add to the static rings of the plan check: the recent
-        peak error, and for the payload point plus l·sin(swing deviation), beyond :data:`GUST_SLACK_M`. A kept plan
-        was checked against the bare rings only, while a gust blew the airframe up to a metre off it (moderate
-        turbulence, docs/measurements.md, issue 28); now it is replaced, or the flight stops along it and waits."""
-        err = self.err_peak_m
-        dev = 0.0 if inp.swing is None else inp.cable_l_m * math.sin(min(self.dev_peak_rad, 0.5 * math.pi))
-        return max(0.0, err - GUST_SLACK_M), max(0.0, err + dev - GUST_SLACK_M)
 
     def _rows(self, prof: Profile) -> np.ndarray:
         """Unshaped rows [p, v, a] (m, 6) of a profile, one per grid step from its start to its end."""
