@@ -95,19 +95,28 @@ class PayloadWatch:
                 self._error = f"identification failed: {exc!r}"
         return self._result
 
+    def judged(self) -> tuple[PayloadId | None, float, float, Verdict]:
+        """The identification already computed, its corrected 1σ (kg, m: the least-squares σ times √τ) and the
+        verdict on each value; without a result (None, nan, nan) and a verdict that trusts nothing and says why."""
+        r = self._result
+        if r is None:
+            return None, math.nan, math.nan, Verdict(False, False, self._error or "not identified yet")
+        k = math.sqrt(r.residual_tau)
+        sig_m, sig_l = r.payload_mass_sigma_kg * k, r.cable_length_sigma_m * k
+        return r, sig_m, sig_l, verdict(r, sig_m, sig_l)
+
     def facts(self, declared_mass_kg: float, declared_cable_m: float, run: bool = True) -> dict[str, Any]:
         """The report's ``payload`` section: declared, identified (with 1σ, ``ok`` and why not), and which
         identified values disagree with the declared ones. ``run``: identify now if not yet done (else only a
         result already computed is given)."""
         out: dict[str, Any] = {"declared": {"mass_kg": declared_mass_kg, "cable_length_m": declared_cable_m}}
-        r = self.identify() if run else self._result
+        if run:
+            self.identify()
+        r, sig_m, sig_l, v = self.judged()
         if r is None:
             out["identified"] = None
-            out["identified_detail"] = self._error or "not identified yet"
+            out["identified_detail"] = v.why
             return out
-        k = math.sqrt(r.residual_tau)
-        sig_m, sig_l = r.payload_mass_sigma_kg * k, r.cable_length_sigma_m * k
-        v = verdict(r, sig_m, sig_l)
         out["identified"] = {
             "mass_kg": _r(r.payload_mass_kg), "mass_sigma_kg": _r(sig_m),
             "cable_length_m": _r(r.cable_length_m), "cable_length_sigma_m": _r(sig_l),

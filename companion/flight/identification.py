@@ -14,14 +14,13 @@ with margin; the swing estimator restarts on the identified model and the vehicl
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import replace
 from typing import Any
 
 from companion.core.mission import Mission
 from companion.core.model import VehicleParams
 from companion.core.payload_check import thrust_margin
-from companion.estimation.payload_watch import WINDOW_S, PayloadWatch, Verdict, verdict
+from companion.estimation.payload_watch import WINDOW_S, PayloadWatch
 from companion.estimation.swing_feed import SwingFeed
 from companion.estimation.vehicle_state import VehicleState
 from companion.flight.core import FlightCore
@@ -65,13 +64,10 @@ class Identification:
         payload (the core, the swing ``feed``'s estimator and the vehicle ``state``'s cable length); returns why the
         flight must end instead (a payload the vehicle cannot lift with margin), or None."""
         self.due, self.concluded = False, True
-        r = self.watch.identify()
+        self.watch.identify()
+        r, _, _, v = self.watch.judged()
         declared = self.mission.companion_params()
         p = self.mission.payload
-        v = Verdict(False, False, self.watch.facts(declared.m, declared.l, run=False).get("identified_detail", ""))
-        if r is not None:
-            k = math.sqrt(r.residual_tau)
-            v = verdict(r, r.payload_mass_sigma_kg * k, r.cable_length_sigma_m * k)
         use_m = r is not None and v.mass_ok and p.mass_kg is None
         use_l = r is not None and v.cable_ok and p.cable_length_m is None
         vp = replace(declared, m=r.payload_mass_kg if use_m else declared.m,
