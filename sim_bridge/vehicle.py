@@ -23,7 +23,7 @@ from companion.core.model import VehicleParams, rotation_body_to_ned
 from companion.core.rotations import wrap_pi
 from companion.core.wind import WindConfig
 from companion.errors import ModelError
-from sim_bridge import commands, mission_server, telemetry
+from sim_bridge import commands, mission_server, stream_rates, telemetry
 from sim_bridge.imu import ImuModel
 from sim_bridge.link import MavUdpLink, RejectCounters
 from sim_bridge.params import build_param_table, gains_from_params
@@ -215,9 +215,7 @@ class SitlVehicle(VehicleControl):
                 lk.mav.statustext_send(severity, c, sid, k)
 
     def can_send(self, msgid: int) -> bool:
-        return msgid in telemetry.default_intervals_us(1) or msgid in (
-            telemetry.MSG_AUTOPILOT_VERSION, telemetry.MSG_PROTOCOL_VERSION, telemetry.MSG_SYSTEM_TIME,
-            telemetry.MSG_SCALED_IMU, telemetry.MSG_MISSION_CURRENT, telemetry.MSG_GPS_GLOBAL_ORIGIN)
+        return stream_rates.sendable(msgid)
 
     def send_message(self, msgid: int, link: MavUdpLink) -> None:
         telemetry.send_vehicle_message(msgid, link.mav, self)
@@ -399,8 +397,8 @@ class SitlVehicle(VehicleControl):
         self.onboard, self.gcs = onboard, gcs
         self._link_list = [onboard, gcs]
         onboard.on_attitude_fields = gcs.on_attitude_fields = self.on_attitude_fields
-        onboard.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us))
-        gcs.scheduler = telemetry.RateScheduler(telemetry.default_intervals_us(cfg.control_period_us, "normal"))
+        onboard.scheduler = stream_rates.RateScheduler(stream_rates.default_intervals_us(cfg.control_period_us))
+        gcs.scheduler = stream_rates.RateScheduler(stream_rates.default_intervals_us(cfg.control_period_us, "normal"))
         if cfg.signing_key is not None:
             self._enable_signing(cfg.signing_key)
         self._payload_mavs = [lk.sender(cfg.payload_sysid, cfg.payload_compid) for lk in self._links()]

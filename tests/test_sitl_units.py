@@ -16,7 +16,8 @@ from sim_bridge.commands import parse_attitude_target
 from sim_bridge.link import MavUdpLink, RejectCounters
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 from sim_bridge.position_hold import PositionHoldGains, position_hold_target
-from sim_bridge.telemetry import RateScheduler, ned_to_geodetic
+from sim_bridge.stream_rates import RateScheduler
+from sim_bridge.telemetry import ned_to_geodetic
 
 M = mavlink2
 
