@@ -29,7 +29,7 @@ from companion.control import ControllerConfig
 from companion.core.mission import Mission
 from companion.core.model import VehicleParams
 from companion.estimation.estimate import Estimate
-from companion.estimation.vehicle_state import SLACK_FRACTION
+from companion.estimation.swing_measurement import SLACK_FRACTION
 from companion.flight.core import FlightCore
 from companion.flight.phase import CorePhase
 from companion.report.metrics import FlightLog
@@ -83,7 +83,7 @@ class SlowLink:
 def _cable_sensor(sim: VehicleSim) -> np.ndarray:
     """The swing [α, β, α̇, β̇] (rad, rad/s) the companion reads from the bundled vehicle's cable-angle sensor: the
     sim's angles, and zeros while the payload lies on the ground nearer than
-    :data:`~companion.estimation.vehicle_state.SLACK_FRACTION` of the cable (the sensor sends that reach and the
+    :data:`~companion.estimation.swing_measurement.SLACK_FRACTION` of the cable (the sensor sends that reach and the
     companion reads a slack cable as no swing; the direction of a cable a few micrometres long is not one)."""
     if sim.payload_on_ground:
         reach = float(np.linalg.norm(sim.payload_pos_ned_m - sim.pos_ned_m))

@@ -23,18 +23,8 @@ before it is believed, and what fails is counted in ``rejected`` by kind:
 A rejected sample leaves the state as it was, so a spoofed or broken sample can make telemetry stale (the
 flight sequence then holds) but never becomes a setpoint.
 
-Swing input, in order of preference:
-
-1. the cable-angle sensor: ``DEBUG_FLOAT_ARRAY`` named ``"SWING"`` (data = [α, β, α̇, β̇, l]) from the
-   vehicle — used while it is fresher than ``swing_max_age_s`` (default 0.05 s of vehicle time); a data[4]
-   shorter than the cable says the payload rests on the ground with the cable slack: no swing (zeros);
-2. the payload's own position stream (``LOCAL_POSITION_NED`` from the payload system, as ArduPilot's
-   slung-payload simulation sends it), inverted through eqs. 3–4 — used while fresher than 0.3 s;
-3. none: the estimate carries ``swing=None``; the flight core then flies without feed-forward and with
-   the full-cable-length envelope, and says so in its commands.
-
-``swing_input`` restricts the choice: ``"auto"`` (the order above), ``"cable_sensor"``, ``"payload_position"``
-or ``"none"`` (ignore both, e.g. to fly as a vehicle without any swing measurement would).
+Swing input: the cable-angle sensor, else the payload's position stream, else none, as ``swing_input`` allows
+(:mod:`companion.estimation.swing_measurement`).
 """
 
 from __future__ import annotations
@@ -53,13 +43,12 @@ from companion.estimation import (
     SWING_INPUTS,  # noqa: F401  (re-exported: the inputs this state chooses from)
     readiness,
 )
-from companion.estimation.estimate import Estimate, swing_from_payload
+from companion.estimation.estimate import Estimate
+from companion.estimation.swing_measurement import SLACK_FRACTION, ZERO_SWING, chosen_swing, measured_swing
 from companion.mavlink_io import telemetry as tm
 
 log = logging.getLogger(__name__)
 
-MAV_STATE_NAMES = {0: "UNINIT", 1: "BOOT", 2: "CALIBRATING", 3: "STANDBY", 4: "ACTIVE", 5: "CRITICAL",
-                   6: "EMERGENCY", 7: "POWEROFF", 8: "FLIGHT_TERMINATION"}
 MAV_AUTOPILOT_INVALID = 8
 MAV_LANDED_STATE_UNDEFINED = 0
 MAV_LANDED_STATE_ON_GROUND = 1
@@ -68,9 +57,6 @@ MAV_SYS_STATUS_PREARM_CHECK = 0x10000000
 PX4_MAIN_MODE_NAMES = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD", 7: "STABILIZED"}
 PX4_AUTO_SUB_MODE_NAMES = {1: "READY", 2: "TAKEOFF", 3: "LOITER", 4: "MISSION", 5: "RTL", 6: "LAND"}
 BACKWARDS_TOL_S = 0.5
-SLACK_FRACTION = 0.95  # a payload nearer than this fraction of the cable's length lies on the ground (no swing)
-_ZERO4 = np.zeros(4)
-_ZERO4.flags.writeable = False
 FORWARD_TOL_S = 1.0
 
 
@@ -294,7 +280,7 @@ class VehicleState:
             return self._reject("out_of_order")
         reach = ev.reach_m  # shorter than the cable: the payload rests on the ground, the cable is slack
         slack = isfinite(reach) and reach < SLACK_FRACTION * self.cable_length_m
-        self.swing_sensor = _ZERO4 if slack else np.array(ev.swing)
+        self.swing_sensor = ZERO_SWING if slack else np.array(ev.swing)
         self.swing_sensor_t_s = ev.t_s
         return ev.message
 
@@ -368,24 +354,7 @@ class VehicleState:
 
     def measured_swing(self) -> np.ndarray | None:
         """The best swing measurement available, whatever ``swing_input`` says (for logs and metrics)."""
-        if self.swing_sensor is not None and self.t_s - self.swing_sensor_t_s <= self.swing_max_age_s:
-            return self.swing_sensor
-        if self.pos_ned_m is None or self.payload_pos_ned_m is None or self.payload_vel_ned_mps is None:
-            return None
-        if self.vel_ned_mps is None or self.t_s - self.payload_t_s > self.payload_max_age_s:
-            return None
-        return self._payload_swing()
-
-    def _payload_swing(self) -> np.ndarray | None:
-        """Swing angles from the payload's position; zero while it rests on the ground (nearer than the cable)."""
-        assert self.pos_ned_m is not None and self.payload_pos_ned_m is not None
-        if math.dist(self.pos_ned_m, self.payload_pos_ned_m) < SLACK_FRACTION * self.cable_length_m:
-            return _ZERO4
-        try:
-            return swing_from_payload(self.pos_ned_m, self.payload_pos_ned_m, self.vel_ned_mps,
-                                      self.payload_vel_ned_mps, self.cable_length_m)
-        except ValueError:
-            return None
+        return measured_swing(self)
 
     def estimate(self) -> Estimate | None:
         """The current :class:`Estimate`, or None before the first position and attitude."""
@@ -393,26 +362,7 @@ class VehicleState:
             return None
         assert self.pos_ned_m is not None and self.vel_ned_mps is not None
         assert self.euler_rad is not None and self.rates_frd_rad_s is not None
-        swing = None
-        source = "none"
-        use_cable = self.swing_input in ("auto", "cable_sensor")
-        use_payload = self.swing_input in ("auto", "payload_position")
-        if (
-            use_cable
-            and self.swing_sensor is not None
-            and self.t_s - self.swing_sensor_t_s <= self.swing_max_age_s
-        ):
-            swing, source = self.swing_sensor, "cable_sensor"
-        elif (
-            use_payload
-            and self.payload_pos_ned_m is not None
-            and self.payload_vel_ned_mps is not None
-            and self.t_s - self.payload_t_s <= self.payload_max_age_s
-        ):
-            swing = self._payload_swing()
-            source = "payload_position" if swing is not None else "none"
-        if swing is not None and not all(map(math.isfinite, swing)):
-            swing, source = None, "none"
+        swing, source = chosen_swing(self)
         return Estimate(
             t_s=self.t_s,
             pos_ned_m=self.pos_ned_m,
