@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from companion.core.mission import load_mission
-from lab.evaluate import evaluate, summarise
+from lab.eval_report import summarise
+from lab.evaluate import evaluate
 from lab.forests import ForestSpec
 from lab.runner import classify
 
