@@ -31,17 +31,16 @@ import numpy as np
 from companion.core.obstacles import Obstacle
 from companion.perception.clusters import Detection
 from companion.perception.points import ScanPoints
+from companion.perception.visibility import free_distance_m, in_view_many
 
 CHI2_GATE_2DOF = 9.21  # 99 %
 GATE_M = 0.5  # Euclidean gate beyond the two radii (m)
 MAX_GATE_M = 1.0  # never further (m): an uncertain track (unseen for long) must not take a neighbour's detection
-FREE_STEP_M = 0.05  # the free-distance march's step (m)
 MAX_SIGMA_M = 0.15  # the 1σ an inflation uses at most (m): a trunk unseen for long keeps growing in its filter
 STILL_DRIFT_M2_PER_S = 1e-4  # a still trunk's centre variance grows this much per second unseen (m²/s)
 MIN_SPEED_MPS = 0.2  # a trunk slower than this is published still (m/s)
 ADVANCE_STEP_S = 0.05  # moving trunks are advanced in steps of this much vehicle time (s)
 PUBLISH_STEP_M = 0.03  # a published trunk is replaced when its estimate moved this much (m, m/s)
-VIEW_BAND_M = 0.5  # a ray this close (m, vertically) to where a trunk was seen would have seen it again
 MIN_HEIGHT_M = 1.0
 
 
@@ -306,56 +305,8 @@ class LocalMap:
     # ------------------------------------------------------------------ free space
     def free_distance_m(self, from_xy: tuple[float, float], heading_rad: float, max_m: float | None = None) -> float:
         """How far (m) from ``from_xy`` (mission frame north, east; m) along ``heading_rad`` (from north, clockwise)
-        the last scan saw free: the march stops at the first point no ray saw free (0 before any scan)."""
-        pts = self.last
-        if pts is None:
-            return 0.0
-        limit = pts.range_max_m if max_m is None else max_m
-        s = np.arange(0.0, limit + FREE_STEP_M, FREE_STEP_M)
-        x = from_xy[0] + s * math.cos(heading_rad)
-        y = from_xy[1] + s * math.sin(heading_rad)
-        ok = seen_free(pts, x, y)
-        bad = np.flatnonzero(~ok)
-        return float(s[bad[0] - 1]) if len(bad) and bad[0] > 0 else (0.0 if len(bad) else float(s[-1]))
-
-
-def _nearest_ray(pts: ScanPoints, bearing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per bearing (rad): the index of the nearest ray and the angle to it (rad)."""
-    b = pts.bearing_rad
-    diff = (bearing[:, None] - b[None, :] + math.pi) % (2.0 * math.pi) - math.pi
-    k = np.argmin(np.abs(diff), axis=1)
-    return k, np.abs(diff[np.arange(len(bearing)), k])
-
-
-def seen_free(pts: ScanPoints, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Per point (mission frame, m): did the scan see it free (a ray towards it, within 1.5 increments, passed
-    beyond it)?"""
-    dx, dy = x - pts.origin_m[0], y - pts.origin_m[1]
-    d = np.hypot(dx, dy)
-    k, off = _nearest_ray(pts, np.arctan2(dy, dx))
-    return (d <= pts.free_m[k]) & ((off <= 1.5 * pts.increment_rad) | (d < 1e-6))
-
-
-def in_view_many(pts: ScanPoints, x: np.ndarray, y: np.ndarray, radius_m: np.ndarray,
-                 z_m: np.ndarray | None = None) -> np.ndarray:
-    """Per trunk at (x, y) (m) of ``radius_m``: could the scan have seen it? Within range, the ray towards it saw
-    free space beyond its near side (nothing in front of it: not occluded), and, when ``z_m`` (the NED height (m)
-    the trunk was seen at) is given, the ray passes the trunk within :data:`VIEW_BAND_M` of that height (a tilted
-    scan passing over its top or under it at the ground says nothing about it)."""
-    dx, dy = x - pts.origin_m[0], y - pts.origin_m[1]
-    d = np.hypot(dx, dy)
-    k, off = _nearest_ray(pts, np.arctan2(dy, dx))
-    near = d - radius_m
-    ok = (near <= pts.range_max_m) & (d > 1e-6) & (off <= 1.5 * pts.increment_rad) & (pts.free_m[k] > near + 0.05)
-    if z_m is not None and pts.slope is not None:
-        with np.errstate(invalid="ignore"):
-            ok &= np.abs(pts.origin_z_m + pts.slope[k] * near - z_m) <= VIEW_BAND_M
-    return ok
-
-
-def in_view(pts: ScanPoints, x: float, y: float, radius_m: float) -> bool:
-    """:func:`in_view_many` for one trunk."""
-    return bool(in_view_many(pts, np.array([x]), np.array([y]), np.array([radius_m]))[0])
+        the last scan saw free (:func:`~companion.perception.visibility.free_distance_m`; 0 before any scan)."""
+        return 0.0 if self.last is None else free_distance_m(self.last, from_xy, heading_rad, max_m)
 
 
 def _moved(old: Obstacle, new: Obstacle) -> bool:
