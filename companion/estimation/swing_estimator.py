@@ -18,25 +18,25 @@ by 300 ms is fused exactly where it belongs. Older than ``history_s`` it is drop
 ``estimate(t)`` predicts from the newest processed event to ``t`` (incrementally, cheap at the control rate).
 
 Its settings and output types: :mod:`companion.estimation.swing_config`; the events, input histories and the
-process model's propagation: :mod:`companion.estimation.swing_ekf_parts`.
+process model's propagation: :mod:`companion.estimation.swing_ekf_parts`; the measurements' timeline (reorder
+wait, late insertion, replay, pruning): :mod:`companion.estimation.swing_events`.
 
-Trust: the averaged normalized innovation squared (NIS per degree of freedom, ≈ 1 when the model and the noise
-settings describe the data) over the last ``trust_window_s`` per source, and the 1σ of the swing angle from the
-covariance, give ``fade`` in [0, 1] (scale the feed-forward by it) and ``bound_rad`` (|swing| + 3σ, for the
-envelope).
+Trust (:mod:`companion.estimation.swing_trust`): the averaged normalized innovation squared per source over the
+last ``trust_window_s`` and the 1σ of the swing angle give ``fade`` in [0, 1] (scale the feed-forward by it) and
+``bound_rad`` (|swing| + 3σ, for the envelope).
 """
 
 from __future__ import annotations
 
 import bisect
-import heapq
 import math
 
 import numpy as np
 
 from companion.core.model import VehicleParams
 from companion.estimation.swing_config import SwingEstimate, SwingEstimatorConfig
-from companion.estimation.swing_ekf_parts import IDENTITY, Event, InputHistory, Propagation, innovation
+from companion.estimation.swing_ekf_parts import Event, InputHistory, Propagation, innovation
+from companion.estimation.swing_events import EventTimeline
 from companion.estimation.swing_model import (
     I_DRAG,
     I_PDRAG,
@@ -48,14 +48,13 @@ from companion.estimation.swing_model import (
     rotation_from_euler,
     rotation_from_quat,
 )
+from companion.estimation.swing_trust import NIS_CAP, fade, swing_sigma_rad, windowed_nis
 
-SOURCES = ("imu", "fix", "vel")
-_NIS_CAP = 100.0
 _JUMP_SIGMAS2 = 9.0
 _FIX_ERRORS_KEPT = 200
 
 
-class SwingEstimator(Propagation):
+class SwingEstimator(Propagation, EventTimeline):
     """EKF over [α, β, α̇, β̇, v_NED, d_NED, b_FRD, δT] (see :mod:`companion.estimation.swing_model`).
 
     ``params``: the model (M, m, l, Ip, g: vehicle mass, payload mass, cable length — identified or from the
@@ -185,70 +184,35 @@ class SwingEstimator(Propagation):
         w = (t - ts[i]) / (ts[i + 1] - ts[i])
         return p0 + w * (np.array(self._pos.v[i + 1]) - p0)
 
-    def _add_event(self, t_s: float, kind: str, z, sigma) -> None:
-        t = float(t_s)
-        zz = np.asarray(z, dtype=np.float64).reshape(3)
-        sg = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (3,)).copy()
-        if not (math.isfinite(t) and np.all(np.isfinite(zz)) and np.all(np.isfinite(sg)) and np.all(sg > 0.0)):
-            raise ValueError(f"{kind} measurement at t={t_s!r}: non-finite value or sigma")
-        if t < self._base.t:
-            self.dropped_late += 1
-            return
-
-        ev = Event(t=t, seq=self._seq, kind=kind, z=zz, sigma=sg)
-        self._seq += 1
-        evs = self._events
-        if not evs or t >= evs[-1].t:  # in order: wait ``reorder_s`` for others that belong before it
-            heapq.heappush(self._pending, (t, ev.seq, ev))
-            self._flush(t - self.cfg.reorder_s)
-            return
-        else:  # late: insert at its time and replay what follows
-            i = bisect.bisect_right([e.t for e in evs], t)
-            evs.insert(i, ev)
-            prev = evs[i - 1] if i > 0 else self._base
-            self._apply(ev, prev.x, prev.P, prev.t)
-            nxt = evs[i + 1]  # its interval changed: process it again in full
-            x_old, P_old = nxt.x, nxt.P
-            self._apply(nxt, ev.x, ev.P, ev.t)
-            self._replay(i + 2, nxt.x - x_old, nxt.P - P_old)
-        self._version += 1
-        self._prune()
-
-    def _flush(self, t_upto: float) -> None:
-        """Apply the waiting measurements up to ``t_upto``, in time order."""
-        pend = self._pending
-        if not pend or pend[0][0] > t_upto:
-            return
-        evs = self._events
-        while pend and pend[0][0] <= t_upto:
-            ev = heapq.heappop(pend)[2]
-            prev = evs[-1] if evs else self._base
-            self._apply(ev, prev.x, prev.P, prev.t)
-            evs.append(ev)
-        self._version += 1
-        self._prune()
-
-    def _prune(self) -> None:
-        evs = self._events
-        t_cut = evs[-1].t - self.cfg.history_s
-        k = 0
-        while k < len(evs) - 1 and evs[k].t < t_cut:
-            k += 1
-        if k:
-            self._base = evs[k - 1]
-            del evs[:k]
-        keep = self._base.t - 0.1
-        self._att.prune(keep)
-        self._thr.prune(keep)
-        self._pos.prune(keep)
-
     def _apply(self, ev: Event, x0: np.ndarray, P0: np.ndarray, t0: float) -> None:
         """Predict from (t0, x0, P0) to the event and fuse it; stores the result, the gain and the transition
         (I − K·H)·Φ in the event (for replays)."""
         x, P, acc, J, Phi = self._propagate(x0, P0, t0, ev.t)
-        if not self._drag_free and ev.kind not in self._kinds_seen:
-            self._kinds_seen.add(ev.kind)
-        if not self._drag_free and {"imu", "vel"} <= self._kinds_seen:  # the drags are learnt from now on
+        if not self._drag_free:
+            P = self._note_kind(ev.kind, P)
+        H, h = self._measurement(ev, x, acc, J)
+        r2 = ev.sigma * ev.sigma
+        PHt, S, Sinv = innovation(P, H, r2)
+        nu = ev.z - h
+        nis = float(nu @ Sinv @ nu)
+        ev.nis = nis
+        if ev.kind == "fix":  # how well the model predicted this fix (model selection, two_model.py)
+            self.fix_sq_error.append((ev.t, float(nu @ nu)))
+            if len(self.fix_sq_error) > _FIX_ERRORS_KEPT:
+                del self.fix_sq_error[:_FIX_ERRORS_KEPT // 2]
+        x, P, PHt, Sinv, nis_gate = self._gate(ev.kind, x, P, H, r2, nu, nis, PHt, S, Sinv)
+        if ev.kind == "fix" and self.cfg.q_swing_adapt_max > 1.0:
+            ratio = max(min(nis, NIS_CAP) / 3.0, 1e-6)
+            self.q_swing_scale = min(max(self.q_swing_scale * ratio ** 0.25, 1.0), self.cfg.q_swing_adapt_max)
+            self._Qc[2] = self._Qc[3] = self.cfg.q_swing * self.q_swing_scale
+        self._fuse(ev, x, P, H, nu, PHt, Sinv, Phi, nis_gate)
+
+    def _note_kind(self, kind: str, P: np.ndarray) -> np.ndarray:
+        """Note a measurement kind; once both a velocity and an accelerometer reading came, the drag coefficients
+        are learnt from then on (their prior variance added to ``P``, their process noise switched on)."""
+        if kind not in self._kinds_seen:
+            self._kinds_seen.add(kind)
+        if {"imu", "vel"} <= self._kinds_seen:
             self._drag_free = True
             P = P.copy()
             P[I_DRAG, I_DRAG] += self._drag_sigma0 ** 2
@@ -256,6 +220,11 @@ class SwingEstimator(Propagation):
             if self._pdrag_sigma0 > 0.0:  # a payload said to drag: its coefficient is refined
                 P[I_PDRAG, I_PDRAG] += self._pdrag_sigma0 ** 2
                 self._Qc[I_PDRAG] = self.cfg.q_payload_drag
+        return P
+
+    def _measurement(self, ev: Event, x: np.ndarray, acc, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(H, h): the event's measurement Jacobian (3 × N_STATE) and predicted value at the predicted state
+        ``x`` (accelerations ``acc`` and their Jacobian ``J`` from the propagation); sets ``ev.Rt`` for the IMU."""
         H = np.zeros((3, N_STATE))
         l = self._pp[4]
         if ev.kind == "imu":
@@ -269,17 +238,14 @@ class SwingEstimator(Propagation):
         else:  # vel
             H[0, 4] = H[1, 5] = H[2, 6] = 1.0
             h = x[4:7]
-        r2 = ev.sigma * ev.sigma
-        PHt, S, Sinv = innovation(P, H, r2)
-        nu = ev.z - h
-        nis = float(nu @ Sinv @ nu)
-        ev.nis = nis
-        if ev.kind == "fix":  # how well the model predicted this fix (model selection, two_model.py)
-            self.fix_sq_error.append((ev.t, float(nu @ nu)))
-            if len(self.fix_sq_error) > _FIX_ERRORS_KEPT:
-                del self.fix_sq_error[:_FIX_ERRORS_KEPT // 2]
+        return H, h
+
+    def _gate(self, kind: str, x: np.ndarray, P: np.ndarray, H: np.ndarray, r2: np.ndarray, nu: np.ndarray,
+              nis: float, PHt: np.ndarray, S: np.ndarray, Sinv: np.ndarray) -> tuple:
+        """The NIS the gate judges (x, P, PHt, S⁻¹, NIS): a body-z specific force far off widens the thrust
+        error's variance first; fixes rejected ``fix_reset_after`` times in a row reset the swing (NIS 0)."""
         hz = H[2, I_THRUST]
-        if ev.kind == "imu" and nu[2] * nu[2] > _JUMP_SIGMAS2 * S[2, 2] and abs(hz) > 1e-9:
+        if kind == "imu" and nu[2] * nu[2] > _JUMP_SIGMAS2 * S[2, 2] and abs(hz) > 1e-9:
             # the body-z specific force is off by more than 3σ: the thrust produced changed faster than
             # q_thrust allows (a rotor saturating while the attitude loop fights a torque); let δT take it
             P = P.copy()
@@ -288,7 +254,7 @@ class SwingEstimator(Propagation):
             nis_gate = float(nu @ Sinv @ nu)
         else:
             nis_gate = nis
-        if ev.kind == "fix" and nis_gate > self.cfg.gate_nis:
+        if kind == "fix" and nis_gate > self.cfg.gate_nis:
             self._fixes_rejected_in_row += 1
             if self._fixes_rejected_in_row > self.cfg.fix_reset_after:
                 # the fixes keep disagreeing: the filter has lost the swing; forget what it believed and re-lock
@@ -297,12 +263,14 @@ class SwingEstimator(Propagation):
                 nis_gate = 0.0
                 self._fixes_rejected_in_row = 0
                 self.resets += 1
-        elif ev.kind == "fix":
+        elif kind == "fix":
             self._fixes_rejected_in_row = 0
-        if ev.kind == "fix" and self.cfg.q_swing_adapt_max > 1.0:
-            ratio = max(min(nis, _NIS_CAP) / 3.0, 1e-6)
-            self.q_swing_scale = min(max(self.q_swing_scale * ratio ** 0.25, 1.0), self.cfg.q_swing_adapt_max)
-            self._Qc[2] = self._Qc[3] = self.cfg.q_swing * self.q_swing_scale
+        return x, P, PHt, Sinv, nis_gate
+
+    def _fuse(self, ev: Event, x: np.ndarray, P: np.ndarray, H: np.ndarray, nu: np.ndarray, PHt: np.ndarray,
+              Sinv: np.ndarray, Phi: np.ndarray, nis_gate: float) -> None:
+        """The Kalman update when the gate passes (else the event is rejected and only predicted); stores the
+        state, covariance, gain and transition in the event."""
         if nis_gate <= self.cfg.gate_nis:
             K = PHt @ Sinv
             x = x + K @ nu
@@ -333,48 +301,19 @@ class SwingEstimator(Propagation):
         x[2:4] = 0.0
         return P, x
 
-    def _replay(self, start: int, dx: np.ndarray, dP: np.ndarray) -> None:
-        """Events[start:] again after the one before them changed by (dx, dP) because of a late measurement. With
-        their stored gains and transitions T = (I − K·H)·Φ the change carries through linearly: x_k += M_k·dx,
-        P_k += M_k·dP·M_kᵀ with M_k = T_k···T_start — exact for the linearized filter with those gains (the
-        covariance of any gain, Joseph's form), and a few µs per event instead of running the filter again."""
-        M = IDENTITY
-        for e in self._events[start:]:
-            M = e.T @ M
-            e.x = e.x + M @ dx
-            P = e.P + M @ dP @ M.T
-            e.P = 0.5 * (P + P.T)
-
     # ------------------------------------------------------------------------------------------- output
     def selection_facts(self) -> None:
         """For the report, like ``TwoModelEstimator.selection_facts`` (:mod:`companion.estimation.two_model`): one
         filter, nothing was chosen (None)."""
         return None
 
-    @property
-    def t_processed_s(self) -> float:
-        """Time of the newest processed measurement (or the start)."""
-        return self._events[-1].t if self._events else self._base.t
-
-    def _frontier(self) -> Event:
-        return self._events[-1] if self._events else self._base
-
     def _trust(self, t: float) -> tuple[dict[str, float], tuple[str, ...], int]:
-        key = (round(t / 0.05), self.rejected_total)  # recomputed every 50 ms, and at once after an outlier
+        """:func:`~companion.estimation.swing_trust.windowed_nis` over the last ``trust_window_s``, recomputed every
+        50 ms, and at once after an outlier."""
+        key = (round(t / 0.05), self.rejected_total)
         if self._trust_cache is not None and self._trust_cache[0] == key:
             return self._trust_cache[1], self._trust_cache[2], self._trust_cache[3]
-        t_lo = t - self.cfg.trust_window_s
-        sums: dict[str, float] = {}
-        counts: dict[str, int] = {}
-        rejected = 0
-        for e in reversed(self._events):
-            if e.t < t_lo:
-                break
-            sums[e.kind] = sums.get(e.kind, 0.0) + min(e.nis, _NIS_CAP) / 3.0
-            counts[e.kind] = counts.get(e.kind, 0) + 1
-            rejected += 0 if e.accepted else 1
-        nis = {k: sums[k] / counts[k] for k in sums}
-        sources = tuple(s for s in SOURCES if s in nis)
+        nis, sources, rejected = windowed_nis(self._events, t - self.cfg.trust_window_s)
         self._trust_cache = (key, nis, sources, rejected)
         return nis, sources, rejected
 
@@ -397,29 +336,14 @@ class SwingEstimator(Propagation):
             P, _ = self._cov(P, self._acc_jacobian(x, f, a), t_x - t_P)
             t_P = t_x
         self._shadow = (self._version, t_x, x, t_P, P)
-        Ps = P[0:2, 0:2]
-        tr = 0.5 * (Ps[0, 0] + Ps[1, 1])
-        det = Ps[0, 0] * Ps[1, 1] - Ps[0, 1] * Ps[1, 0]
-        sigma = math.sqrt(max(tr + math.sqrt(max(tr * tr - det, 0.0)), 0.0))
+        sigma = swing_sigma_rad(P)
         bound = math.hypot(x[0], x[1]) + 3.0 * sigma
         nis, sources, rejected = self._trust(t)
-        c = self.cfg
-        f_sigma = _ramp_down(3.0 * sigma, *c.fade_bound3_rad)
-        f_nis = _ramp_down(max(nis.values()), *c.fade_nis) if nis else 1.0
-        f_fit = _ramp_down(self.q_swing_scale, *c.fade_q_scale)
         return SwingEstimate(
             t_s=t_x, swing=x[0:4].copy(), swing_acc=np.array([a[0], a[1]]), cov=P[0:4, 0:4].copy(),
-            sigma_rad=sigma, bound_rad=bound, fade=f_sigma * f_nis * f_fit,
+            sigma_rad=sigma, bound_rad=bound, fade=fade(sigma, nis, self.q_swing_scale, self.cfg),
             force_ned_n=x[7:10] - x[I_DRAG] * np.array([x[4], x[5], 0.0]),
             accel_bias_frd_mps2=x[10:13].copy(), nis=nis, sources=sources, rejected=rejected,
             dropped_late=self.dropped_late, drag_n_per_mps=float(x[I_DRAG]),
             payload_drag_n_per_mps2=float(x[I_PDRAG]),
         )
-
-def _ramp_down(v: float, lo: float, hi: float) -> float:
-    """1 below ``lo``, 0 above ``hi``, linear between."""
-    if v <= lo:
-        return 1.0
-    if v >= hi:
-        return 0.0
-    return (hi - v) / (hi - lo)
