@@ -74,7 +74,7 @@ def stream(ticks: int) -> list[bytes]:
 def _consumers() -> tuple[Any, Any, Any, Any]:
     from pymavlink.dialects.v20 import common as M
 
-    from companion.core.model import VehicleParams
+    from companion.core.vehicle_params import VehicleParams
     from companion.estimation.swing_feed import SwingFeed
     from companion.estimation.vehicle_state import VehicleState
     from companion.flight.health import LinkHealth

@@ -42,8 +42,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from companion.core.mission import Mission
-from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
+from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig
 
 TRAP_KINDS = ("none", "pair", "cluster", "mixed", "fence")

@@ -27,7 +27,7 @@ import numpy as np
 from companion.autopilots.profile import VehicleProfile
 from companion.control import ControllerConfig
 from companion.core.mission import Mission
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.estimate import Estimate
 from companion.estimation.swing_measurement import SLACK_FRACTION
 from companion.flight.core import FlightCore

@@ -27,7 +27,7 @@ import numpy as np
 from companion import proclife
 from companion.config import shipped_config
 from companion.core.mission import load_mission
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.payload_id import identify_payload
 from companion.estimation.swing_estimator import SwingEstimator
 from companion.report.metrics import compute_metrics

@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from companion.core.mission import Mission
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig
 from companion.estimation.swing_config import SwingEstimatorConfig
 from lab.inprocess import fly_inprocess

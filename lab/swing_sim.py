@@ -26,7 +26,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from companion.core.model import VehicleParams, rotation_body_to_ned
+from companion.core.model import rotation_body_to_ned
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.swing_config import SwingEstimate, SwingEstimatorConfig
 from companion.estimation.swing_estimator import SwingEstimator
 

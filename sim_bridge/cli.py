@@ -9,7 +9,7 @@ import os
 import sys
 
 from companion.config import dataclass_from_table, read_toml
-from companion.core.model import VehicleParams, load_vehicle_params
+from companion.core.vehicle_params import VehicleParams, load_vehicle_params
 from companion.core.wind import WindConfig
 from companion.errors import ConfigError
 from companion.mavlink_io.signing import load_key_file

@@ -30,7 +30,7 @@ import numpy as np
 from numba import njit
 
 from companion.core.kernel_cache import use_kernel_cache
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 
 _S2 = math.sqrt(2.0) / 2.0
 

@@ -30,7 +30,6 @@ from numba import njit
 from companion.core.kernel_cache import use_kernel_cache
 from companion.core.model import (
     IDX_Z,
-    VehicleParams,
     _check_domain,
     _deriv,
     _rk4,
@@ -40,6 +39,7 @@ from companion.core.model import (
 )
 from companion.core.rotations import euler_tuple_from_quat, quat_from_euler
 from companion.core.turbulence import TABLE_DT_S, WindField
+from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig, eq49_signal, wind_scale_factor
 from companion.errors import ModelError
 from sim_bridge.contact import _cable_contact, _hold_on_ground, _payload_angles

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig
 from sim_bridge.imu import ImuNoise
 from sim_bridge.inner_loop import eq49_torque_problem

@@ -21,7 +21,8 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.autopilots import px4_modes
-from companion.core.model import VehicleParams, rotation_body_to_ned
+from companion.core.model import rotation_body_to_ned
+from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig
 from companion.errors import ModelError
 from sim_bridge import commands, mission_server, stream_rates, telemetry

@@ -17,8 +17,9 @@ from companion.control import (
     payload_reaction_n,
 )
 from companion.control.params import FeedForwardGains
-from companion.core.model import VehicleParams, accelerations, rotation_body_to_ned
+from companion.core.model import accelerations, rotation_body_to_ned
 from companion.core.rotations import euler_from_quat
+from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig
 from companion.errors import ConfigError
 from sim_bridge.physics import VehicleSim

@@ -10,7 +10,7 @@ import pytest
 
 from companion.control.adapt import accel_scale, adapt_to_payload
 from companion.control.params import ControllerConfig
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from lab.envelope import Cell, cell_mission, cell_spec, envelope, parse_grid, wind_config
 from lab.forests import ForestSpec
 

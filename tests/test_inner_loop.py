@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from companion.core.model import VehicleParams
 from companion.core.rotations import euler_from_quat, quat_from_euler
+from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig, eq49_signal, wind_disturbance
 from sim_bridge.inner_loop import RotorConfig, max_rotor_thrust_n, mix, mixer_matrix
 from sim_bridge.physics import VehicleSim

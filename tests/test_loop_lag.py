@@ -144,7 +144,7 @@ def test_the_position_gain_scale_lowers_stiffness_keeping_the_damping_ratio() ->
     from dataclasses import replace
 
     from companion.control.position import SmcPositionController
-    from companion.core.model import VehicleParams
+    from companion.core.vehicle_params import VehicleParams
 
     cfg = ControllerConfig()
     ctl = SmcPositionController(replace(cfg.smc, ki=0.0), VehicleParams(), None, 6.0)  # the proportional part only

@@ -6,14 +6,13 @@ import numpy as np
 import pytest
 
 from companion.core.model import (
-    VehicleParams,
     accelerations,
     dynamics,
     energy_j,
-    load_vehicle_params,
     rk4_batch,
     rk4_step,
 )
+from companion.core.vehicle_params import VehicleParams, load_vehicle_params
 from companion.errors import ConfigError, ModelError
 
 P = VehicleParams()

@@ -16,9 +16,11 @@ import math
 import numpy as np
 import pytest
 
-from companion.core.model import VehicleParams, accelerations, rk4_step
+from companion.core.model import accelerations, rk4_step
 
 # --------------------------------------------------------------------------------------------------------
+from companion.core.vehicle_params import VehicleParams
+
 # The Lagrangian of eq. 10, built from eqs. 3–9 (NED, z down, V = −M·g·z − m·g·z_p).
 
 

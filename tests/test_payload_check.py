@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.core.model import VehicleParams
 from companion.core.payload_check import HOVER_FRACTION_LIMIT, thrust_margin
+from companion.core.vehicle_params import VehicleParams
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 
 M = mavlink2

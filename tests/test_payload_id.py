@@ -10,7 +10,7 @@ from functools import cache
 import numpy as np
 import pytest
 
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.payload_id import identify_payload, mass_from_hover_thrust
 from lab.swing_scenarios import cruise_start_s, hop_mission, imu_attitude_series, record_truth
 from lab.swing_sim import ImuNoise, SensorConfig

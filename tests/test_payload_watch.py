@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.payload_id import autocorrelation_time
 from companion.estimation.payload_watch import IMU_STEP_S, PayloadWatch
 from lab.swing_scenarios import cruise_start_s, hop_mission, imu_attitude_series, record_truth

@@ -23,7 +23,8 @@ from test_model_lagrangian import (  # tests/ is a plain directory on sys.path (
     simulate_model,
 )
 
-from companion.core.model import VehicleParams, accelerations
+from companion.core.model import accelerations
+from companion.core.vehicle_params import VehicleParams
 
 N_CASES = 60
 

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as M
 
-from companion.core.model import VehicleParams, accelerations, rotation_body_to_ned
+from companion.core.model import accelerations, rotation_body_to_ned
 from companion.core.rotations import quat_from_euler
+from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig
 from sim_bridge.imu import ImuModel, ImuNoise
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle

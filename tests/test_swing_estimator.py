@@ -9,7 +9,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from companion.core.model import VehicleParams, accelerations, payload_offset_ned_m, rk4_step
+from companion.core.model import accelerations, payload_offset_ned_m, rk4_step
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.estimate import widened_swing
 from companion.estimation.swing_estimator import (
     SwingEstimate,

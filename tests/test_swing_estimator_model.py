@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from companion.core.model import VehicleParams, accelerations, rotation_body_to_ned
+from companion.core.model import accelerations, rotation_body_to_ned
 from companion.core.rotations import quat_from_euler
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.swing_model import (
     N_STATE,
     accel_force_jacobian,

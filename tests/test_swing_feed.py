@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.swing_feed import SwingFeed
 from companion.mavlink_io.telemetry import decode
 

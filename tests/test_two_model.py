@@ -9,7 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from companion.core.model import VehicleParams, accelerations, payload_offset_ned_m, rk4_step
+from companion.core.model import accelerations, payload_offset_ned_m, rk4_step
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.swing_config import SwingEstimatorConfig
 from companion.estimation.swing_estimator import SwingEstimator
 from companion.estimation.two_model import TwoModelEstimator

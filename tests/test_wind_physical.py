@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.core.model import VehicleParams, accelerations
+from companion.core.model import accelerations
 from companion.core.turbulence import (
     FT_M,
     KNOT_MPS,
@@ -21,6 +21,7 @@ from companion.core.turbulence import (
     dryden_low_altitude,
     gust_speed,
 )
+from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig, drag_force, generalized_drag
 from sim_bridge.physics import VehicleSim
 from sim_bridge.wind_drag import _drag_disturbance

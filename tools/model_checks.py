@@ -7,8 +7,9 @@ import math
 
 import numpy as np
 
-from companion.core.model import VehicleParams, energy_j, rk4_step
+from companion.core.model import energy_j, rk4_step
 from companion.core.rotations import quat_from_euler
+from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig
 from sim_bridge.physics import VehicleSim
 

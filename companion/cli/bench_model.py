@@ -7,6 +7,7 @@ import time
 import numpy as np
 
 from companion.core import model
+from companion.core.vehicle_params import VehicleParams
 
 
 def run(seconds: float = 2.0, batch: int = 64) -> dict[str, float]:
@@ -14,7 +15,7 @@ def run(seconds: float = 2.0, batch: int = 64) -> dict[str, float]:
     t0 = time.perf_counter()
     model.warm_up()
     cold_s = time.perf_counter() - t0
-    p = model.VehicleParams()
+    p = VehicleParams()
     pk = p.packed()
     u = np.array([p.hover_thrust_n, 0.0, 0.0, 0.0])
     d = np.full(6, 0.2)

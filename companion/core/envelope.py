@@ -12,7 +12,8 @@ import math
 
 import numpy as np
 
-from companion.core.model import VehicleParams, payload_offset_ned_m
+from companion.core.model import payload_offset_ned_m
+from companion.core.vehicle_params import VehicleParams
 
 __all__ = [
     "envelope_radii_m",

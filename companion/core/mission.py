@@ -66,8 +66,8 @@ import numpy as np
 from companion.config import dataclass_from_table, read_toml
 from companion.core.fence import Fence
 from companion.core.mission_zones import check_fenced, fence_toml, parse_fence
-from companion.core.model import VehicleParams, vehicle_params_with
 from companion.core.obstacles import Obstacle
+from companion.core.vehicle_params import VehicleParams, vehicle_params_with
 from companion.core.wind import WindConfig
 from companion.errors import ConfigError
 

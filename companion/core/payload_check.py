@@ -27,7 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from companion.core.mission import Mission
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.errors import ConfigError
 
 #: Largest hover thrust, as a fraction of the maximum thrust, that the companion takes off with.

@@ -33,7 +33,7 @@ import math
 
 import numpy as np
 
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.swing_config import SwingEstimate, SwingEstimatorConfig
 from companion.estimation.swing_ekf_parts import Event, InputHistory, Propagation, innovation
 from companion.estimation.swing_events import EventTimeline

@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from companion.core.mission import Mission
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.estimate import Estimate
 from companion.estimation.swing_config import SwingEstimate, SwingEstimatorConfig
 from companion.estimation.swing_estimator import SwingEstimator

@@ -60,7 +60,7 @@ import math
 
 import numpy as np
 
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 
 N_STATE = 16
 I_AL, I_BE, I_DAL, I_DBE = 0, 1, 2, 3

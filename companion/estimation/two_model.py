@@ -27,7 +27,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from companion.core.model import VehicleParams
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.swing_config import SwingEstimate, SwingEstimatorConfig
 from companion.estimation.swing_estimator import SwingEstimator
 

@@ -25,8 +25,8 @@ from companion.control import (
 from companion.control.swing_bias import SwingBias, feedforward_offsets
 from companion.core.envelope import r_max_m
 from companion.core.mission import Mission
-from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.estimate import Estimate, swing_sigma_rad, widened_swing
 from companion.estimation.loop_lag import LoopLagEstimator, lag_trust
 from companion.flight.arrival import ARRIVE_DWELL_S, ARRIVE_VERT_M, ArrivalRule, arrival_tolerance_m

@@ -23,8 +23,8 @@ from companion.control import make_position_controller
 from companion.control.adapt import adapt_to_payload
 from companion.control.swing_bias import SwingBias
 from companion.core.envelope import full_cable_r_max_m
-from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.estimate import Estimate
 from companion.flight.phase import CorePhase
 from companion.planning import make_planner

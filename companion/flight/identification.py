@@ -18,8 +18,8 @@ from dataclasses import replace
 from typing import Any
 
 from companion.core.mission import Mission
-from companion.core.model import VehicleParams
 from companion.core.payload_check import thrust_margin
+from companion.core.vehicle_params import VehicleParams
 from companion.estimation.payload_watch import WINDOW_S, PayloadWatch
 from companion.estimation.swing_feed import SwingFeed
 from companion.estimation.vehicle_state import VehicleState

@@ -29,8 +29,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
+from companion.core.vehicle_params import VehicleParams
 from companion.errors import ConfigError
 from companion.viz import scene
 from companion.viz.flight import log_trunks
