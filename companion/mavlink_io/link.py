@@ -19,8 +19,9 @@ the link is not ``connected``, nothing is sent, and the flight's own telemetry w
 
 Every frame in and out also goes to a ``.tlog`` (:mod:`companion.mavlink_io.tlog`). Undecodable input is counted
 and logged at most once a second per kind; it never raises into the flight loop. Hot path: a datagram of complete,
-unsigned, CRC-valid MAVLink 2 frames (what a vehicle sends) is decoded by :func:`~companion.mavlink_io.codec.
-decode_lite`; anything else by pymavlink's own parser. ``on_datagram_done`` (optional) is called after the
+unsigned, CRC-valid MAVLink 2 frames (what a vehicle sends) is cut and decoded by
+:mod:`companion.mavlink_io.datagrams` (with signing on, only the frames that check out); anything else by
+pymavlink's own parser. ``on_datagram_done`` (optional) is called after the
 messages of each datagram (stream: each frame) were handled.
 """
 
@@ -42,7 +43,8 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.errors import LinkError
 from companion.mavlink_io import signing
 from companion.mavlink_io.codec import STX_V2 as _STX_V2
-from companion.mavlink_io.codec import check_crc, crc_extra_of, decode_lite
+from companion.mavlink_io.codec import crc_extra_of
+from companion.mavlink_io.datagrams import split_signed, split_unsigned
 from companion.mavlink_io.framing import StreamFramer
 from companion.mavlink_io.tlog import TlogWriter, tlog_frames, tlog_messages
 from companion.mavlink_io.transport import DRAIN_MAX, RCVBUF_BYTES, LinkUrl, TransportError, make_transport
@@ -54,7 +56,6 @@ log = logging.getLogger(__name__)
 
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
 REOPEN_S = 1.0  # a dead stream is opened again this often
-_MIN_FRAME = 12  # MAVLink 2 header + CRC
 
 
 class MavlinkLink:
@@ -300,7 +301,12 @@ class MavlinkLink:
             return
         self.last_sender = addr
         self.last_rx_wall = time.monotonic()
-        msgs = self._split_signed(data) if self.verifier is not None else self._split_fast(data)
+        if self.verifier is not None:
+            msgs = split_signed(data, self.verifier, self._count)
+        elif self.mav.buf_len() > 0:  # bytes left in pymavlink's parser from an earlier datagram: it goes on
+            msgs = None
+        else:
+            msgs = split_unsigned(data, frames_only=self.frame_handler is not None)
         if msgs is None:  # anything unusual: pymavlink's own parser, exactly as it always did
             self._on_datagram_pymavlink(data, addr)
             return
@@ -317,64 +323,6 @@ class MavlinkLink:
                 log.exception("handler failed on message %d", frame[7] | (frame[8] << 8) | (frame[9] << 16))
         if self.on_datagram_done is not None:
             self.on_datagram_done()
-
-    def _split_fast(self, data: bytes) -> list[tuple[bytes, Any]] | None:
-        """Decode a datagram made only of complete, unsigned MAVLink 2 frames of known, CRC-valid messages
-        (what a vehicle sends); None for anything else (garbage, MAVLink 1, signed, cut short, unknown id,
-        bad CRC, or bytes left in pymavlink's parser from an earlier datagram)."""
-        n = len(data)
-        if n == 0 or self.mav.buf_len() > 0:
-            return None
-        out = []
-        i = 0
-        while i < n:
-            if data[i] != _STX_V2 or i + _MIN_FRAME > n or data[i + 2] != 0:
-                return None
-            end = i + _MIN_FRAME + data[i + 1]
-            if end > n:
-                return None
-            frame = data[i:end]
-            if self.frame_handler is not None:  # the caller decodes the checked frame itself: no message object
-                if not check_crc(frame, frame[7] | (frame[8] << 8) | (frame[9] << 16)):
-                    return None
-                out.append((frame, None))
-                i = end
-                continue
-            try:
-                msg = decode_lite(frame)
-            except Exception:  # FrameError, or a value pymavlink's constructor refuses
-                return None
-            out.append((frame, msg))
-            i = end
-        return out
-
-    def _split_signed(self, data: bytes) -> list[tuple[bytes, Any]]:
-        """With signing on: (frame as received, message) for the datagram's frames whose signature and timestamp
-        check out; unsigned, forged and replayed frames and anything unframed are counted and dropped."""
-        out = []
-        i, n = 0, len(data)
-        while i < n:
-            if data[i] != _STX_V2 or i + _MIN_FRAME > n:
-                if data[i] == 0xFE and i + 5 <= n:  # MAVLink 1 cannot be signed: dropped, counted by sender
-                    self.verifier.note_dropped(data[i + 3], data[i + 4], "unsigned")
-                self._count("unsigned" if data[i] == 0xFE else "garbage")
-                return out
-            flags = data[i + 2]
-            total = _MIN_FRAME + data[i + 1] + (signing.SIGNATURE_LEN if flags & signing.IFLAG_SIGNED else 0)
-            frame = data[i : i + total]
-            i += total
-            if len(frame) < total:
-                self._count("truncated")
-                return out
-            kind = self.verifier.admit(frame)  # signed and fresh, or unsigned from a system let in so
-            if kind is not None:
-                self._count(kind, f"frame from system {frame[5]} component {frame[6]}")
-                continue
-            try:  # decoded without its signature, recorded with it (a .tlog frame is the frame as received)
-                out.append((frame, decode_lite(frame[: -signing.SIGNATURE_LEN] if flags else frame)))
-            except Exception as exc:  # bad CRC or unknown id inside a valid signature: count, never raise
-                self._count("undecodable", repr(exc)[:120])
-        return out
 
     def _on_datagram_pymavlink(self, data: bytes, addr: tuple[str, int]) -> None:
         try:
