@@ -211,6 +211,67 @@ def _fit(t, f_xy, a_ned, R, l, g):
     return float(res @ res), coef, X, res
 
 
+def _checked(t_s, accel_frd_mps2, euler_rad, vehicle_mass_kg: float, g_mps2: float,
+             l_range_m: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`identify_payload`'s samples as float arrays (t, accel, euler); ValueError when they or the settings
+    cannot be used."""
+    t = np.asarray(t_s, dtype=np.float64)
+    f = np.asarray(accel_frd_mps2, dtype=np.float64)
+    e = np.asarray(euler_rad, dtype=np.float64)
+    n = len(t)
+    if n < 50 or f.shape != (n, 3) or e.shape != (n, 3):
+        raise ValueError(f"need >= 50 samples of t (N,), accel (N, 3), euler (N, 3); got {t.shape}, {f.shape}, "
+                         f"{e.shape}")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(f)) and np.all(np.isfinite(e))):
+        raise ValueError("non-finite samples")
+    if np.any(np.diff(t) <= 0.0):
+        raise ValueError("t_s must increase")
+    if not (vehicle_mass_kg > 0.0 and g_mps2 > 0.0 and 0.0 < l_range_m[0] < l_range_m[1]):
+        raise ValueError("vehicle_mass_kg, g_mps2 must be > 0 and l_range_m increasing")
+    return t, f, e
+
+
+def _best_length(sse_of, l_range_m: tuple[float, float]) -> float:
+    """The cable length (m) in ``l_range_m`` that minimises ``sse_of(l)`` (the fit's residual sum): a grid of 40
+    in log(l), then golden section between the best point's neighbours (to 1e-4 relative, 30 steps at most)."""
+    grid = np.exp(np.linspace(math.log(l_range_m[0]), math.log(l_range_m[1]), 40))
+    sse = [(sse_of(float(lv)), float(lv)) for lv in grid]
+    k = int(np.argmin([s for s, _ in sse]))
+    lo = grid[max(k - 1, 0)]
+    hi = grid[min(k + 1, len(grid) - 1)]
+    x1 = hi - _GOLDEN * (hi - lo)
+    x2 = lo + _GOLDEN * (hi - lo)
+    f1 = sse_of(x1)
+    f2 = sse_of(x2)
+    for _ in range(30):
+        if f1 < f2:
+            hi, x2, f2 = x2, x1, f1
+            x1 = hi - _GOLDEN * (hi - lo)
+            f1 = sse_of(x1)
+        else:
+            lo, x1, f1 = x1, x2, f2
+            x2 = lo + _GOLDEN * (hi - lo)
+            f2 = sse_of(x2)
+        if hi - lo < 1e-4 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+def _verdict(mu: float, m_hat: float, sigma_m: float, signal: float, resid: float, l_hat: float,
+             l_range_m: tuple[float, float], M: float) -> str:
+    """Why the identification is not to be used ("" when it is): no payload seen, mass not determined, too
+    little excitation (swing signal under 3 × the residual, m/s²), or the cable length at the search limit."""
+    if not (0.0 < mu < 1.0):
+        return f"no payload seen (mass ratio {mu:.3f} outside (0, 1))"
+    if m_hat > 10.0 * M or sigma_m > 0.3 * m_hat:
+        return f"mass not determined: {m_hat:.3f} ± {sigma_m:.3f} kg"
+    if signal < 3.0 * resid:
+        return f"too little excitation: swing signal {signal:.3f} m/s² < 3 × residual {resid:.3f} m/s²"
+    if l_hat < 1.05 * l_range_m[0] or l_hat > 0.95 * l_range_m[1]:
+        return f"cable length {l_hat:.2f} m at the search limit {l_range_m}"
+    return ""
+
+
 def identify_payload(
     t_s,
     accel_frd_mps2,
@@ -225,19 +286,8 @@ def identify_payload(
     a lateral excitation; ``vehicle_mass_kg`` is the airframe's mass M without payload. The pivot acceleration
     that drives the simulated pendulum is low-passed (zero phase, ``pivot_cutoff_hz``; 0 = off): the payload does
     not follow vibration (the specific force is filtered alike). Raises ValueError on bad input."""
-    t = np.asarray(t_s, dtype=np.float64)
-    f = np.asarray(accel_frd_mps2, dtype=np.float64)
-    e = np.asarray(euler_rad, dtype=np.float64)
+    t, f, e = _checked(t_s, accel_frd_mps2, euler_rad, vehicle_mass_kg, g_mps2, l_range_m)
     n = len(t)
-    if n < 50 or f.shape != (n, 3) or e.shape != (n, 3):
-        raise ValueError(f"need >= 50 samples of t (N,), accel (N, 3), euler (N, 3); got {t.shape}, {f.shape}, "
-                         f"{e.shape}")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(f)) and np.all(np.isfinite(e))):
-        raise ValueError("non-finite samples")
-    if np.any(np.diff(t) <= 0.0):
-        raise ValueError("t_s must increase")
-    if not (vehicle_mass_kg > 0.0 and g_mps2 > 0.0 and 0.0 < l_range_m[0] < l_range_m[1]):
-        raise ValueError("vehicle_mass_kg, g_mps2 must be > 0 and l_range_m increasing")
     R = np.array([rotation_from_euler(*row) for row in e])
     a = np.einsum("nij,nj->ni", R, f) + np.array([0.0, 0.0, g_mps2])
     if pivot_cutoff_hz > 0.0:
@@ -247,29 +297,7 @@ def identify_payload(
             a = _filtfilt2(b, a_f, np.ascontiguousarray(a))
             f = _filtfilt2(b, a_f, np.ascontiguousarray(f))
     f_xy = f[:, 0:2]
-
-    # grid in log(l), then golden section around the best point
-    grid = np.exp(np.linspace(math.log(l_range_m[0]), math.log(l_range_m[1]), 40))
-    sse = [(_fit(t, f_xy, a, R, float(lv), g_mps2)[0], float(lv)) for lv in grid]
-    k = int(np.argmin([s for s, _ in sse]))
-    lo = grid[max(k - 1, 0)]
-    hi = grid[min(k + 1, len(grid) - 1)]
-    x1 = hi - _GOLDEN * (hi - lo)
-    x2 = lo + _GOLDEN * (hi - lo)
-    f1 = _fit(t, f_xy, a, R, x1, g_mps2)[0]
-    f2 = _fit(t, f_xy, a, R, x2, g_mps2)[0]
-    for _ in range(30):
-        if f1 < f2:
-            hi, x2, f2 = x2, x1, f1
-            x1 = hi - _GOLDEN * (hi - lo)
-            f1 = _fit(t, f_xy, a, R, x1, g_mps2)[0]
-        else:
-            lo, x1, f1 = x1, x2, f2
-            x2 = lo + _GOLDEN * (hi - lo)
-            f2 = _fit(t, f_xy, a, R, x2, g_mps2)[0]
-        if hi - lo < 1e-4 * hi:
-            break
-    l_hat = 0.5 * (lo + hi)
+    l_hat = _best_length(lambda lv: _fit(t, f_xy, a, R, lv, g_mps2)[0], l_range_m)
     s0, coef, X, res = _fit(t, f_xy, a, R, l_hat, g_mps2)
     if coef is None:
         return PayloadId(math.nan, math.nan, math.nan, math.nan, math.nan, 0.0, math.nan, n, float(t[-1] - t[0]),
@@ -293,15 +321,7 @@ def identify_payload(
     sigma_m = sigma_mu * M / (1.0 - mu) ** 2 if mu < 1.0 else math.inf
     signal = float(np.sqrt(np.mean((coef[0] * X[:, 0]) ** 2)))
     resid = float(np.sqrt(np.mean(res * res)))
-    reason = ""
-    if not (0.0 < mu < 1.0):
-        reason = f"no payload seen (mass ratio {mu:.3f} outside (0, 1))"
-    elif m_hat > 10.0 * M or sigma_m > 0.3 * m_hat:
-        reason = f"mass not determined: {m_hat:.3f} ± {sigma_m:.3f} kg"
-    elif signal < 3.0 * resid:
-        reason = f"too little excitation: swing signal {signal:.3f} m/s² < 3 × residual {resid:.3f} m/s²"
-    elif l_hat < 1.05 * l_range_m[0] or l_hat > 0.95 * l_range_m[1]:
-        reason = f"cable length {l_hat:.2f} m at the search limit {l_range_m}"
+    reason = _verdict(mu, m_hat, sigma_m, signal, resid, l_hat, l_range_m, M)
     return PayloadId(
         cable_length_m=l_hat, payload_mass_kg=m_hat, mass_ratio=mu, cable_length_sigma_m=sigma_l,
         payload_mass_sigma_kg=sigma_m, swing_signal_mps2=signal, residual_mps2=resid, n_samples=n,
