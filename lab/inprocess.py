@@ -92,6 +92,35 @@ def _cable_sensor(sim: VehicleSim) -> np.ndarray:
     return sim.swing
 
 
+def _swing_input(mission: Mission, swing_source: str | None, swing_sensor: bool,
+                 estimator: EstimatorDriver | None) -> tuple[str, EstimatorDriver | None]:
+    """(the swing source, the estimator driver when it is ``"estimate"``) of :func:`fly_inprocess`'s arguments."""
+    source = swing_source or ("cable_sensor" if swing_sensor else "none")
+    if source not in ("cable_sensor", "none", "estimate"):
+        raise ValueError(f"swing_source: must be cable_sensor, none or estimate, got {swing_source!r}")
+    if source == "estimate" and estimator is None:
+        estimator = EstimatorDriver(mission.vehicle, seed=0)
+    return source, (estimator if source == "estimate" else None)
+
+
+def _estimate(sim: VehicleSim, source: str, driver: EstimatorDriver | None, sample) -> Estimate:
+    """What the core is told this tick: the true state of ``sim`` with the swing of ``source`` (the cable sensor,
+    none, or the estimator ``driver`` stepped with this tick's ``sample``)."""
+    if driver is not None:
+        se = driver.step(sample)
+        return Estimate(
+            t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,
+            rates_frd_rad_s=sim.body_rates_frd_rad_s, swing=None if se is None else se.swing,
+            swing_source="none" if se is None else "estimate",
+            swing_fade=1.0 if se is None else se.fade, swing_bound_rad=None if se is None else se.bound_rad,
+        )
+    swing = _cable_sensor(sim) if source == "cable_sensor" else None
+    return Estimate(
+        t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,
+        rates_frd_rad_s=sim.body_rates_frd_rad_s, swing=swing, swing_source=source,
+    )
+
+
 def fly_inprocess(
     mission: Mission,
     *,
@@ -121,12 +150,7 @@ def fly_inprocess(
     the physics flies when it differs from the mission's (a mis-declared payload: the companion flies
     ``mission.vehicle``); the wind is the mission's ``[wind]``, eq. 49 or physical drag, never told to the core.
     """
-    source = swing_source or ("cable_sensor" if swing_sensor else "none")
-    if source not in ("cable_sensor", "none", "estimate"):
-        raise ValueError(f"swing_source: must be cable_sensor, none or estimate, got {swing_source!r}")
-    if source == "estimate" and estimator is None:
-        estimator = EstimatorDriver(mission.vehicle, seed=0)
-    driver = estimator if source == "estimate" else None
+    source, driver = _swing_input(mission, swing_source, swing_sensor, estimator)
     recorder = TruthRecorder() if (driver is not None or truth is not None) else None
     n_sub = max(1, round(control_period_s / physics_dt_s))
     x0 = np.zeros(16)
@@ -143,20 +167,7 @@ def fly_inprocess(
     t_end = mission.timeout_s + mission.hold_s + 1.0
     while sim.t_s < t_end:
         sample = recorder.sample(sim) if recorder is not None else None
-        if driver is not None:
-            se = driver.step(sample)
-            est = Estimate(
-                t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,
-                rates_frd_rad_s=sim.body_rates_frd_rad_s, swing=None if se is None else se.swing,
-                swing_source="none" if se is None else "estimate",
-                swing_fade=1.0 if se is None else se.fade, swing_bound_rad=None if se is None else se.bound_rad,
-            )
-        else:
-            swing = _cable_sensor(sim) if source == "cable_sensor" else None
-            est = Estimate(
-                t_s=sim.t_s, pos_ned_m=sim.pos_ned_m, vel_ned_mps=sim.vel_ned_mps, euler_rad=sim.euler_rad,
-                rates_frd_rad_s=sim.body_rates_frd_rad_s, swing=swing, swing_source=source,
-            )
+        est = _estimate(sim, source, driver, sample)
         if link is not None:
             est = link.to_core(tick, est)
         if on_tick is not None:  # what the flight sequence would order now (a test's pause, a hold)
