@@ -94,6 +94,67 @@ class _StreamCounter:
             return self.count.get(k, 0), self.bytes.get(k, 0), self.lost.get(k, 0)
 
 
+def _vehicle_argv(args: argparse.Namespace, i: int, ep: str, root: Path) -> list[str]:
+    """The command line of vehicle ``i``'s ``fly --sitl`` (a Zenoh client of the router at ``ep``)."""
+    argv = [sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--instance", str(i),
+            "--mission", args.mission, "--zenoh-mode", "client", "--zenoh-connect", ep, "--no-recording",
+            "--no-plots", "--run-dir", str(root / f"vehicle-{1 + i}")]
+    if not args.lockstep:
+        argv.append("--realtime")
+    if args.zenoh_rates:
+        argv += ["--zenoh-rates", args.zenoh_rates]
+    if args.rate_hz is not None:
+        argv += ["--rate-hz", f"{args.rate_hz:g}"]
+    if args.rt_priority and not args.lockstep:  # lockstep has no deadlines (and would run FIFO flat out)
+        argv += ["--rt-priority", str(args.rt_priority)]
+    return argv
+
+
+def _wait_forwarding_signals(procs: list[subprocess.Popen]) -> list[int]:
+    """Wait for every vehicle; SIGINT or SIGTERM meanwhile is passed on to them as SIGINT. Their exit codes."""
+    def forward(signum: int, _frame: Any) -> None:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+
+    old = signal.signal(signal.SIGINT, forward)
+    old_term = signal.signal(signal.SIGTERM, forward)
+    try:
+        return [p.wait() for p in procs]
+    finally:
+        signal.signal(signal.SIGINT, old)
+        signal.signal(signal.SIGTERM, old_term)
+
+
+def _vehicle_result(vid: str, code: int, root: Path, counter: _StreamCounter) -> dict[str, Any]:
+    """Vehicle ``vid``'s outcome, loop timing and streams (from its report and what the listener received),
+    printed as one line."""
+    rep_file = root / f"vehicle-{vid}" / "report.json"
+    rep = json.loads(rep_file.read_text()) if rep_file.exists() else {}
+    loop = rep.get("loop", {})
+    published = rep.get("zenoh", {}).get("published", {})
+    sim_s = float(rep.get("sim_time_s") or float("nan"))  # stream rates are in vehicle time
+    streams = {}
+    for stream in ("swing", "state", "setpoint", "status", "obstacles"):
+        got, nbytes, lost = counter.of(vid, stream)
+        streams[stream] = {"published": published.get(stream), "received": got, "lost": lost, "bytes": nbytes,
+                           "bytes_per_sample": nbytes / got if got else None}
+    total_bytes = sum(v["bytes"] for v in streams.values())
+    sw = streams["swing"]
+    print(f"  vehicle {vid}: {rep.get('outcome', '?')} (exit {code}), tick p99 "
+          f"{loop.get('tick_ms_p99', float('nan')):.3f} ms "
+          f"(CPU {loop.get('tick_cpu_ms_p99', float('nan')):.3f} ms), "
+          f"late ticks {loop.get('late_ticks')}, preempted {loop.get('preempted_ticks')} "
+          f"({loop.get('scheduling')}), swing samples "
+          f"{sw['received']} of {sw['published']} published, {sw['lost']} lost in sequence; "
+          f"{total_bytes / 1e3:.0f} kB over Zenoh ({total_bytes / sim_s / 1e3:.1f} kB/s)", flush=True)
+    return {"exit": code, "outcome": rep.get("outcome"), "tick_ms_p99": loop.get("tick_ms_p99"),
+            "tick_cpu_ms_p99": loop.get("tick_cpu_ms_p99"),
+            "late_ticks": loop.get("late_ticks"), "preempted_ticks": loop.get("preempted_ticks"),
+            "scheduling": loop.get("scheduling"), "sim_time_s": sim_s, "streams": streams,
+            "bytes_per_sim_s": total_bytes / sim_s if sim_s > 0 else None}
+
+
 def run_fleet(args: argparse.Namespace) -> int:
     """Fly the fleet; exit 0 when every vehicle completed its mission."""
     n = args.n
@@ -113,63 +174,17 @@ def run_fleet(args: argparse.Namespace) -> int:
         print(f"fleet: router on {ep}; {n} vehicles flying {args.mission} "
               f"({'lockstep' if args.lockstep else 'real time'}); run folders in {root}", flush=True)
         for i in range(n):
-            argv = [sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--instance", str(i),
-                    "--mission", args.mission, "--zenoh-mode", "client", "--zenoh-connect", ep, "--no-recording",
-                    "--no-plots", "--run-dir", str(root / f"vehicle-{1 + i}")]
-            if not args.lockstep:
-                argv.append("--realtime")
-            if args.zenoh_rates:
-                argv += ["--zenoh-rates", args.zenoh_rates]
-            if args.rate_hz is not None:
-                argv += ["--rate-hz", f"{args.rate_hz:g}"]
-            if args.rt_priority and not args.lockstep:  # lockstep has no deadlines (and would run FIFO flat out)
-                argv += ["--rt-priority", str(args.rt_priority)]
             with (root / f"vehicle-{1 + i}.log").open("w") as err:
-                procs.append(subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True,
-                                              preexec_fn=proclife.preexec()))
-
-        def forward(signum: int, _frame: Any) -> None:
-            for p in procs:
-                if p.poll() is None:
-                    p.send_signal(signal.SIGINT)
-
-        old = signal.signal(signal.SIGINT, forward)
-        old_term = signal.signal(signal.SIGTERM, forward)
-        try:
-            codes = [p.wait() for p in procs]
-        finally:
-            signal.signal(signal.SIGINT, old)
-            signal.signal(signal.SIGTERM, old_term)
+                procs.append(subprocess.Popen(_vehicle_argv(args, i, ep, root), stdout=subprocess.DEVNULL,
+                                              stderr=err, start_new_session=True, preexec_fn=proclife.preexec()))
+        codes = _wait_forwarding_signals(procs)
         time.sleep(0.5)  # the last samples through the router
     ok = True
     per_vehicle: dict[str, Any] = {}
     for i, code in enumerate(codes):
         vid = str(1 + i)
-        rep_file = root / f"vehicle-{vid}" / "report.json"
-        rep = json.loads(rep_file.read_text()) if rep_file.exists() else {}
-        loop = rep.get("loop", {})
-        published = rep.get("zenoh", {}).get("published", {})
-        sim_s = float(rep.get("sim_time_s") or float("nan"))  # stream rates are in vehicle time
-        streams = {}
-        for stream in ("swing", "state", "setpoint", "status", "obstacles"):
-            got, nbytes, lost = counter.of(vid, stream)
-            streams[stream] = {"published": published.get(stream), "received": got, "lost": lost, "bytes": nbytes,
-                               "bytes_per_sample": nbytes / got if got else None}
-        total_bytes = sum(v["bytes"] for v in streams.values())
-        per_vehicle[vid] = {"exit": code, "outcome": rep.get("outcome"), "tick_ms_p99": loop.get("tick_ms_p99"),
-                            "tick_cpu_ms_p99": loop.get("tick_cpu_ms_p99"),
-                            "late_ticks": loop.get("late_ticks"), "preempted_ticks": loop.get("preempted_ticks"),
-                            "scheduling": loop.get("scheduling"), "sim_time_s": sim_s, "streams": streams,
-                            "bytes_per_sim_s": total_bytes / sim_s if sim_s > 0 else None}
+        per_vehicle[vid] = _vehicle_result(vid, code, root, counter)
         ok = ok and code == 0
-        sw = streams["swing"]
-        print(f"  vehicle {vid}: {rep.get('outcome', '?')} (exit {code}), tick p99 "
-              f"{loop.get('tick_ms_p99', float('nan')):.3f} ms "
-              f"(CPU {loop.get('tick_cpu_ms_p99', float('nan')):.3f} ms), "
-              f"late ticks {loop.get('late_ticks')}, preempted {loop.get('preempted_ticks')} "
-              f"({loop.get('scheduling')}), swing samples "
-              f"{sw['received']} of {sw['published']} published, {sw['lost']} lost in sequence; "
-              f"{total_bytes / 1e3:.0f} kB over Zenoh ({total_bytes / sim_s / 1e3:.1f} kB/s)", flush=True)
     summary = {"router": ep, "n": n, "mission": args.mission, "lockstep": bool(args.lockstep), "codes": codes,
                "swing_received": {v: d["streams"]["swing"]["received"] for v, d in per_vehicle.items()},
                "swing_lost": {v: d["streams"]["swing"]["lost"] for v, d in per_vehicle.items()},
