@@ -60,6 +60,41 @@ def _thrust_lookup(run_dir: Path) -> tuple[np.ndarray, np.ndarray]:
         return np.asarray(z["t_s"], dtype=float), np.asarray(z["thrust_n"], dtype=float)
 
 
+def _tick_row(state: VehicleState, feed: SwingFeed, tick_t: np.ndarray, tick_thrust: np.ndarray) -> tuple | None:
+    """One tick of the replay, as the app does it (start the feed, choose the swing, tell it the thrust the flight
+    commanded at that tick): (t s, estimate's α, β, the cable sensor's α, β (rad), fade, σ (rad), drag, payload
+    drag); NaN where there is none. None before the first estimate."""
+    est = state.estimate()
+    if est is None:
+        return None
+    feed.maybe_start(state)
+    chosen = feed.choose(est)
+    i = bisect.bisect_left(tick_t, est.t_s - 1e-6)
+    if i < len(tick_t) and abs(tick_t[i] - est.t_s) < 1e-3 and tick_thrust[i] > 0.0:
+        feed.commanded(est.t_s, float(tick_thrust[i]))
+    sensor = state.swing_sensor if state.swing_sensor is not None and \
+        est.t_s - state.swing_sensor_t_s <= state.swing_max_age_s else None
+    se = feed.last
+    return (est.t_s,
+            float(chosen.swing[0]) if se is not None else math.nan,
+            float(chosen.swing[1]) if se is not None else math.nan,
+            float(sensor[0]) if sensor is not None else math.nan,
+            float(sensor[1]) if sensor is not None else math.nan,
+            se.fade if se is not None else math.nan,
+            se.sigma_rad if se is not None else math.nan,
+            se.drag_n_per_mps if se is not None else math.nan,
+            se.payload_drag_n_per_mps2 if se is not None else math.nan)
+
+
+def _sensor_error(arr: np.ndarray) -> dict[str, Any] | None:
+    """The estimate's swing against the cable sensor's over the ticks that have both (rad): count, RMS, max."""
+    both = np.all(np.isfinite(arr[:, 1:5]), axis=1)
+    if not np.any(both):
+        return None
+    e = np.hypot(arr[both, 1] - arr[both, 3], arr[both, 2] - arr[both, 4])
+    return {"ticks": int(both.sum()), "rms_rad": float(np.sqrt(np.mean(e ** 2))), "max_rad": float(e.max())}
+
+
 def replay(run_dir: Path, swing_input: str = "estimate_imu", settings: dict[str, Any] | None = None,
            payload_sysid: int = 2, payload_mass_kg: float | None = None,
            cable_length_m: float | None = None) -> ReplayResult:
@@ -92,26 +127,9 @@ def replay(run_dir: Path, swing_input: str = "estimate_imu", settings: dict[str,
             if me != ours:
                 continue
             ticks += 1
-            est = state.estimate()
-            if est is None:
-                continue
-            feed.maybe_start(state)
-            chosen = feed.choose(est)
-            i = bisect.bisect_left(tick_t, est.t_s - 1e-6)
-            if i < len(tick_t) and abs(tick_t[i] - est.t_s) < 1e-3 and tick_thrust[i] > 0.0:
-                feed.commanded(est.t_s, float(tick_thrust[i]))
-            sensor = state.swing_sensor if state.swing_sensor is not None and \
-                est.t_s - state.swing_sensor_t_s <= state.swing_max_age_s else None
-            se = feed.last
-            rows.append((est.t_s,
-                         float(chosen.swing[0]) if se is not None else math.nan,
-                         float(chosen.swing[1]) if se is not None else math.nan,
-                         float(sensor[0]) if sensor is not None else math.nan,
-                         float(sensor[1]) if sensor is not None else math.nan,
-                         se.fade if se is not None else math.nan,
-                         se.sigma_rad if se is not None else math.nan,
-                         se.drag_n_per_mps if se is not None else math.nan,
-                         se.payload_drag_n_per_mps2 if se is not None else math.nan))
+            row = _tick_row(state, feed, tick_t, tick_thrust)
+            if row is not None:
+                rows.append(row)
             continue
         if ours is not None and (msg.get_srcSystem(), msg.get_srcComponent()) == ours:
             continue  # our own commands and requests
@@ -126,11 +144,7 @@ def replay(run_dir: Path, swing_input: str = "estimate_imu", settings: dict[str,
                     if float(np.linalg.norm(off)) >= SLACK_FRACTION * feed.params.l:
                         fixes.append((t_fix, *swing_from_offset(off)))
     arr = np.array(rows, dtype=float).reshape(-1, 9)
-    both = np.all(np.isfinite(arr[:, 1:5]), axis=1)
-    sensor_err = None
-    if np.any(both):
-        e = np.hypot(arr[both, 1] - arr[both, 3], arr[both, 2] - arr[both, 4])
-        sensor_err = {"ticks": int(both.sum()), "rms_rad": float(np.sqrt(np.mean(e ** 2))), "max_rad": float(e.max())}
+    sensor_err = _sensor_error(arr)
     series = {k: arr[:, j] for j, k in enumerate(("t_s", "alpha", "beta", "sensor_alpha", "sensor_beta", "fade",
                                                    "sigma_rad", "drag_n_per_mps", "payload_drag_n_per_mps2"))}
     series["fixes"] = np.array(fixes, dtype=float).reshape(-1, 3)
