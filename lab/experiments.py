@@ -113,43 +113,56 @@ def findings(group1: dict[str, dict], group2: dict[str, dict]) -> list[str]:
     for name, rows, claims, what in (("Group 1", group1, PAPER_GROUP1, "controller"),
                                      ("Group 2", group2, PAPER_GROUP2, "planner")):
         for key, r in rows.items():
-            c = claims[key]
-            who = f"{name}, {what} `{key}`"
-            if r.get("class") == "error":
-                out.append(f"{who}: the flight failed ({r.get('error')}); no numbers.")
-                continue
-            if not r["reached_goal"]:
-                out.append(f"{who}: did not reach the goal within the mission timeout.")
-            t = r["time_to_goal_s"]
-            if c.time_to_goal_s is not None and t is not None:
-                if c.time_to_goal_max and t > c.time_to_goal_s:
-                    out.append(f"{who}: time to goal {t:.2f} s misses the {c.source} of <= {c.time_to_goal_s:g} s.")
-                elif not c.time_to_goal_max and abs(t - c.time_to_goal_s) > TIME_TOL * c.time_to_goal_s:
-                    rel = "faster" if t < c.time_to_goal_s else "slower"
-                    out.append(f"{who}: reaches the goal in {t:.2f} s, {rel} than the paper's ≈{c.time_to_goal_s:g} s.")
-            sw = r["max_swing_rad"]
-            if c.max_swing_rad is not None and sw is not None and sw > c.max_swing_rad:
-                out.append(f"{who}: max swing {sw:.3f} rad exceeds the {c.source} bound of {c.max_swing_rad:g} rad.")
-            st = r["swing_settle_s"]
-            if c.settle_s is not None:
-                if st is None:
-                    out.append(f"{who}: the swing never stays below 0.05 rad (the paper: near zero after "
-                               f"{c.settle_s:g} s).")
-                elif st > c.settle_s:
-                    out.append(f"{who}: the swing stays below 0.05 rad only after {st:.2f} s "
-                               f"(paper: {c.settle_s:g} s).")
-            if (r["collisions"] or 0) > 0:
-                out.append(f"{who}: touches {r['collisions']} obstacle(s), min clearance {r['min_clearance_m']:.3f} m "
-                           f"(airframe circle or payload inside a trunk); the paper shows no contact.")
-            if c.shorter_path_than and c.shorter_path_than in rows:
-                other = rows[c.shorter_path_than]
-                if r["path_length_m"] is not None and other["path_length_m"] is not None:
-                    if r["path_length_m"] >= other["path_length_m"]:
-                        out.append(f"{who}: path {r['path_length_m']:.2f} m is not shorter than "
-                                   f"`{c.shorter_path_than}`'s {other['path_length_m']:.2f} m (the paper: shorter).")
-                    else:
-                        out.append(f"{who}: path {r['path_length_m']:.2f} m is shorter than `{c.shorter_path_than}`'s "
-                                   f"{other['path_length_m']:.2f} m, as in the paper.")
+            out += _row_findings(f"{name}, {what} `{key}`", r, claims[key], rows)
+    return out + _feedforward_findings(group1)
+
+
+def _row_findings(who: str, r: dict, c: Claim, rows: dict[str, dict]) -> list[str]:
+    """One flight's row (``r``) against the paper's claim ``c`` for it: goal, time to goal (s), max swing (rad),
+    settling (s), contact, and the path length (m) against the row it should beat."""
+    out: list[str] = []
+    if r.get("class") == "error":
+        out.append(f"{who}: the flight failed ({r.get('error')}); no numbers.")
+        return out
+    if not r["reached_goal"]:
+        out.append(f"{who}: did not reach the goal within the mission timeout.")
+    t = r["time_to_goal_s"]
+    if c.time_to_goal_s is not None and t is not None:
+        if c.time_to_goal_max and t > c.time_to_goal_s:
+            out.append(f"{who}: time to goal {t:.2f} s misses the {c.source} of <= {c.time_to_goal_s:g} s.")
+        elif not c.time_to_goal_max and abs(t - c.time_to_goal_s) > TIME_TOL * c.time_to_goal_s:
+            rel = "faster" if t < c.time_to_goal_s else "slower"
+            out.append(f"{who}: reaches the goal in {t:.2f} s, {rel} than the paper's ≈{c.time_to_goal_s:g} s.")
+    sw = r["max_swing_rad"]
+    if c.max_swing_rad is not None and sw is not None and sw > c.max_swing_rad:
+        out.append(f"{who}: max swing {sw:.3f} rad exceeds the {c.source} bound of {c.max_swing_rad:g} rad.")
+    st = r["swing_settle_s"]
+    if c.settle_s is not None:
+        if st is None:
+            out.append(f"{who}: the swing never stays below 0.05 rad (the paper: near zero after "
+                       f"{c.settle_s:g} s).")
+        elif st > c.settle_s:
+            out.append(f"{who}: the swing stays below 0.05 rad only after {st:.2f} s "
+                       f"(paper: {c.settle_s:g} s).")
+    if (r["collisions"] or 0) > 0:
+        out.append(f"{who}: touches {r['collisions']} obstacle(s), min clearance {r['min_clearance_m']:.3f} m "
+                   f"(airframe circle or payload inside a trunk); the paper shows no contact.")
+    if c.shorter_path_than and c.shorter_path_than in rows:
+        other = rows[c.shorter_path_than]
+        if r["path_length_m"] is not None and other["path_length_m"] is not None:
+            if r["path_length_m"] >= other["path_length_m"]:
+                out.append(f"{who}: path {r['path_length_m']:.2f} m is not shorter than "
+                           f"`{c.shorter_path_than}`'s {other['path_length_m']:.2f} m (the paper: shorter).")
+            else:
+                out.append(f"{who}: path {r['path_length_m']:.2f} m is shorter than `{c.shorter_path_than}`'s "
+                           f"{other['path_length_m']:.2f} m, as in the paper.")
+    return out
+
+
+def _feedforward_findings(group1: dict[str, dict]) -> list[str]:
+    """Group 1: ``smc_ff``'s settling after arrival against issue 12's target, and against ``smc`` (without the
+    feed-forward)."""
+    out: list[str] = []
     ff, smc = group1.get("smc_ff"), group1.get("smc")
     if ff and ff.get("class") != "error":
         a = ff["swing_settle_after_arrival_s"]
