@@ -119,8 +119,13 @@ def position_control_target(
     fxy_max = fz_up * math.tan(gains.tilt_max_rad)
     if fxy > fxy_max:
         f[:2] *= fxy_max / fxy
+    return attitude_for_thrust(f, yaw_rad)
+
+
+def attitude_for_thrust(f: np.ndarray, yaw_rad: float) -> tuple[np.ndarray, float]:
+    """Attitude quaternion [w,x,y,z] and thrust (N) that point the rotors' thrust along ``f`` (NED, N) at heading
+    ``yaw_rad`` (rad): the body z axis (down) opposite to ``f``, the body x axis in the heading's vertical plane."""
     thrust_n = float(np.linalg.norm(f))
-    # body z axis (down) opposite to the thrust vector; attitude from it and the yaw
     b3x, b3y, b3z = -f[0] / thrust_n, -f[1] / thrust_n, -f[2] / thrust_n
     cx, cy = math.cos(yaw_rad), math.sin(yaw_rad)
     b2x, b2y, b2z = -b3z * cy, b3z * cx, b3x * cy - b3y * cx  # b3 × c with c = [cos ψ, sin ψ, 0]
