@@ -159,14 +159,7 @@ class SafePlanner:
             edx, edy = ex / dg, ey / dg
         else:
             edx = edy = 0.0
-        # braking distance measured from where the lagging reference will be in goal_lookahead_s
-        v_along = float(inp.ref_vel_mps[0]) * edx + float(inp.ref_vel_mps[1]) * edy
-        d_brake = max(0.0, dg - p.goal_lookahead_s * max(0.0, v_along))
-        v_pass = inp.goal_pass_mps
-        if v_pass > 0.0:  # a waypoint passed without stopping: brake to v_pass at it, not to rest
-            speed = min(p.v_max_mps, math.sqrt(v_pass * v_pass + 2.0 * p.a_goal_mps2 * d_brake), v_pass + p.ka * dg)
-        else:
-            speed = min(p.v_max_mps, math.sqrt(2.0 * p.a_goal_mps2 * d_brake), p.ka * dg)
+        speed = self._goal_speed(inp, dg, edx, edy)
         nom_x, nom_y = speed * edx, speed * edy
         gaps = self._gaps(inp, obstacles)
         v_ref = math.hypot(float(inp.ref_vel_mps[0]), float(inp.ref_vel_mps[1]))
@@ -178,6 +171,36 @@ class SafePlanner:
             self.side = 0
             self.locked = False
         heading_in = [gn for gn in near if self._in_path(rx, ry, edx, edy, gn[0], gn[3])]
+        vdx, vdy, w = self._steer(heading_in, gaps, rx, ry, edx, edy, dg, d_inf)
+        sp = speed if not heading_in else max(speed, 0.5 * p.v_max_mps * w)
+        vx, vy = sp * vdx, sp * vdy
+
+        # 3. barrier projection: (allowed approach speed, normal) per obstacle, then three passes
+        vx, vy, vn = self._project(vx, vy, self._barriers(gaps), inp.v_cap_mps)
+
+        # 5. local-minimum detector
+        self._watch_stuck(inp.t_s, vn, dg, bool(near))
+        return PlanOutput(
+            v_des_mps=np.array((vx, vy)), force_att=np.array((nom_x, nom_y)),
+            force_rep=np.array((vx - nom_x, vy - nom_y)), mode="escape" if self.locked else "track",
+        )
+
+    def _goal_speed(self, inp: PlanInput, dg: float, edx: float, edy: float) -> float:
+        """The speed (m/s) towards the goal ``dg`` m away along (edx, edy): braking at ``a_goal_mps2`` to rest (or
+        to the waypoint's pass speed), the braking distance measured from where the lagging reference will be in
+        ``goal_lookahead_s``."""
+        p = self.params
+        v_along = float(inp.ref_vel_mps[0]) * edx + float(inp.ref_vel_mps[1]) * edy
+        d_brake = max(0.0, dg - p.goal_lookahead_s * max(0.0, v_along))
+        v_pass = inp.goal_pass_mps
+        if v_pass > 0.0:  # a waypoint passed without stopping: brake to v_pass at it, not to rest
+            return min(p.v_max_mps, math.sqrt(v_pass * v_pass + 2.0 * p.a_goal_mps2 * d_brake), v_pass + p.ka * dg)
+        return min(p.v_max_mps, math.sqrt(2.0 * p.a_goal_mps2 * d_brake), p.ka * dg)
+
+    def _steer(self, heading_in: list[tuple], gaps: list[tuple], rx: float, ry: float, edx: float, edy: float,
+               dg: float, d_inf: float) -> tuple[float, float, float]:
+        """(direction x, y, blend weight w): the goal direction blended towards the tangent (on the chosen side)
+        of the nearest obstacle the reference is heading into, by 1 − gap / ``d_inf``."""
         vdx, vdy = edx, edy
         w = 0.0
         if heading_in and dg > 1e-9:
@@ -193,11 +216,13 @@ class SafePlanner:
                 vdx, vdy = bx / nb, by / nb
             else:
                 vdx, vdy = tx, ty
-        sp = speed if not heading_in else max(speed, 0.5 * p.v_max_mps * w)
-        vx, vy = sp * vdx, sp * vdy
+        return vdx, vdy, w
 
-        # 3. barrier projection: (allowed approach speed, normal) per obstacle, then three passes
-        barriers = self._barriers(gaps)
+    def _project(self, vx: float, vy: float, barriers: list[tuple[float, float, float]],
+                 v_cap_mps: float) -> tuple[float, float, float]:
+        """(vx, vy, |v|) in m/s: the velocity with its approach speed towards each obstacle cut to the barrier's
+        allowance (three passes), then capped at ``v_max_mps`` or the seen-free space's ``v_cap_mps``."""
+        p = self.params
         for _ in range(3):
             for allow, nx, ny in barriers:
                 vn = vx * nx + vy * ny
@@ -206,17 +231,11 @@ class SafePlanner:
                     vx += k * nx
                     vy += k * ny
         vn = math.hypot(vx, vy)
-        v_lim = p.v_max_mps if inp.v_cap_mps >= p.v_max_mps else inp.v_cap_mps  # the seen-free space's cap
+        v_lim = p.v_max_mps if v_cap_mps >= p.v_max_mps else v_cap_mps  # the seen-free space's cap
         if vn > v_lim:
             vx, vy = vx * (v_lim / vn), vy * (v_lim / vn)
             vn = math.hypot(vx, vy)
-
-        # 5. local-minimum detector
-        self._watch_stuck(inp.t_s, vn, dg, bool(near))
-        return PlanOutput(
-            v_des_mps=np.array((vx, vy)), force_att=np.array((nom_x, nom_y)),
-            force_rep=np.array((vx - nom_x, vy - nom_y)), mode="escape" if self.locked else "track",
-        )
+        return vx, vy, vn
 
     def _barriers(self, gaps: list[tuple]) -> list[tuple[float, float, float]]:
         """(allowed approach speed m/s, unit normal x, y from the obstacle) per gap: the reference's velocity v must
