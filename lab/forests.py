@@ -197,6 +197,34 @@ def _track_clear(o: Obstacle, points: tuple[tuple[float, float], ...], clear_m: 
     return True
 
 
+def _fill_random(placed: list[tuple[float, float, float]], spec: ForestSpec, rng: np.random.Generator,
+                 goal_x: float) -> None:
+    """Add ``spec.n_trunks`` random trunks (x, y, r; m) to ``placed`` where they fit (200 tries a trunk at most)."""
+    half_w = spec.width_m / 2.0
+    target = len(placed) + spec.n_trunks
+    attempts = 0
+    while len(placed) < target and attempts < 200 * max(1, spec.n_trunks):
+        attempts += 1
+        x = float(rng.uniform(0.0, spec.length_m))
+        y = float(rng.uniform(-half_w, half_w))
+        r = float(rng.uniform(spec.r_min_m, spec.r_max_m))
+        if _fits(x, y, r, placed, spec, goal_x):
+            placed.append((x, y, r))
+
+
+def _clear_movers(spec: ForestSpec, rng: np.random.Generator, goal_x: float) -> tuple[Obstacle, ...]:
+    """``spec.movers`` crossing trunks whose tracks keep clear of the start and the goal (100 tries each)."""
+    movers: list[Obstacle] = []
+    ends = ((0.0, 0.0), (goal_x, 0.0))
+    attempts = 0
+    while len(movers) < spec.movers and attempts < 100 * spec.movers:
+        attempts += 1
+        o = _movers(rng, spec.with_(movers=1))[0]
+        if _track_clear(o, ends, spec.clear_radius_m):
+            movers.append(o)
+    return tuple(movers)
+
+
 def generate_forest(seed: int, spec: ForestSpec | None = None) -> Mission:
     """The mission for ``seed``: a random forest (and trap) in the corridor, start and goal at its ends."""
     spec = spec or ForestSpec()
@@ -217,31 +245,14 @@ def generate_forest(seed: int, spec: ForestSpec | None = None) -> Mission:
     elif kind != "none":
         placed += _trap_trunks(rng, spec, kind)
     goal_x = spec.length_m
-    half_w = spec.width_m / 2.0
-    target = len(placed) + spec.n_trunks
-    attempts = 0
-    while len(placed) < target and attempts < 200 * max(1, spec.n_trunks):
-        attempts += 1
-        x = float(rng.uniform(0.0, spec.length_m))
-        y = float(rng.uniform(-half_w, half_w))
-        r = float(rng.uniform(spec.r_min_m, spec.r_max_m))
-        if _fits(x, y, r, placed, spec, goal_x):
-            placed.append((x, y, r))
+    _fill_random(placed, spec, rng, goal_x)
     obstacles = tuple(
         Obstacle(x_m=round(x, 4), y_m=round(y, 4), radius_m=round(r, 4), height_m=spec.trunk_height_m,
                  safe_distance_m=spec.safe_distance_m)
         for x, y, r in placed
     )
     if spec.movers:
-        movers: list[Obstacle] = []
-        ends = ((0.0, 0.0), (goal_x, 0.0))
-        attempts = 0
-        while len(movers) < spec.movers and attempts < 100 * spec.movers:
-            attempts += 1
-            o = _movers(rng, spec.with_(movers=1))[0]
-            if _track_clear(o, ends, spec.clear_radius_m):
-                movers.append(o)
-        obstacles = obstacles + tuple(movers)
+        obstacles = obstacles + _clear_movers(spec, rng, goal_x)
     vehicle = replace(VehicleParams(), m=round(payload, 4), l=round(cable, 4))
     vehicle.validate()
     tag = (f"-{kind}" if kind != "none" else "") + (f"-m{spec.movers}" if spec.movers else "")
