@@ -88,15 +88,63 @@ def _start_vehicle(kind: str, comp_port: int, instance: int, workdir: Path,
     return sitl_external.start_arducopter(workdir, comp_port, instance=0), []
 
 
-def companion_killed_vehicle_failsafe(workdir: Path, *, vehicle: str = "bundled", after_s: float = 3.0,
-                                      watch_s: float = 60.0, instance: int = 6) -> dict[str, Any]:
-    """kill -9 the companion while the vehicle flies its setpoints (real time), then watch the vehicle from the
-    companion's port: how long until it leaves offboard, into which mode, and whether it lands and disarms."""
+def _watch_vehicle(comp_port: int, t_kill: float, watch_s: float,
+                   events: list[tuple[float, str]]) -> tuple[float | None, float | None, float, float]:
+    """Listen on the companion's port for up to ``watch_s`` (s) after ``t_kill`` (monotonic s), or until the
+    vehicle disarms: its mode changes go to ``events`` (s after the kill, name and class); returns (landed s,
+    disarmed s after the kill, lowest z m NED, fastest descent m/s)."""
     from pymavlink.dialects.v20 import common as mavlink2
 
     from companion.autopilots.profile import profile_for_autopilot
     from companion.estimation.vehicle_state import px4_mode_name
 
+    mav = mavlink2.MAVLink(None)
+    mav.robust_parsing = True
+    last_mode, armed, z_min, vz_max = None, True, 0.0, 0.0
+    t_land = t_disarm = None
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", comp_port))
+        s.settimeout(0.2)
+        while time.monotonic() - t_kill < watch_s:
+            try:
+                data, _ = s.recvfrom(65535)
+            except TimeoutError:
+                continue
+            for m in mav.parse_buffer(data) or []:
+                t = m.get_type()
+                if t == "HEARTBEAT" and m.autopilot != 8 and m.get_srcComponent() == 1:
+                    fam = profile_for_autopilot(m.autopilot).family
+                    name = px4_mode_name(m.custom_mode) if fam.name == "px4" else f"mode {m.custom_mode}"
+                    if name != last_mode:
+                        events.append((time.monotonic() - t_kill, f"{name} ({fam.mode_class(m.custom_mode)})"))
+                        last_mode = name
+                    was, armed = armed, bool(m.base_mode & 128)
+                    if was and not armed and t_disarm is None:
+                        t_disarm = time.monotonic() - t_kill
+                elif t == "EXTENDED_SYS_STATE" and m.landed_state == 1 and t_land is None:
+                    t_land = time.monotonic() - t_kill
+                elif t == "LOCAL_POSITION_NED" and m.get_srcComponent() == 1:
+                    z_min, vz_max = min(z_min, m.z), max(vz_max, m.vz)
+            if t_disarm is not None:
+                break
+    return t_land, t_disarm, z_min, vz_max
+
+
+def _stop_vehicle(veh: subprocess.Popen) -> None:
+    """SIGTERM the vehicle's process group; SIGKILL it when it has not ended within 15 s."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(veh.pid, signal.SIGTERM)
+    try:
+        veh.wait(15)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(veh.pid, signal.SIGKILL)
+
+
+def companion_killed_vehicle_failsafe(workdir: Path, *, vehicle: str = "bundled", after_s: float = 3.0,
+                                      watch_s: float = 60.0, instance: int = 6) -> dict[str, Any]:
+    """kill -9 the companion while the vehicle flies its setpoints (real time), then watch the vehicle from the
+    companion's port: how long until it leaves offboard, into which mode, and whether it lands and disarms."""
     comp_port = 14540 + instance if vehicle == "px4" else free_udp_port()
     veh, extra = _start_vehicle(vehicle, comp_port, instance, workdir)
     run_dir = workdir / f"companion-killed-{vehicle}"
@@ -109,44 +157,10 @@ def companion_killed_vehicle_failsafe(workdir: Path, *, vehicle: str = "bundled"
         fly.proc.kill()
         t_kill = time.monotonic()
         fly.proc.wait(10)
-        mav = mavlink2.MAVLink(None)
-        mav.robust_parsing = True
-        last_mode, armed, z_min, vz_max = None, True, 0.0, 0.0
-        t_land = t_disarm = None
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            s.bind(("127.0.0.1", comp_port))
-            s.settimeout(0.2)
-            while time.monotonic() - t_kill < watch_s:
-                try:
-                    data, _ = s.recvfrom(65535)
-                except TimeoutError:
-                    continue
-                for m in mav.parse_buffer(data) or []:
-                    t = m.get_type()
-                    if t == "HEARTBEAT" and m.autopilot != 8 and m.get_srcComponent() == 1:
-                        fam = profile_for_autopilot(m.autopilot).family
-                        name = px4_mode_name(m.custom_mode) if fam.name == "px4" else f"mode {m.custom_mode}"
-                        if name != last_mode:
-                            events.append((time.monotonic() - t_kill, f"{name} ({fam.mode_class(m.custom_mode)})"))
-                            last_mode = name
-                        was, armed = armed, bool(m.base_mode & 128)
-                        if was and not armed and t_disarm is None:
-                            t_disarm = time.monotonic() - t_kill
-                    elif t == "EXTENDED_SYS_STATE" and m.landed_state == 1 and t_land is None:
-                        t_land = time.monotonic() - t_kill
-                    elif t == "LOCAL_POSITION_NED" and m.get_srcComponent() == 1:
-                        z_min, vz_max = min(z_min, m.z), max(vz_max, m.vz)
-                if t_disarm is not None:
-                    break
+        t_land, t_disarm, z_min, vz_max = _watch_vehicle(comp_port, t_kill, watch_s, events)
     finally:
         fly.kill_all()
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(veh.pid, signal.SIGTERM)
-        try:
-            veh.wait(15)
-        except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(veh.pid, signal.SIGKILL)
+        _stop_vehicle(veh)
     leave = next((t for t, name in events if not name.endswith("(offboard)")), None)
     return {"vehicle": vehicle, "mode_changes_s": events, "left_offboard_s": leave, "landed_s": t_land,
             "disarmed_s": t_disarm, "max_descent_mps": vz_max, "max_altitude_m": -z_min}
