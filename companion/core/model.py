@@ -64,9 +64,6 @@ def _deriv(x, u, d, p, out):  # pragma: no cover - compiled
     M = p[0]
     m = p[1]
     g = p[2]
-    Ixx = p[3]
-    Iyy = p[4]
-    Izz = p[5]
     Ip = p[6]
     l = p[7]
     phi = x[3]
@@ -74,9 +71,6 @@ def _deriv(x, u, d, p, out):  # pragma: no cover - compiled
     psi = x[5]
     al = x[6]
     be = x[7]
-    dphi = x[11]
-    dth = x[12]
-    dpsi = x[13]
     dal = x[14]
     dbe = x[15]
     sphi = math.sin(phi)
@@ -127,7 +121,27 @@ def _deriv(x, u, d, p, out):  # pragma: no cover - compiled
     ddy = (r1 - m * (j1a * dda + j1b * ddb)) / mt
     ddz = (r2 - m * (j2a * dda + j2b * ddb)) / mt
 
-    # Rotation: Ω = R_η·η̇ (eq. 7); I·Ω̇ = τ − Ω×IΩ; η̈ = R_η⁻¹(Ω̇ − Ṙ_η·η̇).
+    _rotation_acc(x, u, d, p, sphi, cphi, sth, cth, out)
+    for i in range(8):
+        out[i] = x[8 + i]
+    out[8] = ddx
+    out[9] = ddy
+    out[10] = ddz
+    out[14] = dda
+    out[15] = ddb
+
+
+@njit(cache=True)
+def _rotation_acc(x, u, d, p, sphi, cphi, sth, cth, out):  # pragma: no cover - compiled
+    """The rotation block of the Lagrangian (uncoupled from translation and swing): η̈ = [φ̈, θ̈, ψ̈] (rad/s²) into
+    ``out[11:14]``, from Euler's rigid-body equations. Ω = R_η·η̇ (eq. 7); I·Ω̇ = τ − Ω×IΩ;
+    η̈ = R_η⁻¹(Ω̇ − Ṙ_η·η̇). ``sphi`` … ``cth``: sin/cos of φ and θ, already computed by the caller."""
+    Ixx = p[3]
+    Iyy = p[4]
+    Izz = p[5]
+    dphi = x[11]
+    dth = x[12]
+    dpsi = x[13]
     wx = dphi - sth * dpsi
     wy = cphi * dth + sphi * cth * dpsi
     wz = -sphi * dth + cphi * cth * dpsi
@@ -145,20 +159,9 @@ def _deriv(x, u, d, p, out):  # pragma: no cover - compiled
     v1 = dwy - b1
     v2 = dwz - b2
     tth = sth / cth
-    ddphi = v0 + sphi * tth * v1 + cphi * tth * v2
-    ddth = cphi * v1 - sphi * v2
-    ddpsi = (sphi * v1 + cphi * v2) / cth
-
-    for i in range(8):
-        out[i] = x[8 + i]
-    out[8] = ddx
-    out[9] = ddy
-    out[10] = ddz
-    out[11] = ddphi
-    out[12] = ddth
-    out[13] = ddpsi
-    out[14] = dda
-    out[15] = ddb
+    out[11] = v0 + sphi * tth * v1 + cphi * tth * v2
+    out[12] = cphi * v1 - sphi * v2
+    out[13] = (sphi * v1 + cphi * v2) / cth
 
 
 @njit(cache=True)
