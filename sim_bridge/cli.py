@@ -40,6 +40,17 @@ def request_fifo(priority: int) -> bool:
 def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the SITL vehicle's options to ``parser``."""
     g = parser.add_argument_group("SITL vehicle")
+    _vehicle_arguments(g)
+    _wind_arguments(g)
+    _autopilot_arguments(g)
+    _home_arguments(g)
+    _link_arguments(g)
+    _extra_arguments(g)
+    add_world_arguments(parser)
+
+
+def _vehicle_arguments(g: argparse._ArgumentGroup) -> None:
+    """Which vehicle: instance, clock, control period, airframe and payload."""
     g.add_argument("--instance", type=int, default=0,
                    help="instance i: ports +i, vehicle sysid 1+i, payload sysid 2 (i=0) or 200+i")
     g.add_argument("--lockstep", action="store_true",
@@ -51,6 +62,10 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
                         "vehicle's max_thrust_n)")
     g.add_argument("--cable-length", "--cable-length-m", type=float, dest="cable_length",
                    help="the TRUE cable length l, m (overrides --vehicle)")
+
+
+def _wind_arguments(g: argparse._ArgumentGroup) -> None:
+    """The simulated wind (eq. 49, none, or turbulence from a file)."""
     g.add_argument("--wind", choices=["paper", "none", "turbulence"], default="paper",
                    help="wind model: eq. 49, none, or physical drag of a mean wind + Dryden turbulence + gust "
                         "(its settings from --wind-file)")
@@ -58,18 +73,30 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--wind-file", metavar="FILE",
                    help="TOML with a [wind] table (mission format: model, mean_speed_mps, direction_deg, intensity, "
                         "seed, gusts, drag areas; companion.core.wind.WindConfig); overrides --wind/--wind-scale")
+
+
+def _autopilot_arguments(g: argparse._ArgumentGroup) -> None:
+    """The autopilot's parameters: hover thrust, offboard timeout and loss hold, take-off altitude."""
     g.add_argument("--thr-hover", type=float, help="MPC_THR_HOVER (default 1/thrust_to_weight = 0.4)")
     g.add_argument("--offboard-timeout", type=float, default=1.0,
                    help="COM_OF_LOSS_T: offboard setpoint loss timeout, s (sim time; PX4's default 1.0)")
     g.add_argument("--offboard-loss-hold", type=float, default=5.0,
                    help="COM_FAIL_ACT_T: after offboard loss hold this long, then land, s (PX4's default 5)")
     g.add_argument("--takeoff-alt", type=float, default=2.5, help="MIS_TAKEOFF_ALT, m above home")
+
+
+def _home_arguments(g: argparse._ArgumentGroup) -> None:
+    """Where home is (geodetic)."""
     g.add_argument("--home-lat", type=float, default=47.397742, help="home latitude, deg")
     g.add_argument("--home-lon", type=float, default=8.545594, help="home longitude, deg")
     g.add_argument("--home-alt", type=float, default=488.0, help="home altitude AMSL, m")
     g.add_argument("--home", metavar="LAT,LON,ALT",
                    help="home (and the local NED frame's origin, GPS_GLOBAL_ORIGIN): latitude, longitude (deg) and "
                         "altitude AMSL (m) in one flag; overrides --home-lat/--home-lon/--home-alt")
+
+
+def _link_arguments(g: argparse._ArgumentGroup) -> None:
+    """The two MAVLink links and the system ids, and how long to run."""
     g.add_argument("--address", default="127.0.0.1", help="address the vehicle binds to")
     g.add_argument("--onboard-port", type=int, help="onboard link bind port (default 14580+i)")
     g.add_argument("--onboard-remote", default=None, metavar="HOST:PORT",
@@ -84,6 +111,10 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--onboard-peer", metavar="HOST:PORT",
                    help="lock the onboard link to this peer from the start (default: the first sender)")
     g.add_argument("--gcs-peer", metavar="HOST:PORT", help="lock the GCS link to this peer from the start")
+
+
+def _extra_arguments(g: argparse._ArgumentGroup) -> None:
+    """A serial onboard link, scheduling, signing, pre-arm checks and the IMU's noise."""
     g.add_argument("--serial", metavar="DEVICE:BAUD",
                    help="the onboard link on this serial device instead of UDP (e.g. /dev/ttyUSB0:921600, or one end "
                         "of a pty pair: docs/companion.md); the GCS link stays UDP")
@@ -100,7 +131,6 @@ def add_sitl_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--imu-noise-scale", type=float, default=1.0,
                    help="multiplier of the IMU noise and bias random walk (SIM_IMU_NSCALE; 0 = ideal)")
     g.add_argument("--imu-seed", type=int, default=0, help="seed of the IMU noise generator")
-    add_world_arguments(parser)
 
 
 def _hostport(text: str, flag: str, shift: int) -> tuple[str, int]:

@@ -36,6 +36,18 @@ EXIT_HELP = ("exit codes: 0 goal reached; 1 mission not completed (timeout, no r
 
 def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     """The ``fly`` options."""
+    _mission_and_link_arguments(p)
+    _bundled_vehicle_arguments(p)
+    _flight_arguments(p)
+    _trust_arguments(p)
+    _loop_arguments(p)
+    _output_arguments(p)
+    add_zenoh_arguments(p, "companion")
+    add_view_arguments(p)
+
+
+def _mission_and_link_arguments(p: argparse.ArgumentParser) -> None:
+    """The mission and the autopilot link (where, and which instance)."""
     p.add_argument("--mission", default=str(DEFAULT_MISSION), metavar="FILE|NAME|autopilot",
                    help="mission TOML file, or the name of a shipped mission (`slungpilot missions` lists them; "
                         "default: forest, the paper's Table 2 forest), or `autopilot`: download and fly the mission "
@@ -54,6 +66,10 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                    help="run the N-th of several companions on one machine: the default MAVLink port 14540+N and "
                         "Zenoh port 7447+N, and with --sitl the bundled vehicle's instance N (system id 1+N), "
                         "as `slungpilot sitl --instance N`")
+
+
+def _bundled_vehicle_arguments(p: argparse.ArgumentParser) -> None:
+    """The bundled SITL vehicle: start it, its clock, its link, what it really carries, its world."""
     p.add_argument("--sitl", action="store_true",
                    help="start the bundled SITL vehicle on free local ports (lockstep unless --realtime)")
     p.add_argument("--realtime", action="store_true", help="with --sitl: fly in real time to watch it live")
@@ -69,6 +85,10 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --sitl: the trunks that stand in the simulated world (a world TOML, or a shipped one: "
                         "forest, forest_crossing), which the vehicle's LiDAR sees; the report scores clearance "
                         "against them (docs/sitl.md)")
+
+
+def _flight_arguments(p: argparse.ArgumentParser) -> None:
+    """How the flight is flown: perception, lockstep, planner, controller, gains, vehicle profile, start."""
     p.add_argument("--perception", choices=("auto", "on", "off"), default="auto",
                    help="map trunks from the vehicle's range scans (OBSTACLE_DISTANCE, Zenoh scans) for the planner: "
                         "auto (default) starts at the first scan, off ignores scans (docs/companion.md)")
@@ -86,6 +106,10 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
                    help="fly the mission from where the vehicle stands (its start point moved under it); without "
                         "it, mission coordinates are relative to home and a vehicle more than 1 m from the "
                         "mission's start is refused")
+
+
+def _trust_arguments(p: argparse.ArgumentParser) -> None:
+    """What the companion trusts and changes: MAVLink signing, the ground station, parameter writes."""
     p.add_argument("--signing-key", type=Path, default=None, metavar="FILE",
                    help="MAVLink 2 signing with the key in FILE (64 hex characters, or a passphrase hashed as MAVProxy "
                         "does; `slungpilot keygen FILE` makes one): everything sent is signed, unsigned, forged and "
@@ -100,6 +124,10 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-param-writes", action="store_true",
                    help="never change an autopilot parameter: refuse the vehicle instead (ArduCopter needs "
                         "GUID_OPTIONS bit 3, which the companion otherwise sets; see docs/autopilots.md)")
+
+
+def _loop_arguments(p: argparse.ArgumentParser) -> None:
+    """The control loop (rate, priority) and its swing inputs."""
     p.add_argument("--rate-hz", type=float, default=250.0, help="outer-loop rate (Hz)")
     p.add_argument("--rt-priority", type=int, default=0, metavar="N",
                    help="run the control thread SCHED_FIFO at priority N (1..99) while flying, as PX4 runs its "
@@ -112,6 +140,10 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--swing-input", choices=SWING_INPUTS, default="auto",
                    help="swing measurement to use: auto = cable-angle sensor (DEBUG_FLOAT_ARRAY 'SWING'), else the "
                         "payload's position stream, else none (no feed-forward, full-cable envelope)")
+
+
+def _output_arguments(p: argparse.ArgumentParser) -> None:
+    """Where the run goes, what it writes, how it ends, and how long to wait for the autopilot."""
     p.add_argument("--run-dir", type=Path, default=None, help="where to write the run folder")
     p.add_argument("--report", type=Path, default=None, help="also write the JSON report to this file")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
@@ -122,5 +154,3 @@ def add_fly_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ready-timeout", type=float, default=90.0,
                    help="seconds to wait for telemetry and the autopilot's ready-to-arm (default 90: PX4 SITL "
                         "can take ~40 s after boot)")
-    add_zenoh_arguments(p, "companion")
-    add_view_arguments(p)
