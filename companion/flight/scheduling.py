@@ -131,6 +131,13 @@ class GcPacer:
                 "gc_ms_max": max(p) * 1e3 if p else 0.0}
 
 
+#: The least share of a stall's wall time the loop thread must have spent on a CPU for the stall to be its own
+#: (one call that kept the GIL) rather than the process not running. A stopped or swapped-out process gets ~0; a
+#: busy loop on a loaded machine gets its fair share of a core: ~0.4 at a load of 5 on 2 cores (the old 0.5 misread
+#: such a loop as stopped in the test suite run beside other flights), so 0.2 leaves room to a load of ~10.
+BUSY_SHARE = 0.2
+
+
 class StallTracer:
     """A thread that notes where the control loop was when it stalled.
 
@@ -197,7 +204,7 @@ class StallTracer:
             beat = self._beat_s
             if woke_late_s > self.threshold_s:  # the tracer could not run: the loop may have come round since
                 self._traced_beat = beat
-                if loop_cpu_s > 0.5 * woke_late_s:  # the loop ran all along: one call that kept the GIL
+                if loop_cpu_s > BUSY_SHARE * woke_late_s:  # the loop ran all along: one call that kept the GIL
                     where = (f"the loop thread kept the GIL for {woke_late_s:.3f} s in one call "
                              f"({loop_cpu_s:.3f} s of its CPU); where is not known")
                 else:
