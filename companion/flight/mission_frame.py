@@ -72,7 +72,8 @@ class MissionFrame:
 
     def to_mission(self, est: Estimate) -> Estimate:
         """An estimate in the mission frame (positions relative to :attr:`origin_ned_m`)."""
-        if not self.origin_ned_m.any():
+        o = self.origin_ned_m
+        if o[0] == 0.0 and o[1] == 0.0 and o[2] == 0.0:  # (ndarray.any() costs ~6 % of a lockstep tick)
             return est
         return est.with_position(est.pos_ned_m - self.origin_ned_m)
 
