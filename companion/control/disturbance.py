@@ -22,7 +22,7 @@ through the same first-order filter as the velocity's derivative (their lags mat
 :data:`TAU_S`.
 
 Eq. 49 (the paper's experiment) pushes the airframe by up to 0.59 N per axis (0.56 m/s² on the 1.5 kg system);
-the estimate over the lockstep Table 2 forest peaks at 0.55 m/s² (its flight logs, ``shaped``; ``safe`` 0.41). A
+the estimate over the lockstep Table 2 forest peaks at 0.50 m/s² (its flight logs, ``shaped``; ``safe`` 0.39). A
 push inside :data:`DEADBAND_MPS2` is left to the position loop as before, so those flights are flown exactly as
 before (bit-identical logs); beyond it the push is taken off the command, in full from twice the band on
 (:func:`companion.control.swing_bias._beyond`, continuous).

@@ -61,12 +61,9 @@ LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps 
 # an optional replan's motion may exceed a_max by the profile's discretisation (a few per cent), not by braking
 OPTIONAL_A_FACTOR = 1.06
 CAP_SLACK_MPS = 0.1  # a plan this much faster than the seen-free cap (PlanInput.v_cap_mps) is re-timed under it
-#: the wind's drift of the payload (PlanInput.drift_m) counts this many times in the payload's static rings of the plan
-#: check: the payload was found 1.6-1.9 times the drift off its planned point (the airframe's own error adds to it)
-#: and a gust grows it (drag goes as airspeed²: 6 -> 8.5 m/s doubles it); 1 and 1.5 left the moderate grid's hits
-DRIFT_GUST = 2.0
-#: (m) a payload drift (times DRIFT_GUST) up to this is ordinary (the Table 2 forest in eq. 49: at most 0.017 m)
-DRIFT_SLACK_M = 0.05
+#: the payload's static rings of the plan check grow by DRIFT_GUST x the wind's drift (PlanInput.drift_m) beyond
+#: DRIFT_SLACK_M (m; eq. 49's Table 2 forest: drift <= 0.017 m): see :meth:`ShapedPlanner._drift_margin_m`
+DRIFT_GUST, DRIFT_SLACK_M = 2.0, 0.05
 CAP_STOP_MPS = 0.3  # a cap below this stops a plan faster than it (swing-bounded brake); below 0.05 m/s, any plan
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
@@ -202,11 +199,9 @@ class ShapedPlanner:
 
     @staticmethod
     def _drift_margin_m(inp: PlanInput) -> float:
-        """(m) what the wind's drag adds to the payload's static rings of the plan check: ``DRIFT_GUST`` times the
-        drift it holds the payload off its path (measured from forces, :mod:`companion.control.swing_bias`, so a
-        late re-plan's swing is not in it), beyond :data:`DRIFT_SLACK_M`. A kept plan was checked against the bare
-        rings while a gust carried a long cable's payload 0.8-1.3 m downwind of its planned point: now it is
-        replaced, or the flight stops along it and waits (issue 28, docs/measurements.md)."""
+        """(m) what the wind adds to the payload's static rings of the plan check: 2 x its drift (from forces: a
+        re-plan's swing is not in it) beyond the ordinary. Measured in a gust: 1.6-1.9 x the drift off the planned
+        point, and growing; 1 and 1.5 left hits (issue 28, docs/measurements.md). The plan is replaced, or stops."""
         return max(0.0, DRIFT_GUST * inp.drift_m - DRIFT_SLACK_M)
 
     def _rows(self, prof: Profile) -> np.ndarray:
