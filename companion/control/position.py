@@ -205,6 +205,10 @@ class SmcPositionController:
         #: (m/s², x y) the angle term's share of the swing's slow equilibrium (:mod:`companion.control.swing_bias`),
         #: taken off the feed-forward: it damps the swing about where a steady wind makes the payload hang
         self.ff_bias = (0.0, 0.0)
+        #: (m/s², x y) the wind's measured push on the system beyond the ordinary
+        #: (:mod:`companion.control.disturbance`), taken off the command: the loop's stiffness alone left it as a
+        #: standing error along a moving reference
+        self.ext_acc = (0.0, 0.0)
 
     @property
     def swing_feedforward(self) -> bool:
@@ -257,6 +261,10 @@ class SmcPositionController:
                 e = float(ref_pos[i]) - float(pos[i])
                 self._integral[i] = min(self._i_lim, max(-self._i_lim, self._integral[i] + self._ki * e * dt_s))
                 acc[i] += self._integral[i]
+        ex, ey = self.ext_acc
+        if ex != 0.0 or ey != 0.0:
+            acc[0] -= ex
+            acc[1] -= ey
         h = math.hypot(acc[0], acc[1])
         if h > self.acc_max:
             acc[0] *= self.acc_max / h

@@ -26,6 +26,8 @@ that on, linearly between), so those flights are flown exactly as before (bit-id
 
 from __future__ import annotations
 
+import math
+
 from companion.control.params import FeedForwardGains
 from companion.control.position import SwingAccelEstimator, _feedforward
 
@@ -66,6 +68,11 @@ class SwingBias:
             self.mean = (ma + k * (ea - ma), mb + k * (eb - mb))
         self._t = t_s
         return _beyond(self.mean[0], self.deadband_rad), _beyond(self.mean[1], self.deadband_rad)
+
+    def drift_m(self, l_m: float) -> float:
+        """How far (m) the equilibrium holds a payload on ``l_m`` (m) of cable off the vertical below the airframe:
+        l·sin|θ_eq| (the low-passed equilibrium, dead band not applied)."""
+        return l_m * math.sin(min(math.hypot(*self.mean), 0.5 * math.pi))
 
     def reset(self) -> None:
         """Forget the history (the swing input dropped out)."""

@@ -22,6 +22,7 @@ from companion.control import (
     attitude_from_force,
     limit_force_xyz,
 )
+from companion.control.disturbance import ForceObserver, push_offset
 from companion.control.swing_bias import SwingBias, feedforward_offsets
 from companion.core.envelope import r_max_m
 from companion.core.mission import Mission
@@ -61,6 +62,8 @@ class FlightCore(CoreOrders, HopMixin):
     cap: SeenCap
     #: the swing's slow equilibrium (a steady wind's drag), which the feed-forward leaves alone (issue 28)
     swing_bias: SwingBias
+    #: the wind's push on the whole vehicle, taken off the position command beyond the ordinary (issue 28)
+    push: ForceObserver
 
     def __init__(self, mission: Mission, gains: ControllerConfig | None = None, profile: VehicleProfile | None = None,
                  period_s: float = 0.004):
@@ -98,6 +101,7 @@ class FlightCore(CoreOrders, HopMixin):
         self.timed_out = False
         self.t0_s: float | None = None
         self.t_prev_s: float | None = None
+        self._thrust_prev: float | None = None  # (N) the thrust commanded last tick (the wind push observer)
         self.t_arrived_s: float | None = None
         self._arrival = ArrivalRule(np.asarray(mission.goal_ned_m, dtype=np.float64))
         #: the arrival rule of this flight, for the report: tolerance (m), dwell (s), the accuracy it came from
@@ -237,6 +241,8 @@ class FlightCore(CoreOrders, HopMixin):
             feedforward_offsets(self.controller, self.swing_bias, est.t_s, None if ctl_swing is None else swing,
                                 swing_acc_raw, est.vel_ned_mps, self._swing_nom, trust, self.cfg.feedforward,
                                 self.params.l)
+            push_offset(self.controller, self.push, est.t_s, est.vel_ned_mps, est.euler_rad, self._thrust_prev,
+                        None if ctl_swing is None else swing, swing_acc_raw)
         ctl = self.controller.update(
             est.pos_ned_m, est.vel_ned_mps, ref.p, ref.v, ref.a if acc_ctl is None else acc_ctl, ctl_swing,
             swing_acc if ctl_swing is not None else (0.0, 0.0), max(dt, 1e-4),
@@ -245,6 +251,7 @@ class FlightCore(CoreOrders, HopMixin):
         fx, fy, fz = ctl.force_ned_n.tolist()
         force = limit_force_xyz(fx, fy, fz, lim.tilt_max_rad, self._thrust_min, self._thrust_max)
         q, thrust, euler = attitude_from_force(force, self.yaw_rad)
+        self._thrust_prev = thrust
         return Command(
             t_s=est.t_s, q_ned_frd_wxyz=q, thrust_n=thrust,
             thrust_norm=self.profile.thrust_to_norm(thrust, self.params.hover_thrust_n), euler_cmd_rad=euler,
@@ -341,7 +348,7 @@ class FlightCore(CoreOrders, HopMixin):
             ref_vel_mps=np.array(ref.v[:2]), goal_m=goal, r_max_m=r_max, swing=swing,
             cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
             swing_sigma_rad=swing_sigma_rad(est), v_cap_mps=self.cap.cap_mps(est.pos_ned_m, est.vel_ned_mps, r_max),
-            **legs_in,
+            drift_m=0.0 if swing is None else self.swing_bias.drift_m(self.params.l), **legs_in,
         )
         out = self.planner.plan(inp, obs)
         if out.no_route and not self.no_route:

@@ -43,6 +43,10 @@ class PlanInput:
 
     ``v_cap_mps``: the speed (m/s) the flight may keep inside the space its range sensor has seen free
     (:mod:`companion.planning.stop_cap`; inf without perception): the planners fly no faster.
+
+    ``drift_m``: how far (m) the wind's drag holds the payload off the path planned for it, l·sin|θ_eq| with θ_eq
+    the swing's slow equilibrium (:mod:`companion.control.swing_bias`: measured from forces, so a re-plan's swing
+    is not in it); 0 without a swing input.
     """
 
     t_s: float
@@ -62,6 +66,7 @@ class PlanInput:
     via_m: tuple[np.ndarray, ...] = ()
     leg_caps_mps: tuple[float, ...] = ()
     v_cap_mps: float = math.inf
+    drift_m: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

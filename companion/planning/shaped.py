@@ -61,6 +61,9 @@ LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps 
 # an optional replan's motion may exceed a_max by the profile's discretisation (a few per cent), not by braking
 OPTIONAL_A_FACTOR = 1.06
 CAP_SLACK_MPS = 0.1  # a plan this much faster than the seen-free cap (PlanInput.v_cap_mps) is re-timed under it
+#: the payload's static rings of the plan check grow by DRIFT_GUST x the wind's drift (PlanInput.drift_m) beyond
+#: DRIFT_SLACK_M (m; eq. 49's Table 2 forest: drift <= 0.017 m): see :meth:`ShapedPlanner._drift_margin_m`
+DRIFT_GUST, DRIFT_SLACK_M = 2.0, 0.05
 CAP_STOP_MPS = 0.3  # a cap below this stops a plan faster than it (swing-bounded brake); below 0.05 m/s, any plan
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
@@ -186,12 +189,20 @@ class ShapedPlanner:
             cx=np.array([o.x_m for o in allo], dtype=np.float64), cy=np.array([o.y_m for o in allo], dtype=np.float64),
             vx=np.array([o.vx_mps for o in allo], dtype=np.float64),
             vy=np.array([o.vy_mps for o in allo], dtype=np.float64),
-            # static: the bare safety ring; moving: plus the tracking margin, growing with the look-ahead
+            # static: the bare safety ring (the payload's plus what the wind's drag holds it off its path beyond the
+            # ordinary); moving: plus the tracking margin, growing with the look-ahead
             ring_airframe=r_all + r2 + np.where(is_m, margin, -0.01),
-            ring_payload=r_all + np.where(is_m, margin, -0.01),
+            ring_payload=r_all + np.where(is_m, margin, -0.01 + self._drift_margin_m(inp)),
             growth=np.where(is_m, self.params.predict_growth_mps, 0.0), moving=is_m,
         )
         return c, ring, bare, contact, moving, pred
+
+    @staticmethod
+    def _drift_margin_m(inp: PlanInput) -> float:
+        """(m) what the wind adds to the payload's static rings of the plan check: 2 x its drift (from forces: a
+        re-plan's swing is not in it) beyond the ordinary. Measured in a gust: 1.6-1.9 x the drift off the planned
+        point, and growing; 1 and 1.5 left hits (issue 28, docs/measurements.md). The plan is replaced, or stops."""
+        return max(0.0, DRIFT_GUST * inp.drift_m - DRIFT_SLACK_M)
 
     def _rows(self, prof: Profile) -> np.ndarray:
         """Unshaped rows [p, v, a] (m, 6) of a profile, one per grid step from its start to its end."""
