@@ -12,7 +12,7 @@ import pytest
 from companion.control.disturbance import DEADBAND_MPS2, ForceObserver, thrust_horizontal
 from companion.core.mission import load_mission
 from companion.planning.base import PlanInput
-from companion.planning.shaped import DRIFT_GUST, DRIFT_SLACK_M, ShapedPlanner
+from companion.planning.shaped_obstacles import DRIFT_GUST, DRIFT_SLACK_M, drift_margin_m
 from companion.report.metrics import compute_metrics
 from lab.envelope import Cell, cell_mission
 from lab.forests import ForestSpec
@@ -75,9 +75,9 @@ def _inp(drift_m: float) -> PlanInput:
 
 
 def test_the_payload_rings_grow_by_the_drift_beyond_the_ordinary():
-    assert ShapedPlanner._drift_margin_m(_inp(0.0)) == 0.0
-    assert ShapedPlanner._drift_margin_m(_inp(0.017)) == 0.0  # the Table 2 forest's largest drift in eq. 49
-    assert ShapedPlanner._drift_margin_m(_inp(0.5)) == pytest.approx(DRIFT_GUST * 0.5 - DRIFT_SLACK_M)
+    assert drift_margin_m(_inp(0.0)) == 0.0
+    assert drift_margin_m(_inp(0.017)) == 0.0  # the Table 2 forest's largest drift in eq. 49
+    assert drift_margin_m(_inp(0.5)) == pytest.approx(DRIFT_GUST * 0.5 - DRIFT_SLACK_M)
 
 
 def test_eq49_is_inside_the_bands_so_the_paper_flight_is_flown_as_before():

@@ -51,6 +51,7 @@ from companion.planning.clearance import Predicted, clearance
 from companion.planning.legs_route import remaining_vias, route_through
 from companion.planning.params import PlannerParams
 from companion.planning.route import find_route
+from companion.planning.shaped_obstacles import moved_off_prediction, obstacle_rings, obstacle_signature
 from companion.planning.shaping import box_widths, pendulum_omega_rad_s
 from companion.planning.timeline import Timeline
 from companion.planning.timing import Profile, brake_rows, sample_motion, state_at, stop_along
@@ -61,9 +62,6 @@ LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps 
 # an optional replan's motion may exceed a_max by the profile's discretisation (a few per cent), not by braking
 OPTIONAL_A_FACTOR = 1.06
 CAP_SLACK_MPS = 0.1  # a plan this much faster than the seen-free cap (PlanInput.v_cap_mps) is re-timed under it
-#: the payload's static rings of the plan check grow by DRIFT_GUST x the wind's drift (PlanInput.drift_m) beyond
-#: DRIFT_SLACK_M (m; eq. 49's Table 2 forest: drift <= 0.017 m): see :meth:`ShapedPlanner._drift_margin_m`
-DRIFT_GUST, DRIFT_SLACK_M = 2.0, 0.05
 CAP_STOP_MPS = 0.3  # a cap below this stops a plan faster than it (swing-bounded brake); below 0.05 m/s, any plan
 _ZERO2 = np.zeros(2)
 _ZERO2.flags.writeable = False
@@ -167,42 +165,9 @@ class ShapedPlanner:
     # ------------------------------------------------------------------------------------------------
     def _discs(self, inp: PlanInput, obstacles: Sequence[Obstacle]
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[Obstacle], Predicted]:
-        """Static discs (centres, route rings, bare safety rings, contact radii), the moving obstacles, and every
-        relevant obstacle as :class:`Predicted` for the time-aware check."""
-        env = self.envelope_m(inp)
-        margin = self.params.track_margin_m + self.err_peak_m
-        r2 = inp.airframe_r_m
-        reach_z = inp.z_ned_m + inp.cable_l_m
-        rel = [o for o in obstacles if reach_z >= -o.height_m]
-        static = [o for o in rel if o.vx_mps == 0.0 and o.vy_mps == 0.0]
-        moving = [o for o in rel if not (o.vx_mps == 0.0 and o.vy_mps == 0.0)]
-        c = np.array([(o.x_m, o.y_m) for o in static], dtype=np.float64).reshape(-1, 2)
-        ro = np.array([o.radius_m for o in static], dtype=np.float64)
-        sd = np.array([o.safe_distance_m for o in static], dtype=np.float64)
-        ring = ro + sd + env + margin
-        bare = ro + sd + r2 + 0.02
-        contact = ro + r2
-        allo = static + moving
-        is_m = np.array([False] * len(static) + [True] * len(moving), dtype=np.bool_)
-        r_all = np.array([o.radius_m + o.safe_distance_m for o in allo], dtype=np.float64)
-        pred = Predicted(
-            cx=np.array([o.x_m for o in allo], dtype=np.float64), cy=np.array([o.y_m for o in allo], dtype=np.float64),
-            vx=np.array([o.vx_mps for o in allo], dtype=np.float64),
-            vy=np.array([o.vy_mps for o in allo], dtype=np.float64),
-            # static: the bare safety ring (the payload's plus what the wind's drag holds it off its path beyond the
-            # ordinary); moving: plus the tracking margin, growing with the look-ahead
-            ring_airframe=r_all + r2 + np.where(is_m, margin, -0.01),
-            ring_payload=r_all + np.where(is_m, margin, -0.01 + self._drift_margin_m(inp)),
-            growth=np.where(is_m, self.params.predict_growth_mps, 0.0), moving=is_m,
-        )
-        return c, ring, bare, contact, moving, pred
-
-    @staticmethod
-    def _drift_margin_m(inp: PlanInput) -> float:
-        """(m) what the wind adds to the payload's static rings of the plan check: 2 x its drift (from forces: a
-        re-plan's swing is not in it) beyond the ordinary. Measured in a gust: 1.6-1.9 x the drift off the planned
-        point, and growing; 1 and 1.5 left hits (issue 28, docs/measurements.md). The plan is replaced, or stops."""
-        return max(0.0, DRIFT_GUST * inp.drift_m - DRIFT_SLACK_M)
+        """The obstacles as this plan check sees them (:func:`obstacle_rings`)."""
+        return obstacle_rings(inp, obstacles, self.envelope_m(inp), self.params.track_margin_m + self.err_peak_m,
+                              self.params.predict_growth_mps)
 
     def _rows(self, prof: Profile) -> np.ndarray:
         """Unshaped rows [p, v, a] (m, 6) of a profile, one per grid step from its start to its end."""
@@ -261,7 +226,7 @@ class ShapedPlanner:
             self.last = {"kept": True, "reason": "valid, nothing changed"}
             return
         self.searches += 1
-        self._search_t, self._search_sig, self._search_pred = t, self._signature(obstacles), pred
+        self._search_t, self._search_sig, self._search_pred = t, obstacle_signature(obstacles), pred
         self._search_ring_m = ring_now
         options = None
         if why == "refresh":
@@ -378,35 +343,19 @@ class ShapedPlanner:
         self.plan_profile = None
         self.splices += 1
 
-    @staticmethod
-    def _signature(obstacles: Sequence[Obstacle]) -> tuple:
-        """What identifies the obstacle set apart from the motion of the moving ones."""
-        return tuple(sorted((o.radius_m, o.height_m, o.safe_distance_m, o.vx_mps, o.vy_mps)
-                            + ((o.x_m, o.y_m) if o.vx_mps == 0.0 and o.vy_mps == 0.0 else ())
-                            for o in obstacles))
-
     def _changed(self, t: float, obstacles: Sequence[Obstacle], pred: Predicted, ring_m: float) -> str | None:
         """Why the route search must run again — ``"changed"``: obstacles appeared, vanished or changed, a moving
         one is off its predicted track by more than 0.05 m, or the envelope or margin grew by more than 0.05 m;
         ``"refresh"``: ``route_refresh_s`` passed since the last search — or None."""
         if ring_m > self._search_ring_m + 0.05:
             return "changed"
-        if self._signature(obstacles) != self._search_sig:
+        if obstacle_signature(obstacles) != self._search_sig:
             return "changed"
         old = self._search_pred
         if old is None or len(old) != len(pred):
             return "changed"
-        if np.any(pred.moving):
-            dt = t - self._search_t
-            # obstacles keep their order in a list that did not change (the signature is sorted, so compare
-            # each current moving obstacle with its nearest prediction)
-            if not np.array_equal(old.moving, pred.moving):
-                return "changed"
-            m = pred.moving
-            px, py = old.cx[m] + old.vx[m] * dt, old.cy[m] + old.vy[m] * dt
-            d = np.hypot(pred.cx[m][:, None] - px[None, :], pred.cy[m][:, None] - py[None, :])
-            if d.size and float(d.min(axis=1).max()) > 0.05:
-                return "changed"
+        if np.any(pred.moving) and moved_off_prediction(old, pred, t - self._search_t):
+            return "changed"
         if t - self._search_t >= self.params.route_refresh_s - 1e-9:
             return "refresh"
         return None
