@@ -128,12 +128,13 @@ def test_a_slower_link_also_softens_the_position_loop() -> None:
     assert _hold_tilt(fly_inprocess(mission, link_delay_s=0.075)) < 0.25
 
 
-@pytest.mark.parametrize("seed", [2, 5])
+@pytest.mark.parametrize("seed", [4, 5])
 def test_a_jittery_link_that_reorders_setpoints_is_flown_softly(seed: int) -> None:
     """65 ± 25 ms each way, the vehicle applying setpoints in the order they arrive (as PX4 does; what the real-time
     fault proxy does to it): with the feed-forward faded but the position loop at full stiffness, the hold cycles
-    at the tilt limit (seeds 0-7: 0.17-0.58 rad, above 0.4 in 2, 5 and 6, with the in-process cable sensor reading a
-    slack cable as no swing as the companion does); softened as well, it holds (0.09 rad)."""
+    at the tilt limit (seeds 0-7: 0.17-0.58 rad, above 0.4 in 4, 5 and 6, with the in-process cable sensor reading a
+    slack cable as no swing as the companion does; 2, 5 and 6 before the wind-push observer of issue 28 nudged the
+    cycle); softened as well, it holds (0.086-0.090 rad in all eight)."""
     mission = load_mission("config/missions/forest.toml")
     kw = {"link_delay_s": 0.065, "link_jitter_s": 0.025, "link_seed": seed}
     assert _hold_tilt(fly_inprocess(mission, gains=_gains(fade=True, soften=False), **kw)) > 0.4

@@ -100,12 +100,15 @@ class ForceObserver:
 
 
 def push_offset(ctl, obs: ForceObserver, t_s: float, vel_ned_mps, euler_rad, thrust_n: float | None, swing,
-                swing_acc) -> None:
+                swing_acc, trust: float = 1.0) -> None:
     """Set ``ctl.ext_acc`` (m/s², x y) of an SMC for this tick from ``obs``: the thrust commanded last tick (N, None
     on the first), the swing [α, β, α̇, β̇] (rad, rad/s; None without one: no estimate, the observer reset) and its
-    [α̈, β̈] (rad/s²)."""
+    [α̈, β̈] (rad/s²). ``trust`` (0..1, the feed-forward's: the swing estimate's fade times the loop-lag trust)
+    scales what is taken off: over a late link the thrust commanded last tick is not the thrust flown, and the
+    difference reads as a push (65 ± 25 ms each way: the hold cycled on it, tests/test_loop_lag.py)."""
     if swing is None or thrust_n is None:
         obs.reset()
         ctl.ext_acc = (0.0, 0.0)
         return
-    ctl.ext_acc = obs.update(t_s, vel_ned_mps, euler_rad, thrust_n, swing, swing_acc)
+    dx, dy = obs.update(t_s, vel_ned_mps, euler_rad, thrust_n, swing, swing_acc)
+    ctl.ext_acc = (dx * trust, dy * trust) if trust < 1.0 else (dx, dy)

@@ -242,7 +242,7 @@ class FlightCore(CoreOrders, HopMixin):
                                 swing_acc_raw, est.vel_ned_mps, self._swing_nom, trust, self.cfg.feedforward,
                                 self.params.l)
             push_offset(self.controller, self.push, est.t_s, est.vel_ned_mps, est.euler_rad, self._thrust_prev,
-                        None if ctl_swing is None else swing, swing_acc_raw)
+                        None if ctl_swing is None else swing, swing_acc_raw, trust)
         ctl = self.controller.update(
             est.pos_ned_m, est.vel_ned_mps, ref.p, ref.v, ref.a if acc_ctl is None else acc_ctl, ctl_swing,
             swing_acc if ctl_swing is not None else (0.0, 0.0), max(dt, 1e-4),
