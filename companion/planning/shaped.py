@@ -51,7 +51,7 @@ from companion.planning.clearance import Predicted, clearance
 from companion.planning.legs_route import remaining_vias, route_through
 from companion.planning.params import PlannerParams
 from companion.planning.route import find_route
-from companion.planning.shaped_obstacles import moved_off_prediction, obstacle_rings, obstacle_signature
+from companion.planning.shaped_obstacles import Replan, moved_off_prediction, obstacle_rings, obstacle_signature
 from companion.planning.shaping import box_widths, pendulum_omega_rad_s
 from companion.planning.timeline import Timeline
 from companion.planning.timing import Profile, brake_rows, sample_motion, state_at, stop_along
@@ -178,10 +178,70 @@ class ShapedPlanner:
 
     # ------------------------------------------------------------------------------------------------
     def _replan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> None:
+        """Keep the current plan, splice a better one in from LEAD_ROWS ahead, or stop (see module docstring)."""
         tl = self.tl
         assert tl is not None
         p = self.params
         self.replans += 1
+        r = self._replan_inputs(inp, obstacles)
+        t, k_now, k_r, p0, v0, goal = r.t, r.k_now, r.k_r, r.p0, r.v0, r.goal
+        # the current plan: still clear?
+        first_cur, _, _ = r.check(tl.ref, tl.base)
+        cur_ok = bool(np.all(np.isinf(first_cur)))
+        remaining = max(0.0, (self.plan_end_k - k_r) * tl.h_s)
+        at_goal = math.hypot(float(goal[0] - p0[0]), float(goal[1] - p0[1])) < 1e-3
+        if at_goal and not r.vias and math.hypot(float(v0[0]), float(v0[1])) < 1e-3 and cur_ok:
+            self.mode = "track"
+            self.last = {"kept": True, "reason": "at goal"}
+            return
+        if self.no_route or self.stop_requested:
+            self._hold(k_r, k_now, p0, v0, cur_ok, "no_route" if self.no_route else "hold")
+            return
+        if self._search_goal is not None and not np.array_equal(goal, self._search_goal):
+            self.plan_reaches_goal = False  # a multi-leg mission's next stretch: the plan ends at the last one
+        self._search_goal = goal
+        ring_now = self.envelope_m(inp) + self.err_peak_m
+        valid = cur_ok and self.plan_reaches_goal
+        why = self._changed(t, obstacles, r.pred, ring_now) if valid else "invalid"
+        cap, sp0 = inp.v_cap_mps, math.hypot(float(v0[0]), float(v0[1]))  # the cap inside the space seen free
+        if cap < CAP_STOP_MPS and (sp0 > CAP_STOP_MPS or cap < 0.05):  # nothing seen free to go on in: stop
+            self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
+            return
+        why = "cap" if why is None and sp0 > cap + CAP_SLACK_MPS else why  # too fast for it: re-timed, not optional
+        p = p if cap >= p.shaped_v_max_mps else replace(p, shaped_v_max_mps=cap)
+        if why is None:
+            self.last = {"kept": True, "reason": "valid, nothing changed"}
+            return
+        self.searches += 1
+        self._search_t, self._search_sig, self._search_pred = t, obstacle_signature(obstacles), r.pred
+        self._search_ring_m = ring_now
+        options = None
+        if why == "refresh":
+            # nothing changed and the plan is good: re-time its own route and try one other option in turn
+            allo = search_options(p)
+            other = [o for o in allo if o != self.plan_option]
+            options = [self.plan_option] + ([other[self._rotation % len(other)]] if other else [])
+            self._rotation += 1
+        if why != "refresh" and not self._route_exists(r, p, cur_ok):
+            return
+        self.no_route_since_s = None
+        optional = cur_ok and self.plan_reaches_goal and why != "cap"  # a fine plan: a new one must be better
+        chosen, cands, tried = self._candidates(inp, r, p, options, optional)
+        self.last = {"candidates": tried, "cur_ok": cur_ok, "remaining_s": remaining,
+                     "durations": [round(cd.duration_s, 3) for cd in cands]}
+        if chosen is not None:
+            self._adopt(chosen, k_r, optional, remaining, p)
+            return
+        # nothing valid: keep a valid current plan, else stop and wait
+        if cur_ok and self.plan_reaches_goal:
+            self.last.update({"kept": True, "reason": "no better valid candidate"})
+            return
+        self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
+
+    def _replan_inputs(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> Replan:
+        """This replan's splice point, start state, goal, vias, obstacle rings and its plan check."""
+        tl = self.tl
+        assert tl is not None
         t = inp.t_s
         h = tl.h_s
         k_now = tl.index(t)
@@ -198,110 +258,80 @@ class ShapedPlanner:
             first, worst = clearance(fut, tl.time_of(k_f), h, t, l_m, pred)
             return first, worst, k_f
 
-        # the current plan: still clear?
-        first_cur, _, _ = check(tl.ref, tl.base)
-        cur_ok = bool(np.all(np.isinf(first_cur)))
-        remaining = max(0.0, (self.plan_end_k - k_r) * h)
-        at_goal = math.hypot(float(goal[0] - p0[0]), float(goal[1] - p0[1])) < 1e-3
-        if at_goal and not vias and math.hypot(float(v0[0]), float(v0[1])) < 1e-3 and cur_ok:
-            self.mode = "track"
-            self.last = {"kept": True, "reason": "at goal"}
-            return
-        if self.no_route or self.stop_requested:
-            self._hold(k_r, k_now, p0, v0, cur_ok, "no_route" if self.no_route else "hold")
-            return
-        if self._search_goal is not None and not np.array_equal(goal, self._search_goal):
-            self.plan_reaches_goal = False  # a multi-leg mission's next stretch: the plan ends at the last one
-        self._search_goal = goal
-        ring_now = self.envelope_m(inp) + self.err_peak_m
-        valid = cur_ok and self.plan_reaches_goal
-        why = self._changed(t, obstacles, pred, ring_now) if valid else "invalid"
-        cap, sp0 = inp.v_cap_mps, math.hypot(float(v0[0]), float(v0[1]))  # the cap inside the space seen free
-        if cap < CAP_STOP_MPS and (sp0 > CAP_STOP_MPS or cap < 0.05):  # nothing seen free to go on in: stop
-            self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
-            return
-        why = "cap" if why is None and sp0 > cap + CAP_SLACK_MPS else why  # too fast for it: re-timed, not optional
-        p = p if cap >= p.shaped_v_max_mps else replace(p, shaped_v_max_mps=cap)
-        if why is None:
-            self.last = {"kept": True, "reason": "valid, nothing changed"}
-            return
-        self.searches += 1
-        self._search_t, self._search_sig, self._search_pred = t, obstacle_signature(obstacles), pred
-        self._search_ring_m = ring_now
-        options = None
-        if why == "refresh":
-            # nothing changed and the plan is good: re-time its own route and try one other option in turn
-            allo = search_options(p)
-            other = [o for o in allo if o != self.plan_option]
-            options = [self.plan_option] + ([other[self._rotation % len(other)]] if other else [])
-            self._rotation += 1
+        return Replan(t, k_now, k_r, p0, v0, goal, vias, caps, c, ring, bare, contact, moving, pred, check)
 
-        # static route existence (the bare safety ring): none means no route at all
-        if why != "refresh" and (route_through(p0, vias, goal, c, bare, contact) if vias
-                                 else find_route(p0, goal, c, bare, contact)) is None:
+    def _route_exists(self, r: Replan, p: PlannerParams, cur_ok: bool) -> bool:
+        """Whether a static route exists at all (the bare safety ring); none: brake, and ``no_route`` once it has
+        lasted ``no_route_confirm_s``."""
+        found = (route_through(r.p0, r.vias, r.goal, r.c, r.bare, r.contact) if r.vias
+                 else find_route(r.p0, r.goal, r.c, r.bare, r.contact))
+        if found is None:
             if self.no_route_since_s is None:
-                self.no_route_since_s = t
-            if t - self.no_route_since_s >= p.no_route_confirm_s - 1e-9:
+                self.no_route_since_s = r.t
+            if r.t - self.no_route_since_s >= p.no_route_confirm_s - 1e-9:
                 self.no_route = True
-            self._hold(k_r, k_now, p0, v0, cur_ok, "no_route" if self.no_route else "brake")
+            self._hold(r.k_r, r.k_now, r.p0, r.v0, cur_ok, "no_route" if self.no_route else "brake")
             self.last = {"no_route_search_failed": True, "since": self.no_route_since_s}
-            return
-        self.no_route_since_s = None
+            return False
+        return True
 
-        optional = cur_ok and self.plan_reaches_goal and why != "cap"  # a fine plan: a new one must be better
-        cc, rr, hh = c, ring, contact
+    def _candidates(self, inp: PlanInput, r: Replan, p: PlannerParams, options, optional: bool):
+        """(the first timed route whose plan clears every obstacle as (candidate, rows, unshaped, shaped, base) or
+        None, the last round's candidates, how many were checked); up to three rounds, capsules around moving
+        obstacles at their conflict times after the first."""
+        tl = self.tl
+        assert tl is not None
+        cc, rr, hh = r.c, r.ring, r.contact
         chosen = None
         tried = 0
         for rnd in range(3):
             if rnd > 0:  # with capsules in the way: the three smallest plain inflations are enough
                 options = [(False, e) for walled, e in search_options(p) if not walled][:3]
-            cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p, options, vias, caps)
+            cands = timed_routes(r.p0, r.v0, r.goal, cc, rr, hh, p.shaped_a_max_mps2, p, options, r.vias, r.caps)
             if not cands and options is not None:
-                cands = timed_routes(p0, v0, goal, cc, rr, hh, p.shaped_a_max_mps2, p, None, vias, caps)
+                cands = timed_routes(r.p0, r.v0, r.goal, cc, rr, hh, p.shaped_a_max_mps2, p, None, r.vias, r.caps)
             if not cands:
                 # only the bare ring lets a route through: fly it at half the acceleration (less lead, less swing)
-                cands = timed_routes(p0, v0, goal, cc, np.maximum(rr - (ring - bare).max(initial=0.0), 0.0)
-                                     if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2, p, None, vias, caps)
+                cands = timed_routes(r.p0, r.v0, r.goal, cc, np.maximum(rr - (r.ring - r.bare).max(initial=0.0), 0.0)
+                                     if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2, p, None, r.vias, r.caps)
             conflicts: list[tuple[int, float]] = []
             for cand in cands:
                 if optional and cand.profile.a_peak_mps2 > OPTIONAL_A_FACTOR * p.shaped_a_max_mps2:
                     continue  # an optional switch keeps the swing bound (no harder braking than a_max)
                 tried += 1
                 rows = self._rows(cand.profile)
-                u, ref, base = tl.preview(k_r, rows, k_now)
-                first, _worst, _ = check(ref, base)
+                u, ref, base = tl.preview(r.k_r, rows, r.k_now)
+                first, _worst, _ = r.check(ref, base)
                 if np.all(np.isinf(first)):
                     chosen = (cand, rows, u, ref, base)
                     break
                 if not conflicts:
-                    conflicts = [(j, float(first[j])) for j in np.flatnonzero(np.isfinite(first)) if pred.moving[j]]
-            if chosen is not None or not conflicts or not moving:
+                    conflicts = [(j, float(first[j])) for j in np.flatnonzero(np.isfinite(first)) if r.pred.moving[j]]
+            if chosen is not None or not conflicts or not r.moving:
                 break
             # capsules around the moving obstacles' positions at the conflict times
-            cc, rr, hh = capsules(cc, rr, hh, conflicts, pred, t, self.envelope_m(inp),
+            cc, rr, hh = capsules(cc, rr, hh, conflicts, r.pred, r.t, self.envelope_m(inp),
                                   p.track_margin_m + self.err_peak_m, inp.airframe_r_m, p.predict_growth_mps)
-        self.last = {"candidates": tried, "cur_ok": cur_ok, "remaining_s": remaining,
-                     "durations": [round(cd.duration_s, 3) for cd in cands]}
-        if chosen is not None:
-            cand, rows, u, ref, base = chosen
-            better = not optional or cand.duration_s < remaining - p.replan_hysteresis_s
-            if better:
-                tl.install(u, ref, base)
-                self.plan_end_k = k_r + len(rows) - 1
-                self.plan_profile, self.plan_k0 = cand.profile, k_r
-                self.plan_reaches_goal = cand.reaches_goal
-                self.plan_option = (cand.walled, cand.extra_m)
-                self.splices += 1
-                self.last.update({"spliced": True, "duration_s": cand.duration_s, "extra_m": cand.extra_m})
-            else:
-                self.last.update({"kept": True, "best_s": cand.duration_s})
-            self.mode = "track"
-            return
-        # nothing valid: keep a valid current plan, else stop and wait
-        if cur_ok and self.plan_reaches_goal:
-            self.last.update({"kept": True, "reason": "no better valid candidate"})
-            return
-        self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
+        return chosen, cands, tried
+
+    def _adopt(self, chosen, k_r: int, optional: bool, remaining: float, p: PlannerParams) -> None:
+        """Splice the chosen candidate in at ``k_r`` unless it is optional and not shorter than the ``remaining``
+        time (s) of the current plan by the hysteresis."""
+        tl = self.tl
+        assert tl is not None
+        cand, rows, u, ref, base = chosen
+        better = not optional or cand.duration_s < remaining - p.replan_hysteresis_s
+        if better:
+            tl.install(u, ref, base)
+            self.plan_end_k = k_r + len(rows) - 1
+            self.plan_profile, self.plan_k0 = cand.profile, k_r
+            self.plan_reaches_goal = cand.reaches_goal
+            self.plan_option = (cand.walled, cand.extra_m)
+            self.splices += 1
+            self.last.update({"spliced": True, "duration_s": cand.duration_s, "extra_m": cand.extra_m})
+        else:
+            self.last.update({"kept": True, "best_s": cand.duration_s})
+        self.mode = "track"
 
     def stop(self) -> None:
         """Stop along the planned path as soon as the swing bound allows and hold there (a hold the flight

@@ -4,11 +4,13 @@ The route search sees static trunks as discs with route rings (envelope + margin
 every relevant trunk, still or moving, as :class:`~companion.planning.clearance.Predicted` rings for the airframe
 and the payload. A search runs again when the set changes: :func:`obstacle_signature` identifies a set apart from
 the motion of its moving trunks, :func:`moved_off_prediction` tells when one left its predicted track.
+:class:`Replan` is what one replan checks its candidates against.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -83,3 +85,25 @@ def moved_off_prediction(old: Predicted, pred: Predicted, dt_s: float) -> bool:
     px, py = old.cx[m] + old.vx[m] * dt_s, old.cy[m] + old.vy[m] * dt_s
     d = np.hypot(pred.cx[m][:, None] - px[None, :], pred.cy[m][:, None] - py[None, :])
     return bool(d.size and float(d.min(axis=1).max()) > OFF_TRACK_M)
+
+
+class Replan(NamedTuple):
+    """One replan's inputs: time (s), grid indices of now and of the splice, the unshaped state there (m, m/s), the
+    goal and remaining vias (m) with their speed caps, the obstacle rings (:func:`obstacle_rings`) and the plan
+    check ``check(shaped rows, base) -> (first conflict time per obstacle, worst clearance, last index)``."""
+
+    t: float
+    k_now: int
+    k_r: int
+    p0: np.ndarray
+    v0: np.ndarray
+    goal: np.ndarray
+    vias: tuple
+    caps: tuple
+    c: np.ndarray
+    ring: np.ndarray
+    bare: np.ndarray
+    contact: np.ndarray
+    moving: list
+    pred: Predicted
+    check: Callable
