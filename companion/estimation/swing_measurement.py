@@ -90,6 +90,6 @@ def chosen_swing(st: SwingSources) -> tuple[np.ndarray | None, str]:
     ):
         swing = payload_swing(st)
         source = "payload_position" if swing is not None else "none"
-    if swing is not None and not all(map(math.isfinite, swing)):
+    if swing is not None and not all(map(math.isfinite, swing.tolist() if isinstance(swing, np.ndarray) else swing)):
         swing, source = None, "none"
     return swing, source

@@ -63,15 +63,14 @@ class FailureWatch:
         lost = self._link_lost(obs, state)
         if lost is not None:
             return lost
-        said = f"; vehicle said: {obs.last_words!r}" if obs.last_words else ""
         owned = goal is not None and goal.confirmed and state in (State.MISSION, State.HOLD, State.LAND)
         if owned and obs.heartbeats > goal.heartbeats_at_confirm and obs.mode != goal.mode and not (
                 state is State.LAND and obs.on_ground):
             return Failure(FailureKind.PREEMPTED, "preempted",
-                           f"the vehicle left {goal.mode} for {obs.mode} without being asked{said}")
+                           f"the vehicle left {goal.mode} for {obs.mode} without being asked{_said(obs)}")
         if armed_seen and airborne and not obs.armed and not obs.on_ground and state not in (
                 State.LAND, State.DESCEND):
-            return Failure(FailureKind.PREEMPTED, "preempted", f"the vehicle was disarmed in flight{said}")
+            return Failure(FailureKind.PREEMPTED, "preempted", f"the vehicle was disarmed in flight{_said(obs)}")
         if state in (State.HOLD, State.LAND, State.DESCEND):
             return None  # already on the way down or holding: only link loss and preemption can end it sooner
         if obs.abort is not None:
@@ -112,3 +111,8 @@ class FailureWatch:
             return Failure(FailureKind.HOLD, "diverged", f"{obs.tracking_error_m:.1f} m from the reference for "
                            f"more than {cfg.diverged_s:g} s")
         return None
+
+
+def _said(obs: Observation) -> str:
+    """The vehicle's last STATUSTEXT for a failure's text ("" without one)."""
+    return f"; vehicle said: {obs.last_words!r}" if obs.last_words else ""

@@ -68,7 +68,8 @@ class MissionFrame:
         # pinned: the start is checked against the home the autopilot reports now, where it takes off (as an
         # unpinned frame checks it); only the route stays where the download placed it
         o = home_ned_m if self.pinned and home_ned_m is not None else self.origin_ned_m
-        return math.hypot(pos_ned_m[0] - o[0] - start[0], pos_ned_m[1] - o[1] - start[1])
+        (px, py), (ox, oy), (sx, sy) = pos_ned_m[:2].tolist(), o[:2].tolist(), start[:2].tolist()
+        return math.hypot(px - ox - sx, py - oy - sy)
 
     def to_mission(self, est: Estimate) -> Estimate:
         """An estimate in the mission frame (positions relative to :attr:`origin_ned_m`)."""

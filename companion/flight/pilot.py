@@ -326,7 +326,7 @@ class Pilot:
             if self.core.arrival["t_s"] is not None:  # the report's "at the goal" follows the flight's
                 self.record.log.goal_tol_m = self.core.arrival["tolerance_m"]
             self.swing_feed.commanded(est.t_s, cmd.thrust_n)
-            self._tracking_error_m = math.dist(est.pos_ned_m, cmd.ref_pos_ned_m)
+            self._tracking_error_m = math.dist(est.pos_ned_m.tolist(), cmd.ref_pos_ned_m.tolist())
             return Setpoint(est.t_s, cmd.q_ned_frd_wxyz, cmd.thrust_norm), cmd
         if stream is Stream.IDLE:
             yaw = float(est.euler_rad[2]) if est is not None else 0.0

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import NamedTuple
 
 from companion.flight.phase import CoreOrder, State
 from companion.flight.requests import Request
@@ -78,9 +79,9 @@ class SequenceConfig:
     start_tolerance_m: float = 1.0  # refuse to start a mission this far from its start point
 
 
-@dataclass(frozen=True, slots=True)
-class Observation:
-    """What the app knows at this instant.
+class Observation(NamedTuple):
+    """What the app knows at this instant (a NamedTuple: built every control tick, ~3x cheaper than a frozen
+    dataclass of 19 fields).
 
     now_s: the sequence clock (s); wall_s: monotonic wall clock (s); heartbeat_wall_s / telemetry_wall_s: wall
     time of the last autopilot HEARTBEAT and of the older of the last position and attitude (None: never);
