@@ -243,8 +243,7 @@ class SmcPositionController:
         else:
             f_pay = (0.0, 0.0, 0.0)
             ff = (0.0, 0.0, 0.0)
-        s = [0.0, 0.0, 0.0]
-        acc = [0.0, 0.0, 0.0]
+        s, acc = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
         cs, ks = self._c, self._k
         if self.gain_scale != 1.0:
             r = math.sqrt(self.gain_scale)
