@@ -164,8 +164,8 @@ def test_arducopter_routes_a_mavproxy_gcs_to_the_companion_which_pauses_and_resu
     pymavlink GCS on its output, SERIAL1 to the companion: the GCS's commands to (1, 191) reach the companion through
     ArduPilot's routing, the companion's STATUSTEXT reaches the GCS the same way; pause mid-leg, resume, completed."""
     import numpy as np
+    from _operator_helpers import MAVPROXY, Gcs
     from pymavlink.dialects.v20 import common as M
-    from test_gcs_beside import MAVPROXY, Gcs
 
     mp_port, gcs_port, comp = free_udp_port(), free_udp_port(), free_udp_port()
     mavproxy = subprocess.Popen([sys.executable, str(MAVPROXY), "--master", f"udpin:127.0.0.1:{mp_port}", "--out",

@@ -351,7 +351,10 @@ def test_arducopter_sitl_over_tcp(tmp_path, kill):
 @pytest.mark.slow
 def test_arducopter_sitl_on_a_serial_pty(tmp_path):
     """Opt-in (SLUNGPILOT_ARDUPILOT): ArduCopter SITL's SERIAL0 on one end of a pty pair at 921600 baud (its
-    ``uart:`` device), the companion on the other with ``--connect serial://``: the forest completes, nothing lost."""
+    ``uart:`` device), the companion on the other with ``--connect serial://``: the forest completes, nothing lost.
+    SERIAL0 is ArduPilot's console too: at boot it prints "Init Gyro", a '*' per calibration step and a newline
+    between its MAVLink frames (seen here: 12 bytes in 4 runs, 2026-12-03). The companion skips and counts those;
+    nothing else may be rejected."""
     import signal as sig
 
     with PtyPair(tmp_path / "fc", tmp_path / "cc"):
@@ -368,5 +371,7 @@ def test_arducopter_sitl_on_a_serial_pty(tmp_path):
     assert out.returncode == 0, out.stderr[-3000:]
     rep = json.loads((tmp_path / "run" / "report.json").read_text())
     assert rep["outcome"] == "completed" and rep["collisions"] == 0 and rep["autopilot"]["family"] == "ardupilot"
-    assert rep["link"]["lost"] == 0 and not rep["link"]["rejected"], rep["link"]
+    rejected = rep["link"]["rejected"]
+    assert rep["link"]["lost"] == 0 and set(rejected) <= {"garbage", "garbage_bytes"}, rep["link"]
+    assert rejected.get("garbage_bytes", 0) <= len("Init Gyro") + 16, rep["link"]  # the boot text, no more
     assert "locked onto the autopilot (system 1) on serial://" in out.stderr
