@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from companion.estimation import readiness
 from companion.estimation.vehicle_state import VehicleState
@@ -67,6 +68,7 @@ def test_not_ready_names_each_unmet_condition_and_the_last_words():
     assert "PreArm: Compass not calibrated" in seq.detail
 
 
+@pytest.mark.slow
 def test_the_bundled_vehicle_reporting_arming_check_0_flies_the_forest(tmp_path):
     """Lockstep, the bundled vehicle as ArduCopter reports SYS_STATUS with ARMING_CHECK 0. The session's base
     waited for the health bit that never comes and ended ``not_ready`` (here within the 20 s given)."""

@@ -137,14 +137,17 @@ def test_a_broken_world_file_is_refused_naming_the_key(tmp_path, text, says):
 def test_the_vehicle_refuses_a_broken_world_or_lidar_flag_before_it_starts(tmp_path):
     f = tmp_path / "w.toml"
     f.write_text("[[obstacles]]\nx_m = 1.0\ny_m = 0.0\n")
-    for args, says in ((["--world", str(f)], "missing required key 'radius_m'"),
-                       (["--world", "no_such_world"], "shipped: forest, forest_crossing"),
-                       (["--world", "forest", "--lidar-step-deg", "7"], "--lidar-step-deg"),
-                       (["--world", "forest", "--lidar-compid", "1"], "--lidar-compid: 1 is the autopilot's"),
-                       (["--world", "forest", "--lidar-compid", "300"], "--lidar-compid"),
-                       (["--lidar-range-m", "5"], "--lidar-range-m: needs --world")):
-        p = subprocess.run([sys.executable, "-m", "sim_bridge", *args], capture_output=True, text=True, timeout=60)
-        assert p.returncode == 2 and says in p.stderr and "SITL READY" not in p.stdout, (args, p.stderr)
+    cases = ((["--world", str(f)], "missing required key 'radius_m'"),
+             (["--world", "no_such_world"], "shipped: forest, forest_crossing"),
+             (["--world", "forest", "--lidar-step-deg", "7"], "--lidar-step-deg"),
+             (["--world", "forest", "--lidar-compid", "1"], "--lidar-compid: 1 is the autopilot's"),
+             (["--world", "forest", "--lidar-compid", "300"], "--lidar-compid"),
+             (["--lidar-range-m", "5"], "--lidar-range-m: needs --world"))
+    procs = [subprocess.Popen([sys.executable, "-m", "sim_bridge", *args], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for args, _ in cases]  # side by side: ~1 s each
+    for (args, says), p in zip(cases, procs, strict=True):
+        out, err = p.communicate(timeout=60)
+        assert p.returncode == 2 and says in err and "SITL READY" not in out, (args, err)
 
 
 def test_fly_refuses_a_world_without_the_bundled_vehicle_or_a_broken_one(tmp_path):
