@@ -52,3 +52,14 @@ def test_fleet_size_is_checked():
     out = subprocess.run([sys.executable, "-m", "companion.cli", "fleet", "0"], capture_output=True, text=True,
                          timeout=60)
     assert out.returncode == 2 and "1..16" in out.stderr
+
+
+def test_a_fleet_the_machine_cannot_carry_is_warned_of_with_the_rate_that_fits():
+    from companion.cli.fleet import capacity_warning
+
+    assert capacity_warning(4, 250.0, 2) is None  # ~1.4 cores: fits (measured: fleet 4 completes, 0 loss)
+    said = capacity_warning(8, 250.0, 2)  # ~2.8 cores (measured: 6 of 8 complete, swing samples lost)
+    assert said is not None and "~2.8 cores" in said and "--rate-hz 100 needs ~1.6" in said
+    assert capacity_warning(8, 100.0, 2) is None  # measured: 8 of 8 complete, 0 lost, tick p99 < 0.5 ms
+    said = capacity_warning(16, 250.0, 2)
+    assert said is not None and "--rate-hz" not in said  # no rate fits 16 pairs on 2 cores: no hint

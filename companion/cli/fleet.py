@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import socket
 import subprocess
@@ -41,8 +42,8 @@ def add_fleet_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run-dir", type=Path, default=None, help="where the run folders go (default runs/fleet-<time>)")
     p.add_argument("--lockstep", action="store_true", help="fly in lockstep instead of real time")
     p.add_argument("--rate-hz", type=float, default=None,
-                   help="each companion's control rate (default fly's 250 Hz; 100 Hz flies the missions as well and "
-                        "costs 2.5x less CPU per pair)")
+                   help="each companion's control rate (default fly's 250 Hz; 100 Hz flies the missions as well and a "
+                        "pair then takes ~0.21 of a core instead of ~0.35: fleet 8 fits 2 cores only at 100 Hz)")
     p.add_argument("--rt-priority", type=int, default=10, metavar="N",
                    help="each companion's --rt-priority (default 10: control threads SCHED_FIFO, so the 2N "
                         "processes sharing this machine cannot preempt a tick; 0 = normal scheduling; refused "
@@ -155,6 +156,29 @@ def _vehicle_result(vid: str, code: int, root: Path, counter: _StreamCounter) ->
             "bytes_per_sim_s": total_bytes / sim_s if sim_s > 0 else None}
 
 
+#: one vehicle + companion pair's share of a core in real-time flight, Zenoh on (measured 2026-12-03 on the 2-core
+#: VM, docs/zenoh.md): ~0.21 at 100 Hz control, ~0.35 at 250 Hz; a line through both
+PAIR_CORE_BASE, PAIR_CORE_PER_HZ = 0.11, 0.00096
+DEFAULT_RATE_HZ = 250.0  # fly's own default (FlightSetup.rate_hz)
+
+
+def pairs_core_need(n: int, rate_hz: float) -> float:
+    """Cores ``n`` pairs need in real-time flight at ``rate_hz`` (the measured line above)."""
+    return n * (PAIR_CORE_BASE + PAIR_CORE_PER_HZ * rate_hz)
+
+
+def capacity_warning(n: int, rate_hz: float, cores: int) -> str | None:
+    """A warning when ``n`` real-time pairs at ``rate_hz`` need more than 90 % of ``cores`` (the router and the
+    counting subscriber need the rest), naming the rate that fits; None when they fit."""
+    need = pairs_core_need(n, rate_hz)
+    if need <= 0.9 * cores:
+        return None
+    fits = [r for r in (200.0, 150.0, 100.0, 50.0) if r < rate_hz and pairs_core_need(n, r) <= 0.9 * cores]
+    hint = f"; --rate-hz {fits[0]:g} needs ~{pairs_core_need(n, fits[0]):.1f}" if fits else ""
+    return (f"fleet: {n} pairs at {rate_hz:g} Hz need ~{need:.1f} cores in flight and this machine has {cores}: "
+            f"expect late setpoints, stream loss and vehicles that land on their own{hint}")
+
+
 def run_fleet(args: argparse.Namespace) -> int:
     """Fly the fleet; exit 0 when every vehicle completed its mission."""
     n = args.n
@@ -171,6 +195,9 @@ def run_fleet(args: argparse.Namespace) -> int:
     client_cfg = zenoh_config("listener", mode="client", connect=[ep])
     with open_session(router_cfg), open_session(client_cfg) as sub_session:
         sub_session.declare_subscriber("slungpilot/*/*", counter)
+        warning = None if args.lockstep else capacity_warning(n, args.rate_hz or DEFAULT_RATE_HZ, os.cpu_count() or 1)
+        if warning:
+            print(warning, file=sys.stderr, flush=True)
         print(f"fleet: router on {ep}; {n} vehicles flying {args.mission} "
               f"({'lockstep' if args.lockstep else 'real time'}); run folders in {root}", flush=True)
         for i in range(n):
