@@ -25,10 +25,12 @@ from __future__ import annotations
 import math
 from collections import deque
 
+from companion.control.swing_bias import TAU_S as SWING_BIAS_TAU_S
+
 LAG_S = 1.0  # (s) the interval of each difference: the wind's correlation time in light turbulence is ~8 s
 SAMPLE_S = 0.1  # (s) one difference per this
 SXX_MIN = 10.0  # ((m/s)²) Σ|Δv|² before the estimate is given: ~0.4 s of 1.85 m/s² acceleration
-TAU_S = 0.5  # (s) the low-pass on v: the one on e (companion.control.swing_bias.TAU_S)
+TAU_S = SWING_BIAS_TAU_S  # (s) the low-pass on v: the one on e, so their lags match
 #: (rad per (m/s)²) a smaller c is none: 0.03 rad of trailing at 5 m/s (the swing observer's error is <= 0.017 rad)
 C_MIN = 0.0012
 
