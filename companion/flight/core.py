@@ -23,6 +23,7 @@ from companion.control import (
     limit_force_xyz,
 )
 from companion.control.disturbance import ForceObserver, push_offset
+from companion.control.drag_id import DragIdentifier
 from companion.control.swing_bias import SwingBias, feedforward_offsets
 from companion.core.envelope import r_max_m
 from companion.core.mission import Mission
@@ -64,6 +65,8 @@ class FlightCore(CoreOrders, HopMixin):
     swing_bias: SwingBias
     #: the wind's push on the whole vehicle, taken off the position command beyond the ordinary (issue 28)
     push: ForceObserver
+    #: the payload's drag angle per (m/s)² and the wind, identified from the swing's equilibrium (issue 28)
+    drag_id: DragIdentifier
 
     def __init__(self, mission: Mission, gains: ControllerConfig | None = None, profile: VehicleProfile | None = None,
                  period_s: float = 0.004):
@@ -243,6 +246,7 @@ class FlightCore(CoreOrders, HopMixin):
                                 self.params.l)
             push_offset(self.controller, self.push, est.t_s, est.vel_ned_mps, est.euler_rad, self._thrust_prev,
                         None if ctl_swing is None else swing, swing_acc_raw, trust)
+            self.drag_id.update(est.t_s, None if ctl_swing is None else self.swing_bias.mean, est.vel_ned_mps)
         ctl = self.controller.update(
             est.pos_ned_m, est.vel_ned_mps, ref.p, ref.v, ref.a if acc_ctl is None else acc_ctl, ctl_swing,
             swing_acc if ctl_swing is not None else (0.0, 0.0), max(dt, 1e-4),
@@ -348,7 +352,8 @@ class FlightCore(CoreOrders, HopMixin):
             ref_vel_mps=np.array(ref.v[:2]), goal_m=goal, r_max_m=r_max, swing=swing,
             cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
             swing_sigma_rad=swing_sigma_rad(est), v_cap_mps=self.cap.cap_mps(est.pos_ned_m, est.vel_ned_mps, r_max),
-            drift_m=0.0 if swing is None else self.swing_bias.drift_m(self.params.l), **legs_in,
+            drift_m=0.0 if swing is None else self.swing_bias.drift_m(self.params.l),
+            drag_c=0.0 if swing is None else self.drag_id.c, wind_mps=self.drag_id.wind, **legs_in,
         )
         out = self.planner.plan(inp, obs)
         if out.no_route and not self.no_route:

@@ -47,6 +47,11 @@ class PlanInput:
     ``drift_m``: how far (m) the wind's drag holds the payload off the path planned for it, l·sin|θ_eq| with θ_eq
     the swing's slow equilibrium (:mod:`companion.control.swing_bias`: measured from forces, so a re-plan's swing
     is not in it); 0 without a swing input.
+
+    ``drag_c``: the payload's drag angle per (m/s)² of airspeed (rad), as identified in flight
+    (:mod:`companion.control.drag_id`; 0: none or not yet known); ``wind_mps``: the wind (m/s, NED x y) measured
+    with it. The shaped planner's timing budgets the trailing they give
+    (:class:`~companion.planning.timing.DragBudget`).
     """
 
     t_s: float
@@ -67,6 +72,8 @@ class PlanInput:
     leg_caps_mps: tuple[float, ...] = ()
     v_cap_mps: float = math.inf
     drift_m: float = 0.0
+    drag_c: float = 0.0
+    wind_mps: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass(frozen=True, slots=True)

@@ -26,7 +26,7 @@ from companion.planning.params import PlannerParams
 from companion.planning.path import smooth_path
 from companion.planning.route import find_route
 from companion.planning.timeline import Timeline
-from companion.planning.timing import Profile, sample_motion, speed_profile
+from companion.planning.timing import DragBudget, Profile, sample_motion, speed_profile
 
 CAPSULE_STEP_M = 0.45  # spacing of a capsule's discs: the union's edge sags < 3 cm for a 0.95 m ring
 
@@ -45,7 +45,8 @@ class Candidate:
 
 def timed_routes(p0: np.ndarray, v0: np.ndarray, goal: np.ndarray, c: np.ndarray, ring: np.ndarray, hard: np.ndarray,
                  a_max: float, p: PlannerParams, options: Sequence[tuple[bool, float]] | None = None,
-                 vias: Sequence[np.ndarray] = (), caps: Sequence[float] = ()) -> list[Candidate]:
+                 vias: Sequence[np.ndarray] = (), caps: Sequence[float] = (), drag: DragBudget | None = None
+                 ) -> list[Candidate]:
     """Timed routes from (p0, v0) to the goal around discs (centres ``c``, radii ``ring``, start/goal shrink
     limits ``hard``) at the acceleration bound ``a_max``, fastest first (see module docstring).
 
@@ -54,12 +55,14 @@ def timed_routes(p0: np.ndarray, v0: np.ndarray, goal: np.ndarray, c: np.ndarray
     beyond it and the search repeated, which finds the best route on the other side of that apex.
     ``options`` (walled, extra) restricts the search to those (a refresh); default: all of them. With ``vias``
     (pass-through waypoints) the route runs through them as one path, each leg under its speed limit in ``caps``
-    (:func:`companion.planning.legs_route.timed_through`, plain inflations only).
+    (:func:`companion.planning.legs_route.timed_through`, plain inflations only). ``drag``: the payload's drag
+    budget of the timing (:class:`~companion.planning.timing.DragBudget`), None: none.
     """
     if vias:
         plain_opts = [e for b, e in (list(options) if options is not None else search_options(p)) if not b]
         return [Candidate(pr, pr.duration_s, e, True)
-                for pr, e in timed_through(p0, v0, vias, caps, goal, c, ring, hard, a_max, p, plain_opts or [0.0])]
+                for pr, e in timed_through(p0, v0, vias, caps, goal, c, ring, hard, a_max, p, plain_opts or [0.0],
+                                           drag)]
     speed = math.hypot(float(v0[0]), float(v0[1]))
     heading = v0 / speed if speed > 0.05 else None
     out: list[Candidate] = []
@@ -77,7 +80,7 @@ def timed_routes(p0: np.ndarray, v0: np.ndarray, goal: np.ndarray, c: np.ndarray
             lengths.append(rt.length_m)
             path = smooth_path(rt.points, cc, rr, ds_m=p.route_ds_m, heading=heading)
             prof = speed_profile(path, speed, a_max_mps2=a_max, v_max_mps=p.shaped_v_max_mps, heading=heading,
-                                 a_brake_mps2=p.shaped_brake_mps2)
+                                 a_brake_mps2=p.shaped_brake_mps2, drag=drag)
             out.append(Candidate(prof, prof.duration_s, e, True))
             paths.append(path)
         return found

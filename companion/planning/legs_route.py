@@ -19,7 +19,7 @@ import numpy as np
 from companion.planning.params import PlannerParams
 from companion.planning.path import smooth_path_pinned
 from companion.planning.route import find_route
-from companion.planning.timing import Profile, speed_profile
+from companion.planning.timing import DragBudget, Profile, speed_profile
 
 PIN_M = 0.3  # the path passes within this much (m) of a waypoint's route point
 PLAN_PASS_M = 1.2  # a waypoint this close (m) with the state beyond it is behind the plan
@@ -66,9 +66,11 @@ def remaining_vias(p0: np.ndarray, vias: Sequence[np.ndarray], goal: np.ndarray,
 
 def timed_through(p0: np.ndarray, v0: np.ndarray, vias: Sequence[np.ndarray], caps: Sequence[float],
                   goal: np.ndarray, c: np.ndarray, ring: np.ndarray, hard: np.ndarray, a_max: float,
-                  p: PlannerParams, extras: Sequence[float]) -> list[tuple[Profile, float]]:
+                  p: PlannerParams, extras: Sequence[float], drag: DragBudget | None = None
+                  ) -> list[tuple[Profile, float]]:
     """Timed routes through ``vias`` to ``goal``: (profile, the inflation (m) it was found with), one per
-    inflation in ``extras`` that has a route of a length not seen yet, fastest first."""
+    inflation in ``extras`` that has a route of a length not seen yet, fastest first; ``drag`` as in
+    :func:`~companion.planning.timing.speed_profile`."""
     speed = math.hypot(float(v0[0]), float(v0[1]))
     heading = v0 / speed if speed > 0.05 else None
     out: list[tuple[Profile, float]] = []
@@ -87,7 +89,8 @@ def timed_through(p0: np.ndarray, v0: np.ndarray, vias: Sequence[np.ndarray], ca
         s_path = np.r_[0.0, np.cumsum(np.hypot(*np.diff(path, axis=0).T))]
         ends = np.array([s_path[k] for k in pins], dtype=np.float64)
         prof = speed_profile(path, speed, a_max_mps2=a_max, v_max_mps=p.shaped_v_max_mps, heading=heading,
-                             a_brake_mps2=p.shaped_brake_mps2, caps=(ends, lim) if np.any(np.isfinite(lim)) else None)
+                             a_brake_mps2=p.shaped_brake_mps2, caps=(ends, lim) if np.any(np.isfinite(lim)) else None,
+                             drag=drag)
         out.append((prof, e))
     out.sort(key=lambda pe: pe[0].duration_s)
     return out

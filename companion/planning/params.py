@@ -42,7 +42,10 @@ class PlannerParams:
     deviations of the swing estimate's uncertainty widen the envelope, ``predict_growth_mps`` how fast the
     predicted position of a moving obstacle grows uncertain (m per s of look-ahead), ``error_hold_s`` how
     long a tracking-error peak is remembered in the margin, ``shaped_brake_mps2`` the deceleration allowed
-    when the current speed is too high for what lies ahead (also the no-route stop).
+    when the current speed is too high for what lies ahead (also the no-route stop), ``drag_swing_budget_rad``
+    the swing (rad) the planned speed-up and the payload's drag trailing share once the drag is measured
+    (:class:`~companion.planning.timing.DragBudget`; Table 1's atan(1.85/9.81), not scaled with the payload: a long
+    cable's lower acceleration leaves the trailing more of it).
     """
 
     ka: float = 1.5
@@ -82,6 +85,7 @@ class PlannerParams:
     predict_growth_mps: float = 0.1
     error_hold_s: float = 2.0
     shaped_brake_mps2: float = 3.0
+    drag_swing_budget_rad: float = 0.186
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: must be > 0")`` for non-positive or non-finite values."""

@@ -45,6 +45,7 @@ import numpy as np
 
 from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
+from companion.planning import timing
 from companion.planning.base import PlanInput, PlanOutput, ReferenceSample
 from companion.planning.candidates import capsules, search_options, timed_routes, warm_up
 from companion.planning.clearance import Predicted, clearance
@@ -99,6 +100,7 @@ class ShapedPlanner:
         self._search_ring_m = 0.0
         self._search_goal: np.ndarray | None = None  # the goal of the last replan (a new one: search again)
         self.plan_option: tuple[bool, float] = (False, 0.0)
+        self.plan_drag_c = self._search_drag_c = 0.0  # the payload drag (PlanInput.drag_c) the plan was timed with
         self.plan_profile: Profile | None = None  # the unshaped plan being flown, from absolute row plan_k0
         self.plan_k0 = 0
         self.stop_requested = False
@@ -208,13 +210,15 @@ class ShapedPlanner:
             self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
             return
         why = "cap" if why is None and sp0 > cap + CAP_SLACK_MPS else why  # too fast for it: re-timed, not optional
+        if why is None and timing.drag_changed(inp.drag_c, self.plan_drag_c):
+            why = "drag"  # timed for another payload drag than measured now: re-timed, not optional
         p = p if cap >= p.shaped_v_max_mps else replace(p, shaped_v_max_mps=cap)
         if why is None:
             self.last = {"kept": True, "reason": "valid, nothing changed"}
             return
         self.searches += 1
         self._search_t, self._search_sig, self._search_pred = t, obstacle_signature(obstacles), r.pred
-        self._search_ring_m = ring_now
+        self._search_ring_m, self._search_drag_c = ring_now, inp.drag_c
         options = None
         if why == "refresh":
             # nothing changed and the plan is good: re-time its own route and try one other option in turn
@@ -225,8 +229,9 @@ class ShapedPlanner:
         if why != "refresh" and not self._route_exists(r, p, cur_ok):
             return
         self.no_route_since_s = None
-        optional = cur_ok and self.plan_reaches_goal and why != "cap"  # a fine plan: a new one must be better
-        chosen, cands, tried = self._candidates(inp, r, p, options, optional)
+        optional = cur_ok and self.plan_reaches_goal and why not in ("cap", "drag")  # a new one must be better
+        # a re-timing for the drag may be slower, never harder braking (a plan that swings more than the drag saves)
+        chosen, cands, tried = self._candidates(inp, r, p, options, optional or why == "drag")
         self.last = {"candidates": tried, "cur_ok": cur_ok, "remaining_s": remaining,
                      "durations": [round(cd.duration_s, 3) for cd in cands]}
         if chosen is not None:
@@ -282,18 +287,19 @@ class ShapedPlanner:
         tl = self.tl
         assert tl is not None
         cc, rr, hh = r.c, r.ring, r.contact
+        dg = timing.drag_budget(inp.drag_c, inp.wind_mps, p.drag_swing_budget_rad, inp.g_mps2)
         chosen = None
         tried = 0
         for rnd in range(3):
             if rnd > 0:  # with capsules in the way: the three smallest plain inflations are enough
                 options = [(False, e) for walled, e in search_options(p) if not walled][:3]
-            cands = timed_routes(r.p0, r.v0, r.goal, cc, rr, hh, p.shaped_a_max_mps2, p, options, r.vias, r.caps)
+            cands = timed_routes(r.p0, r.v0, r.goal, cc, rr, hh, p.shaped_a_max_mps2, p, options, r.vias, r.caps, dg)
             if not cands and options is not None:
-                cands = timed_routes(r.p0, r.v0, r.goal, cc, rr, hh, p.shaped_a_max_mps2, p, None, r.vias, r.caps)
+                cands = timed_routes(r.p0, r.v0, r.goal, cc, rr, hh, p.shaped_a_max_mps2, p, None, r.vias, r.caps, dg)
             if not cands:
                 # only the bare ring lets a route through: fly it at half the acceleration (less lead, less swing)
                 cands = timed_routes(r.p0, r.v0, r.goal, cc, np.maximum(rr - (r.ring - r.bare).max(initial=0.0), 0.0)
-                                     if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2, p, None, r.vias, r.caps)
+                                     if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2, p, None, r.vias, r.caps, dg)
             conflicts: list[tuple[int, float]] = []
             for cand in cands:
                 if optional and cand.profile.a_peak_mps2 > OPTIONAL_A_FACTOR * p.shaped_a_max_mps2:
@@ -326,7 +332,7 @@ class ShapedPlanner:
             self.plan_end_k = k_r + len(rows) - 1
             self.plan_profile, self.plan_k0 = cand.profile, k_r
             self.plan_reaches_goal = cand.reaches_goal
-            self.plan_option = (cand.walled, cand.extra_m)
+            self.plan_option, self.plan_drag_c = (cand.walled, cand.extra_m), self._search_drag_c
             self.splices += 1
             self.last.update({"spliced": True, "duration_s": cand.duration_s, "extra_m": cand.extra_m})
         else:

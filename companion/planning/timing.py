@@ -24,6 +24,31 @@ from companion.core.kernel_cache import use_kernel_cache
 
 use_kernel_cache(Path(__file__))
 
+#: (m/s) below this speed a drag budget never stops the speed-up (:func:`_drag_accel`): the flight makes progress
+DRAG_V_PROGRESS_MPS = 1.0
+#: the speed-up kept below DRAG_V_PROGRESS_MPS, as a fraction of the acceleration bound
+DRAG_A_FLOOR = 0.25
+
+
+@dataclass(frozen=True, slots=True)
+class DragBudget:
+    """The payload's drag as the timing budgets it (issue 28): ``c`` its drag angle per (m/s)² of airspeed (rad),
+    ``wind`` the wind (m/s, NED x y) as measured, ``budget_rad`` the swing the planned acceleration and the
+    trailing share, ``g`` (m/s²)."""
+
+    c: float
+    wind: tuple[float, float]
+    budget_rad: float
+    g: float = 9.81
+
+    def array(self, tangents: np.ndarray, a_max: float) -> np.ndarray:
+        """The ``drag`` argument of :func:`_profile` for a path of unit ``tangents`` (n, 2)."""
+        wx, wy = self.wind
+        wt = tangents[:, 0] * wx + tangents[:, 1] * wy
+        wn = tangents[:, 1] * wx - tangents[:, 0] * wy
+        return np.r_[self.c, self.budget_rad, self.g, DRAG_A_FLOOR * a_max, wt, wn]
+
+
 
 @njit(cache=True)
 def _spline(s, y, d0x, d0y, clamped):  # pragma: no cover - compiled
@@ -91,9 +116,24 @@ def _spline_eval(s, y, mm, q, out):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
-def _profile(kappa, h, v0, a, v_max, a_brake, vcap):  # pragma: no cover - compiled
+def _drag_accel(v, c, wt, wn, budget, g, a_floor):  # pragma: no cover - compiled
+    """The speed-up (m/s²) at speed ``v`` (m/s) that keeps the planned swing atan(a/g) plus the payload's drag
+    trailing along the path, c·|w − v|·(v − w_t) (rad, none with a tailwind faster than v; wind ``wt`` along the
+    path and ``wn`` across it, m/s; c the drag angle per (m/s)² of airspeed), within ``budget`` (rad); at least
+    ``a_floor`` below :data:`DRAG_V_PROGRESS_MPS`; 0 once the trailing alone fills the budget."""
+    rel = v - wt
+    room = budget - max(c * math.sqrt(rel * rel + wn * wn) * rel, 0.0)
+    acc = g * math.tan(min(room, 1.0)) if room > 0.0 else 0.0
+    if v < DRAG_V_PROGRESS_MPS:
+        acc = max(acc, a_floor)
+    return acc
+
+
+@njit(cache=True)
+def _profile(kappa, h, v0, a, v_max, a_brake, vcap, drag):  # pragma: no cover - compiled
     """Speeds at stations h apart with curvature kappa: time-optimal under |a| <= a and v <= vcap (per station;
-    see module docstring)."""
+    see module docstring). ``drag`` (c, budget, g, a_floor, wt[0..n), wn[0..n)) as one array (only four values:
+    none): the speed-up is also bounded by :func:`_drag_accel`."""
     n = len(kappa)
     v = np.empty(n)
     for i in range(n):
@@ -112,8 +152,27 @@ def _profile(kappa, h, v0, a, v_max, a_brake, vcap):  # pragma: no cover - compi
         else:
             lat = vi * vi * kappa[i]
             at = math.sqrt(max(a * a - lat * lat, 0.0))
+            if len(drag) > 4:
+                at = min(at, _drag_accel(vi, drag[0], drag[4 + i], drag[4 + n + i], drag[1], drag[2], drag[3]))
             v[i + 1] = min(vb[i + 1], math.sqrt(vi * vi + 2.0 * at * h))
     return v
+
+
+_NO_DRAG = np.zeros(4)
+DRAG_RETIME_FRAC = 0.2  # a plan timed with a drag angle this much off the newest estimate is re-timed
+
+
+def drag_budget(c: float, wind: tuple[float, float], budget_rad: float, g: float) -> DragBudget | None:
+    """The timing's drag budget for drag angle ``c`` (rad per (m/s)², 0: None) in ``wind`` (m/s): ``budget_rad``
+    is what the acceleration's swing and the trailing share."""
+    return DragBudget(c, wind, budget_rad, g) if c > 0.0 else None
+
+
+def drag_changed(c_now: float, c_plan: float) -> bool:
+    """Whether a plan timed with drag angle ``c_plan`` must be re-timed for the newest ``c_now`` (rad per (m/s)²).
+    Only a new drag estimate re-times a plan: re-timing for each change of the measured wind (or for the drag
+    measured now) slowed the moderate-turbulence flights by 20-30 % and cost collisions (issue 28)."""
+    return abs(c_now - c_plan) > DRAG_RETIME_FRAC * max(c_now, c_plan)
 
 
 @dataclass(frozen=True, slots=True)
@@ -143,13 +202,15 @@ class Profile:
 
 def speed_profile(points: np.ndarray, v0_mps: float, *, a_max_mps2: float, v_max_mps: float,
                   heading: np.ndarray | None = None, ds_m: float = 0.1, a_brake_mps2: float | None = None,
-                  caps: tuple[np.ndarray, np.ndarray] | None = None) -> Profile:
+                  caps: tuple[np.ndarray, np.ndarray] | None = None, drag: DragBudget | None = None) -> Profile:
     """Fastest motion along ``points`` (n, 2) from speed ``v0_mps`` to rest at the end (see module docstring).
 
     ``heading`` clamps the spline's initial direction. If the current speed is too high for the bend ahead,
     the forward pass brakes with up to ``a_brake_mps2`` (default ``a_max_mps2``) until back under the limit.
     ``caps`` (arc lengths (m) where legs end, their speed limits (m/s)): each station's speed stays under the
-    limit of the leg it is on (the last leg's beyond the last end).
+    limit of the leg it is on (the last leg's beyond the last end). ``drag``: the speed-up also keeps the planned
+    swing plus the payload's drag trailing within its budget (:func:`_drag_accel`; braking is not limited by it:
+    a braking swing leans against the trailing).
     """
     p = np.ascontiguousarray(points, dtype=np.float64)
     seg = np.hypot(*np.diff(p, axis=0).T)
@@ -174,8 +235,9 @@ def speed_profile(points: np.ndarray, v0_mps: float, *, a_max_mps2: float, v_max
     if caps is not None:
         ends, lim = np.asarray(caps[0], dtype=np.float64), np.asarray(caps[1], dtype=np.float64)
         vcap = lim[np.minimum(np.searchsorted(ends, s, side="left"), len(lim) - 1)]
+    dr = _NO_DRAG if drag is None else drag.array(ev[:, 2:4] / sp[:, None], float(a_max_mps2))
     v = _profile(kappa, s[1] - s[0], float(v0_mps), float(a_max_mps2), float(v_max_mps),
-                 float(a_brake_mps2 if a_brake_mps2 is not None else a_max_mps2), np.ascontiguousarray(vcap))
+                 float(a_brake_mps2 if a_brake_mps2 is not None else a_max_mps2), np.ascontiguousarray(vcap), dr)
     vm = v[:-1] + v[1:]
     dt = np.where(vm > 1e-9, 2.0 * (s[1] - s[0]) / np.maximum(vm, 1e-9), 0.0)
     t = np.r_[0.0, np.cumsum(dt)]

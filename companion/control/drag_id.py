@@ -1,0 +1,101 @@
+"""The payload's drag, identified in flight from the swing's wind equilibrium (issue 28).
+
+A payload of mass m and drag coefficient k (N per (m/s)²) in air moving at a = w − v relative to it (w the wind,
+v the vehicle's ground velocity, both m/s) hangs off the vertical by the drag angle (small angles)
+
+    e = k·|a|·a/(m·g) = c·|a|·a,      c = k/(m·g)  (rad per (m/s)²),
+
+which :class:`~companion.control.swing_bias.SwingBias` measures from forces (its low-passed equilibrium
+(α_eq, β_eq) is e = (α_eq, −β_eq)). Neither c nor w is told to the companion. Their square roots separate them:
+u = e/√|e| = √c·(w − v) is linear in the known v, so over any interval in which the wind changes less than the
+vehicle's speed, Δu = −√c·Δv, and
+
+    √c = −Σ Δu·Δv / Σ |Δv|²
+
+over the flight (Δ over :data:`LAG_S`, sampled every :data:`SAMPLE_S`; v low-passed like e so their lags match).
+The wind's own change over the lag is noise uncorrelated with the vehicle's speed changes, which average it out.
+The estimate is given once Σ|Δv|² reaches :data:`SXX_MIN` (about a second of the planned acceleration) and is kept
+for the flight (c is the payload's, not the weather's); the wind then follows as w = v + u/√c. In calm air and
+eq. 49 (no payload drag) the regression's slope is noise about zero: a c below :data:`C_MIN` is taken as none, so
+those flights are planned exactly as before.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+from companion.control.swing_bias import TAU_S as SWING_BIAS_TAU_S
+
+LAG_S = 1.0  # (s) the interval of each difference: the wind's correlation time in light turbulence is ~8 s
+SAMPLE_S = 0.1  # (s) one difference per this
+SXX_MIN = 10.0  # ((m/s)²) Σ|Δv|² before the estimate is given: ~0.4 s of 1.85 m/s² acceleration
+TAU_S = SWING_BIAS_TAU_S  # (s) the low-pass on v: the one on e, so their lags match
+#: (rad per (m/s)²) a smaller c is none: 0.03 rad of trailing at 5 m/s (the swing observer's error is <= 0.017 rad)
+C_MIN = 0.0012
+
+
+class DragIdentifier:
+    """c (rad per (m/s)²) and the wind (m/s, NED x y) from the swing's wind equilibrium; see module docstring."""
+
+    def __init__(self, tau_s: float = TAU_S) -> None:
+        self.tau_s = tau_s
+        self._vf: tuple[float, float] | None = None
+        self._t: float | None = None
+        self._hist: deque[tuple[float, float, float, float, float]] = deque()  # (t, ux, uy, vx, vy)
+        self._next_s = -math.inf
+        self.sxy = self.sxx = 0.0
+        self._u = (0.0, 0.0)
+
+    @property
+    def c(self) -> float:
+        """The drag angle per (m/s)² of airspeed (rad), 0 while unknown or below :data:`C_MIN`."""
+        if self.sxx < SXX_MIN or self.sxy <= 0.0:
+            return 0.0
+        c = (self.sxy / self.sxx) ** 2
+        return c if c >= C_MIN else 0.0
+
+    @property
+    def wind(self) -> tuple[float, float]:
+        """The wind (m/s, NED x y) now, w = v + u/√c; (0, 0) while c is unknown."""
+        c = self.c
+        if c <= 0.0 or self._vf is None:
+            return 0.0, 0.0
+        s = math.sqrt(c)
+        return self._vf[0] + self._u[0] / s, self._vf[1] + self._u[1] / s
+
+    def update(self, t_s: float, eq_rad: tuple[float, float] | None, vel_ned_mps) -> None:
+        """Feed the equilibrium (α_eq, β_eq) (rad, :attr:`SwingBias.mean`; None: no swing input, the differences'
+        history is forgotten) and the airframe's velocity (m/s, NED) at ``t_s`` (s)."""
+        if eq_rad is None:
+            self.reset()
+            return
+        vx, vy = float(vel_ned_mps[0]), float(vel_ned_mps[1])
+        if self._vf is None or self._t is None:
+            self._vf = (vx, vy)
+        elif t_s > self._t:
+            k = (t_s - self._t) / (self.tau_s + t_s - self._t)
+            self._vf = (self._vf[0] + k * (vx - self._vf[0]), self._vf[1] + k * (vy - self._vf[1]))
+        self._t = t_s
+        ex, ey = float(eq_rad[0]), -float(eq_rad[1])
+        r = math.sqrt(math.hypot(ex, ey))
+        self._u = (ex / r, ey / r) if r > 0.0 else (0.0, 0.0)
+        if t_s < self._next_s:
+            return
+        self._next_s = t_s + SAMPLE_S
+        h = self._hist
+        h.append((t_s, self._u[0], self._u[1], self._vf[0], self._vf[1]))
+        while len(h) > 1 and h[1][0] <= t_s - LAG_S + 1e-9:
+            h.popleft()
+        t0, ux0, uy0, vx0, vy0 = h[0]
+        if t_s - t0 < LAG_S - 1e-9:
+            return
+        dvx, dvy = self._vf[0] - vx0, self._vf[1] - vy0
+        self.sxy -= (self._u[0] - ux0) * dvx + (self._u[1] - uy0) * dvy
+        self.sxx += dvx * dvx + dvy * dvy
+
+    def reset(self) -> None:
+        """Forget the differences' history (the swing input dropped out); the sums are kept."""
+        self._hist.clear()
+        self._vf = self._t = None
+        self._next_s = -math.inf
