@@ -38,7 +38,7 @@ def test_the_drag_and_the_wind_are_identified_from_the_swing():
     gust = lambda t: (0.0, -3.0 - 1.0 * math.sin(0.25 * t + 1.0))  # noqa: E731  (a crosswind gusting ±1 m/s)
     _feed(ident, C_TRUE, gust)
     assert ident.c == pytest.approx(C_TRUE, rel=0.1)
-    assert np.hypot(*(np.array(ident.wind) - np.array(gust(10.0)))) < 0.4
+    assert np.hypot(*(np.array(ident.wind_estimate) - np.array(gust(10.0)))) < 0.4
     ident = DragIdentifier()  # a gust along the path that follows the flight's own speed changes biases it (low)
     _feed(ident, C_TRUE, lambda t: (0.6 * math.sin(0.4 * t), -3.0))
     assert 0.6 * C_TRUE < ident.c < C_TRUE
@@ -47,7 +47,7 @@ def test_the_drag_and_the_wind_are_identified_from_the_swing():
 def test_no_drag_is_none():
     ident = DragIdentifier()
     _feed(ident, 0.0, (0.0, -3.0))
-    assert ident.c == 0.0 and ident.wind == (0.0, 0.0)
+    assert ident.c == 0.0 and ident.wind_estimate == (0.0, 0.0)
     ident = DragIdentifier()  # a drag too small to matter (a dense payload) is taken as none as well
     _feed(ident, 0.3 * C_MIN, (0.0, -3.0))
     assert ident.c == 0.0

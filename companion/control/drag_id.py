@@ -56,7 +56,7 @@ class DragIdentifier:
         return c if c >= C_MIN else 0.0
 
     @property
-    def wind(self) -> tuple[float, float]:
+    def wind_estimate(self) -> tuple[float, float]:
         """The wind (m/s, NED x y) now, w = v + u/√c; (0, 0) while c is unknown."""
         c = self.c
         if c <= 0.0 or self._vf is None:

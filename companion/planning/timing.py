@@ -33,17 +33,17 @@ DRAG_A_FLOOR = 0.25
 @dataclass(frozen=True, slots=True)
 class DragBudget:
     """The payload's drag as the timing budgets it (issue 28): ``c`` its drag angle per (m/s)² of airspeed (rad),
-    ``wind`` the wind (m/s, NED x y) as measured, ``budget_rad`` the swing the planned acceleration and the
-    trailing share, ``g`` (m/s²)."""
+    ``wind_estimate`` the wind (m/s, NED x y) as the companion measured it, ``budget_rad`` the swing the planned
+    acceleration and the trailing share, ``g`` (m/s²)."""
 
     c: float
-    wind: tuple[float, float]
+    wind_estimate: tuple[float, float]
     budget_rad: float
     g: float = 9.81
 
     def array(self, tangents: np.ndarray, a_max: float) -> np.ndarray:
         """The ``drag`` argument of :func:`_profile` for a path of unit ``tangents`` (n, 2)."""
-        wx, wy = self.wind
+        wx, wy = self.wind_estimate
         wt = tangents[:, 0] * wx + tangents[:, 1] * wy
         wn = tangents[:, 1] * wx - tangents[:, 0] * wy
         return np.r_[self.c, self.budget_rad, self.g, DRAG_A_FLOOR * a_max, wt, wn]
