@@ -32,10 +32,9 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from companion.control.position import SwingAccelEstimator, _payload_reaction
 from companion.control.swing_bias import _beyond
+from companion.core.floats import floats
 
 TAU_S = 0.3  # (s) the low-pass on d: a gust's push builds over a second and more (Dryden, 6 m/s mean)
 #: (m/s²) a push up to this is left to the position loop: above eq. 49's 0.56 m/s² peak on Table 1's vehicle
@@ -69,7 +68,7 @@ class ForceObserver:
         dead band (its magnitude, the direction kept)."""
         ax, ay = self._acc.update_scalar(t_s, float(vel_ned_mps[0]), float(vel_ned_mps[1]))
         fx, fy = thrust_horizontal(thrust_n, float(euler_rad[0]), float(euler_rad[1]), float(euler_rad[2]))
-        al, be, dal, dbe = swing[:4].tolist() if isinstance(swing, np.ndarray) else map(float, swing[:4])
+        al, be, dal, dbe = map(float, floats(swing[:4]))
         px, py, _ = _payload_reaction(al, be, dal, dbe, float(swing_acc[0]), float(swing_acc[1]), self.m, self.l_m)
         gx, gy = (fx + px) / self.mt, (fy + py) / self.mt
         if self._t is None:

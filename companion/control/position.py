@@ -41,6 +41,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from companion.control.params import ControllerConfig, FeedForwardGains, PidGains, SmcGains
+from companion.core.floats import floats
 from companion.core.model import VehicleParams
 
 
@@ -221,9 +222,9 @@ class SmcPositionController:
         """One control step; arrays NED (3,), SI units. Without swing: no payload reaction, no FF."""
         p = self.params
         mt = p.M + p.m
-        pos, vel = _floats(pos), _floats(vel)  # element by element below: numpy scalars cost ~10x a float
+        pos, vel = floats(pos), floats(vel)  # element by element below: numpy scalars cost ~10x a float
         if swing is not None:
-            al, be, dal, dbe = map(float, _floats(swing))
+            al, be, dal, dbe = map(float, floats(swing))
             dda, ddb = float(swing_acc[0]), float(swing_acc[1])
             f_pay = _payload_reaction(al, be, dal, dbe, dda, ddb, p.m, p.l)
             if self.ff is not None:
@@ -275,11 +276,6 @@ class SmcPositionController:
         ]
         force[2] -= mt * p.g
         return PositionOutput(np.array(force), np.array(acc), np.array(ff), np.array(f_pay), np.array(s))
-
-
-def _floats(v):
-    """``v`` as a list of floats when it is an ndarray (bitwise the same values), else ``v`` itself."""
-    return v.tolist() if isinstance(v, np.ndarray) else v
 
 
 class PidPositionController:

@@ -22,6 +22,7 @@ from typing import Protocol
 
 import numpy as np
 
+from companion.core.floats import floats
 from companion.estimation.estimate import swing_from_payload
 
 SLACK_FRACTION = 0.95  # a payload nearer than this fraction of the cable's length lies on the ground (no swing)
@@ -90,6 +91,6 @@ def chosen_swing(st: SwingSources) -> tuple[np.ndarray | None, str]:
     ):
         swing = payload_swing(st)
         source = "payload_position" if swing is not None else "none"
-    if swing is not None and not all(map(math.isfinite, swing.tolist() if isinstance(swing, np.ndarray) else swing)):
+    if swing is not None and not all(map(math.isfinite, floats(swing))):
         swing, source = None, "none"
     return swing, source

@@ -53,6 +53,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from companion.core.floats import floats
 from companion.core.obstacles import Obstacle
 from companion.planning.base import PlanInput, PlanOutput
 from companion.planning.params import PlannerParams
@@ -64,7 +65,7 @@ def predicted_envelope_m(inp: PlanInput) -> float:
     l = inp.cable_l_m
     if inp.swing is None:
         return max(l, r2)
-    a, b, da, db = inp.swing.tolist() if isinstance(inp.swing, np.ndarray) else map(float, inp.swing)
+    a, b, da, db = map(float, floats(inp.swing))
     w = math.sqrt(inp.g_mps2 / l)
     amp_a = min(math.hypot(a, da / w), 0.5 * math.pi)
     amp_b = min(math.hypot(b, db / w), 0.5 * math.pi)

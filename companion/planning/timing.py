@@ -49,7 +49,6 @@ class DragBudget:
         return np.r_[self.c, self.budget_rad, self.g, DRAG_A_FLOOR * a_max, wt, wn]
 
 
-
 @njit(cache=True)
 def _spline(s, y, d0x, d0y, clamped):  # pragma: no cover - compiled
     """Second derivatives M (n, 2) of the C² cubic spline through y (n, 2) at knots s; start slope (d0x, d0y)
