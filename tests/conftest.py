@@ -9,7 +9,9 @@ suite restores the defaults for itself, and through it for every child it starts
 
 from __future__ import annotations
 
+import re
 import signal
+from pathlib import Path
 
 
 def pytest_configure(config: object) -> None:
@@ -27,15 +29,33 @@ _STARTS_PROCESSES = ("subprocess", "spawn_vehicle", "Popen", "SitlProcess", "fly
                      "mavsdk_drone", "_operator_helpers", "lab.procs", "run_evaluate", "evaluate(")
 
 
+_LAB_IMPORT = re.compile(r"^from lab(?:\.(\w+))? import ([\w, ()]+)", re.MULTILINE)
+
+
+def starts_processes(path: Path) -> bool:
+    """Whether a test file starts processes: its own text shows it (:data:`_STARTS_PROCESSES`), or a ``lab`` module
+    it imports does (``from lab import faults`` flies through real processes without saying so here)."""
+    text = path.read_text(encoding="utf-8", errors="replace")
+    if any(s in text for s in _STARTS_PROCESSES):
+        return True
+    lab = path.parent.parent / "lab"
+    for sub, names in _LAB_IMPORT.findall(text):
+        modules = [sub] if sub else [n.strip(" ()") for n in names.split(",")]
+        for mod in modules:
+            src = lab / f"{mod}.py"
+            if src.is_file() and any(s in src.read_text(encoding="utf-8") for s in _STARTS_PROCESSES):
+                return True
+    return False
+
+
 def pytest_collection_modifyitems(config: object, items: list) -> None:
-    """Mark every test of a file that starts processes ``serial`` (see :data:`_STARTS_PROCESSES`)."""
+    """Mark every test of a file that starts processes ``serial`` (see :func:`starts_processes`)."""
     import pytest
 
-    starts: dict[object, bool] = {}
+    starts: dict[Path, bool] = {}
     for item in items:
-        path = item.path
+        path = Path(item.path)
         if path not in starts:
-            text = path.read_text(encoding="utf-8", errors="replace")
-            starts[path] = any(s in text for s in _STARTS_PROCESSES)
+            starts[path] = starts_processes(path)
         if starts[path]:
             item.add_marker(pytest.mark.serial)
