@@ -28,6 +28,7 @@ PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "c
                  "companion.flight.mode_goal", "companion.flight.setup", "companion.flight.mission_frame",
                  "companion.flight.obstacle_view", "companion.flight.flight_record", "companion.flight.facts",
                  "companion.flight.loop_stats", "companion.flight.arrival", "companion.flight.command",
+                 "companion.flight.loop_margin",
                  "companion.report.scoring", "companion.flight.legs",
                  "companion.flight.operator",  # the ground station's commands, decided (issue 27)
                  "companion.flight.identification",  # the payload identified, and what the flight does with it
@@ -188,3 +189,15 @@ def test_pyproject_lists_every_package():
                for f in (ROOT / pkg).rglob("__init__.py")}
     assert listed == on_disk
     assert cfg["package-dir"] == {"companion.configs": "config"}
+
+
+def test_files_that_fly_real_processes_through_the_lab_run_serially():
+    """``from lab import faults`` starts vehicles, proxies and companions on the wall clock without the test file
+    saying so: such a file must still run in the serial phase (its jitter flight missed its 0.5 m beside another
+    worker's flights in CI, 2026-12-03). A file of pure math must not."""
+    from conftest import starts_processes
+
+    tests = Path(__file__).parent
+    assert starts_processes(tests / "test_faults.py")
+    assert not starts_processes(tests / "test_model_lagrangian.py")
+    assert not starts_processes(tests / "test_wind_push.py")  # lab.inprocess flies in this process

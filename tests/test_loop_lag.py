@@ -92,14 +92,17 @@ def test_the_fade_must_fall() -> None:
         LoopLagEstimator(0.0)
 
 
-def _gains(fade: bool, soften: bool) -> ControllerConfig:
-    """The default gains with or without the feed-forward's lag fade and the position loop's softening."""
+def _gains(fade: bool, soften: bool, guard: bool = False) -> ControllerConfig:
+    """The default gains with or without the feed-forward's lag fade, the position loop's softening and the
+    limit-cycle guard (off unless asked: these tests show each mechanism on its own)."""
     cfg = ControllerConfig()
     if not fade:
         cfg = dataclasses.replace(cfg, feedforward=dataclasses.replace(
             cfg.feedforward, lag_full_excess_s=10.0, lag_zero_excess_s=11.0))
     if not soften:
         cfg = dataclasses.replace(cfg, smc=dataclasses.replace(cfg.smc, lag_scale_start_s=10.0, lag_scale_end_s=11.0))
+    if not guard:
+        cfg = dataclasses.replace(cfg, cycle=dataclasses.replace(cfg.cycle, scale=1.0))
     return cfg
 
 
@@ -107,6 +110,13 @@ def _hold_tilt(flog) -> float:
     e = np.array(flog.euler)
     hold = np.isin(np.array(flog.phase), ["hold", "done"])
     return float(np.max(np.hypot(e[hold, 0], e[hold, 1])))
+
+
+def _alt_error_m(flog, mission) -> float:
+    """Largest altitude error (m) from the mission altitude once the climb has reached it."""
+    z = np.array(flog.pos)[:, 2]
+    goal_z = float(mission.goal_ned_m[2])
+    return float(np.max(np.abs(z[np.flatnonzero(z <= goal_z + 0.1)[0]:] - goal_z)))
 
 
 def test_a_slow_link_fades_the_feed_forward_before_it_limit_cycles() -> None:
@@ -134,11 +144,14 @@ def test_a_jittery_link_that_reorders_setpoints_is_flown_softly(seed: int) -> No
     fault proxy does to it): with the feed-forward faded but the position loop at full stiffness, the hold cycles
     at the tilt limit (seeds 0-7: 0.17-0.58 rad, above 0.4 in 4, 5 and 6, with the in-process cable sensor reading a
     slack cable as no swing as the companion does; 2, 5 and 6 before the wind-push observer of issue 28 nudged the
-    cycle); softened as well, it holds (0.086-0.090 rad in all eight)."""
+    cycle); softened as well, it holds (0.086-0.090 rad in all eight) and keeps its altitude within 0.5 m (issue 9's
+    bound for the real-time fault test at 50 ± 25 ms)."""
     mission = load_mission("config/missions/forest.toml")
     kw = {"link_delay_s": 0.065, "link_jitter_s": 0.025, "link_seed": seed}
     assert _hold_tilt(fly_inprocess(mission, gains=_gains(fade=True, soften=False), **kw)) > 0.4
-    assert _hold_tilt(fly_inprocess(mission, **kw)) < 0.2
+    softened = fly_inprocess(mission, **kw)
+    assert _hold_tilt(softened) < 0.2
+    assert _alt_error_m(softened, mission) < 0.5
 
 
 def test_the_position_gain_scale_lowers_stiffness_keeping_the_damping_ratio() -> None:

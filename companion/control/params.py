@@ -127,6 +127,37 @@ class LimitGains:
 
 
 @dataclass(frozen=True)
+class CycleGuardGains:
+    """The guard against a limit cycle of the loop itself (:mod:`companion.estimation.limit_cycle`).
+
+    A cycle is ``peaks`` alternating peaks beyond ``accel_mps2`` (m/s²) on one horizontal axis, each within
+    ``window_s`` (s) of the one before, in the controller's correction (its commanded acceleration beyond the
+    reference's, so a planned manoeuvre never counts): faster than the pendulum of any cable of 0.5 m or more
+    (0.7 Hz), as slow as the ~1–1.5 Hz cycle a lagging link drives. It is looked for only while the measured loop
+    lag exceeds the autopilot's clean-link lag by ``min_excess_s`` (s): a loop with its clean-link margin does not
+    cycle, and there a reversal is a transient (a trunk seen late). Each one multiplies the feed-forward's trust and
+    the position gain scale by ``scale`` for ``hold_s`` (s), recovering linearly to 1 over ``recover_s`` (s).
+    ``scale`` 1 turns the guard off.
+    """
+
+    accel_mps2: float = 2.5
+    window_s: float = 0.6
+    peaks: int = 3
+    min_excess_s: float = 0.03
+    scale: float = 0.4
+    hold_s: float = 2.0
+    recover_s: float = 3.0
+
+    def validate(self) -> None:
+        """Raise ``ValueError("<key>: ...")`` for non-positive values, fewer than 2 peaks or a scale outside (0, 1]."""
+        _check_positive(self, allow_zero=("min_excess_s",))
+        if self.peaks < 2:
+            raise ValueError(f"peaks: must be >= 2 (a cycle reverses at least once), got {self.peaks}")
+        if self.scale > 1.0:
+            raise ValueError(f"scale: must be in (0, 1], got {self.scale}")
+
+
+@dataclass(frozen=True)
 class ControllerConfig:
     """Every tunable of the flight core, as loaded from ``config/controller.toml``."""
 
@@ -135,6 +166,7 @@ class ControllerConfig:
     pid: PidGains = field(default_factory=PidGains)
     limits: LimitGains = field(default_factory=LimitGains)
     planner: PlannerParams = field(default_factory=PlannerParams)
+    cycle: CycleGuardGains = field(default_factory=CycleGuardGains)
 
 
 _TABLES = {
@@ -143,6 +175,7 @@ _TABLES = {
     "pid": PidGains,
     "limits": LimitGains,
     "planner": PlannerParams,
+    "cycle": CycleGuardGains,
 }
 
 DEFAULT_CONTROLLER_TOML = shipped_config("controller.toml")

@@ -1,5 +1,4 @@
-"""What the flight core hands out each tick (:class:`Command`), where its climb ends, and its record of the loop
-lag over a flight (:class:`LagStats`, for the report). Pure data."""
+"""What the flight core hands out each tick (:class:`Command`) and where its climb ends. Pure data."""
 
 from __future__ import annotations
 
@@ -55,39 +54,3 @@ def climb_altitude_ned_m(z0_ned_m: float, start_z_ned_m: float, cable_m: float) 
     if z0_ned_m > -cable_m and start_z_ned_m > lift_z:
         return lift_z
     return start_z_ned_m
-
-
-class LagStats:
-    """The loop lag over a flight, for the report: range of the measured lag, least trust, time faded."""
-
-    def __init__(self, period_s: float) -> None:
-        self.period_s = period_s
-        self.lag_min_s: float | None = None
-        self.lag_max_s: float | None = None
-        self.last_lag_s: float | None = None
-        self.trust_min = 1.0
-        self.faded_ticks = 0
-        self.gain_scale_min = 1.0
-        self.softened_ticks = 0
-
-    def add(self, lag_s: float | None, trust: float, gain_scale: float = 1.0) -> None:
-        if lag_s is not None:
-            self.last_lag_s = lag_s
-            self.lag_min_s = lag_s if self.lag_min_s is None else min(self.lag_min_s, lag_s)
-            self.lag_max_s = lag_s if self.lag_max_s is None else max(self.lag_max_s, lag_s)
-        if trust < 1.0:
-            self.faded_ticks += 1
-            self.trust_min = min(self.trust_min, trust)
-        if gain_scale < 1.0:
-            self.softened_ticks += 1
-            self.gain_scale_min = min(self.gain_scale_min, gain_scale)
-
-    def facts(self, nominal_s: float) -> dict[str, float | None]:
-        """Loop lag (ms): min, max, last, the profile's nominal; least feed-forward trust and seconds faded; least
-        position-gain scale and seconds softened."""
-        def ms(v: float | None) -> float | None:
-            return None if v is None else round(v * 1e3, 1)
-        return {"lag_ms_min": ms(self.lag_min_s), "lag_ms_max": ms(self.lag_max_s), "lag_ms_last": ms(self.last_lag_s),
-                "nominal_ms": ms(nominal_s), "ff_trust_min": round(self.trust_min, 3),
-                "faded_s": round(self.faded_ticks * self.period_s, 2), "gain_scale_min": round(self.gain_scale_min, 3),
-                "softened_s": round(self.softened_ticks * self.period_s, 2)}

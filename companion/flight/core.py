@@ -26,16 +26,17 @@ from companion.control.disturbance import ForceObserver, push_offset
 from companion.control.drag_id import DragIdentifier
 from companion.control.swing_bias import SwingBias, feedforward_offsets
 from companion.core.envelope import r_max_m
+from companion.core.floats import floats
 from companion.core.mission import Mission
 from companion.core.obstacles import Obstacle
 from companion.core.vehicle_params import VehicleParams
 from companion.estimation.estimate import Estimate, swing_sigma_rad, widened_swing
-from companion.estimation.loop_lag import LoopLagEstimator, lag_trust
 from companion.flight.arrival import ARRIVE_DWELL_S, ARRIVE_VERT_M, ArrivalRule, arrival_tolerance_m
-from companion.flight.command import LIFT_MARGIN_M, Command, LagStats, climb_altitude_ned_m
+from companion.flight.command import LIFT_MARGIN_M, Command, climb_altitude_ned_m
 from companion.flight.core_hop import HopMixin
 from companion.flight.core_orders import DESCENT_MPS, TIMED_PHASES, CoreOrders
 from companion.flight.legs import Legs, capped, leg_plan, legs_done, planned_swing_acc
+from companion.flight.loop_margin import LoopMargin
 from companion.flight.phase import CorePhase
 from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator
 from companion.planning.fence_guard import fence_obstacles
@@ -90,9 +91,10 @@ class FlightCore(CoreOrders, HopMixin):
         self._braking = False  # a pause: the reference brakes at its own limits, the hold is where it stops
         self.swing_acc = SwingAccelEstimator(self.cfg.feedforward.rate_filter_s)
         self._swing_nom: tuple | None = None  # this tick's planned swing (a timed plan's), else None
-        self.loop_lag = LoopLagEstimator(period_s)
-        self.lag_trust = 1.0  # the feed-forward's trust from the measured loop lag (this tick)
-        self.lag_stats = LagStats(period_s)
+        self.margin = LoopMargin(period_s, self.cfg.cycle)
+        self._correction = (0.0, 0.0)  # the controller's last horizontal correction (m/s², NED)
+        self.loop_lag = self.margin.lag
+        self.lag_trust = 1.0  # the feed-forward's trust from the loop's margin (this tick)
         self.ref: ReferenceGenerator | None = None
         self.phase = CorePhase.CLIMB
         #: with a swing estimator as the swing input, the climb holds at the start altitude up to this long (s)
@@ -208,9 +210,7 @@ class FlightCore(CoreOrders, HopMixin):
 
         The measurement updates every other tick and costs more than the rest of the bookkeeping (~10 numpy
         calls, which run cold in a real-time tick), so the app does it after the setpoint is out."""
-        self.loop_lag.observe(float(est.euler_rad[0]), float(est.euler_rad[1]))
-        euler = cmd.euler_cmd_rad
-        self.loop_lag.command(float(euler[0]), float(euler[1]))
+        self.margin.after(est.t_s, est.euler_rad, cmd.euler_cmd_rad, self._correction, self.profile.nominal_loop_lag_s)
 
     def setpoint(self, est: Estimate, obstacles: Sequence[Obstacle] | None = None) -> Command:
         """The setpoint for this tick (no loop-lag bookkeeping: :meth:`after_setpoint`, or :meth:`update` for both).
@@ -251,6 +251,8 @@ class FlightCore(CoreOrders, HopMixin):
             est.pos_ned_m, est.vel_ned_mps, ref.p, ref.v, ref.a if acc_ctl is None else acc_ctl, ctl_swing,
             swing_acc if ctl_swing is not None else (0.0, 0.0), max(dt, 1e-4),
         )
+        acc, acc_ref = ctl.acc_cmd_mps2.tolist(), floats(ref.a if acc_ctl is None else acc_ctl)
+        self._correction = (acc[0] - acc_ref[0], acc[1] - acc_ref[1])  # for the limit-cycle guard (m/s², NED)
         lim = self.cfg.limits
         fx, fy, fz = ctl.force_ned_n.tolist()
         force = limit_force_xyz(fx, fy, fz, lim.tilt_max_rad, self._thrust_min, self._thrust_max)
@@ -275,16 +277,12 @@ class FlightCore(CoreOrders, HopMixin):
             self.phase = self._after_climb()
 
     def _update_lag_trust(self) -> None:
-        """This tick's feed-forward trust (and the SMC's gain scale) from the loop lag measured up to the last tick."""
-        ff_cfg, smc_cfg = self.cfg.feedforward, self.cfg.smc
-        lag = self.loop_lag.lag_s  # as measured up to the last tick (after_setpoint)
-        nominal = self.profile.nominal_loop_lag_s
-        self.lag_trust = lag_trust(lag, nominal, ff_cfg.lag_full_excess_s, ff_cfg.lag_zero_excess_s)
-        gain_scale = 1.0
-        if self.controller.softens_with_lag:
-            gain_scale = self.controller.gain_scale = lag_trust(lag, nominal, smc_cfg.lag_scale_start_s,
-                                                                smc_cfg.lag_scale_end_s, smc_cfg.lag_scale_min)
-        self.lag_stats.add(lag, self.lag_trust, gain_scale)
+        """This tick's feed-forward trust and the SMC's gain scale (:meth:`LoopMargin.factors`)."""
+        softens = self.controller.softens_with_lag
+        self.lag_trust, gain_scale = self.margin.factors(self.t_prev_s, self.cfg, self.profile.nominal_loop_lag_s,
+                                                         softens)
+        if softens:
+            self.controller.gain_scale = gain_scale
 
     def _envelope(self, est: Estimate) -> tuple[np.ndarray | None, float, str, tuple[float, float]]:
         """(swing as an array or None, envelope radius r_max (m), envelope mode, swing accelerations (rad/s²))."""

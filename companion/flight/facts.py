@@ -27,7 +27,7 @@ def pilot_facts(p: Pilot) -> dict[str, Any]:
         "vehicle_statustext": st.statustext[-20:],
         "swing_sources": p.record.swing_sources,
         "swing_estimator": estimator_facts(p.swing_feed),
-        "loop_lag": p.core.lag_stats.facts(p.profile.nominal_loop_lag_s),
+        "loop_lag": p.core.margin.facts(p.profile.nominal_loop_lag_s),
         "autopilot": {"family": p.profile.autopilot, "system_id": st.vehicle_sysid,
                       "component_id": st.vehicle_compid, "mav_autopilot": st.autopilot,
                       "mav_type": st.vehicle_type, "version": st.autopilot_version},
