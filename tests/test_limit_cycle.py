@@ -31,11 +31,11 @@ def _feed(det: LimitCycleDetector, f_hz: float, amp_mps2: float, seconds: float,
 
 
 @pytest.mark.parametrize("axis", [0, 1])
-def test_a_1_3_hz_cycle_at_the_tilt_limit_is_seen_at_its_third_peak(axis: int) -> None:
+def test_a_1_3_hz_cycle_at_the_tilt_limit_is_seen_at_its_second_peak(axis: int) -> None:
     det = LimitCycleDetector(CycleGuardGains())
     scales = _feed(det, 1.3, 6.0, 3.0, axis)  # ~g·tan(0.6): the correction of a cycle at the tilt limit
     assert det.detections >= 1 and det.t_first_s is not None
-    assert det.t_first_s <= 1.25 / 1.3 + PERIOD_S  # peaks at 1/4, 3/4 and 5/4 of a period
+    assert det.t_first_s <= 0.75 / 1.3 + PERIOD_S  # peaks at 1/4 and 3/4 of a period
     assert scales[-1] == pytest.approx(0.4)
 
 
@@ -54,13 +54,13 @@ def test_a_pendulum_swing_a_small_wobble_and_a_steady_push_are_no_cycle() -> Non
 
 
 def test_the_guard_holds_then_recovers_and_ignores_non_finite_commands() -> None:
-    g = CycleGuardGains(scale=0.4, hold_s=2.0, recover_s=3.0)
+    g = CycleGuardGains(peaks=3, scale=0.4, hold_s=2.0, recover_s=3.0)
     det = LimitCycleDetector(g)
     det.correction(0.0, math.nan, math.inf)
     det.correction(0.1, -math.inf, math.nan)
     assert det.detections == 0
     det.correction(1.0, 3.0, 0.0)
-    det.correction(1.5, -3.0, 0.0)  # opposite peak 0.5 s later: one reversal is a transient, not yet a cycle
+    det.correction(1.5, -3.0, 0.0)  # opposite peak 0.5 s later: with peaks = 3 not yet a cycle
     assert det.detections == 0
     det.correction(1.6, 0.0, 0.0)
     det.correction(2.0, 3.0, 0.0)  # the third alternating peak, 0.5 s after the second

@@ -142,7 +142,7 @@ class CycleGuardGains:
 
     accel_mps2: float = 2.5
     window_s: float = 0.6
-    peaks: int = 3
+    peaks: int = 2
     min_excess_s: float = 0.03
     scale: float = 0.4
     hold_s: float = 2.0
