@@ -7,9 +7,9 @@ way, 1 forest flight in ~30 cycled for ~2 s mid-cruise, and the bundled vehicle'
 cycle into a 1.3 m climb. Such a cycle shows in the controller's correction (its commanded acceleration beyond the
 reference's) before it grows: peaks of opposite sign on one axis, closer together than any payload's pendulum
 swings the vehicle (half a period of a 0.5 m cable is 0.71 s). The raw commands would not do: the shaped
-planner's own stops reverse a 0.39 rad tilt within 0.4 s (0.1 kg on 2 m, calm). On one,
-the guard lowers the loop gain (the flight core multiplies the feed-forward's trust and the position gain scale by
-:meth:`LimitCycleDetector.scale`) and lets it back up once the cycle has died. Docs: ``docs/companion.md``.
+planner's own stops reverse a 0.39 rad tilt within 0.4 s (0.1 kg on 2 m, calm). On one, the guard lowers the loop gain
+(the flight core multiplies the feed-forward's trust and the position gain scale by :meth:`LimitCycleDetector.scale`)
+and lets it back up once the cycle has died. Docs: ``docs/companion.md``.
 """
 
 from __future__ import annotations

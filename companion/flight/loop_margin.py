@@ -19,6 +19,7 @@ class LoopMargin:
         self.lag = LoopLagEstimator(period_s)
         self.cycle = LimitCycleDetector(cycle_gains)
         self.stats = LagStats(period_s)
+        self._looking = False  # the lag is past the guard's min_excess_s: the detector is fed
 
     def factors(self, t_s: float | None, cfg: ControllerConfig, nominal_s: float, softens: bool) -> tuple[float, float]:
         """(feed-forward trust, position gain scale), each in (0, 1], for the tick at ``t_s`` (s): from the lag
@@ -32,7 +33,8 @@ class LoopMargin:
         guard = 1.0 if t_s is None else self.cycle.scale(t_s)
         if guard < 1.0:
             trust *= guard
-            gain = gain * guard if softens else gain
+            if softens:
+                gain *= guard
         self.stats.add(lag, trust, gain, cycle=guard < 1.0)
         return trust, gain
 
@@ -45,10 +47,12 @@ class LoopMargin:
         self.lag.observe(float(euler_rad[0]), float(euler_rad[1]))
         self.lag.command(float(euler_cmd_rad[0]), float(euler_cmd_rad[1]))
         lag = self.lag.lag_s
-        if lag is not None and lag - nominal_s >= self.cycle.gains.min_excess_s:
+        looking = lag is not None and lag - nominal_s >= self.cycle.gains.min_excess_s
+        if looking:
             self.cycle.correction(t_s, correction_mps2[0], correction_mps2[1])
-        else:
-            self.cycle.reset()
+        elif self._looking:
+            self.cycle.reset()  # once, as the lag falls back: a clean link's tick allocates nothing here
+        self._looking = looking
 
     def facts(self, nominal_s: float) -> dict[str, float | int | None]:
         """:meth:`LagStats.facts` plus the guard's: limit cycles seen, the first (s, vehicle clock), seconds held."""
