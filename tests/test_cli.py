@@ -87,14 +87,19 @@ def test_obstacles_publish_with_nobody_listening_sends_nothing_and_says_so():
 
 @pytest.mark.slow
 def test_the_readme_live_obstacle_example_changes_the_path(tmp_path):
-    """README: a shipped trunk published while the open field is flown; the vehicle flies around it."""
+    """README: a shipped trunk published while the open field is flown; the vehicle flies around it.
+
+    The publisher listens and is up before the flight starts: the other way round (the flight listening, the
+    publisher connecting) its connection retries raced a lockstep flight that reaches the trunk ~2 s of wall time
+    after start, and the trunk once arrived with the vehicle already in it (fresh machine, 2026-12-04)."""
     from lab.procs import free_tcp_port
 
     ep = f"tcp/127.0.0.1:{free_tcp_port()}"
     pub = subprocess.Popen([sys.executable, "-m", "companion.cli", "obstacles", "publish", "trunk",
-                            "--zenoh-connect", ep, "--wait-s", "120"], cwd=ROOT, stdout=subprocess.PIPE,
+                            "--zenoh-listen", ep, "--wait-s", "120"], cwd=ROOT, stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
-    fly = _cli("-q", "fly", "--sitl", "--mission", "open_field", "--zenoh-listen", ep, "--no-plots", "--run-dir",
+    assert pub.stderr.readline().startswith("waiting up to 120 s for a subscriber")
+    fly = _cli("-q", "fly", "--sitl", "--mission", "open_field", "--zenoh-connect", ep, "--no-plots", "--run-dir",
                str(tmp_path / "run"), timeout=240)
     out, err = pub.communicate(timeout=60)
     assert pub.returncode == 0 and "published 1 obstacles" in out, err

@@ -244,6 +244,8 @@ def run_obstacles_publish(args: argparse.Namespace) -> int:
             congestion_control=zenoh.CongestionControl.BLOCK,
         )
         deadline = time.monotonic() + args.wait_s
+        if not pub.matching_status.matching:
+            print(f"waiting up to {args.wait_s:g} s for a subscriber to {key}", file=sys.stderr, flush=True)
         while not pub.matching_status.matching and time.monotonic() < deadline:
             time.sleep(0.02)
         if not pub.matching_status.matching:
