@@ -84,23 +84,31 @@ def cell_spec(cell: Cell, base: ForestSpec) -> ForestSpec:
     return base.with_(altitude_m=altitude, trunk_height_m=max(base.trunk_height_m, altitude + TRUNK_ABOVE_M))
 
 
-def cell_mission(cell: Cell, seed: int, base: ForestSpec) -> Mission:
-    """The forest of ``seed`` flown with the cell's payload and wind."""
+def cell_mission(cell: Cell, seed: int, base: ForestSpec, declare_drag: bool = True) -> Mission:
+    """The forest of ``seed`` flown with the cell's payload and wind. ``declare_drag``: the mission declares the
+    payload's drag coefficient as it declares its mass and cable (``[payload] drag_n_per_mps2``, the world's own
+    where the wind drags, 0 in calm air and eq. 49, which drag nothing); False: the companion identifies it."""
     spec = cell_spec(cell, base)
     m = generate_forest(seed, spec)
     vehicle = replace(m.vehicle, m=cell.mass_kg, l=cell.cable_m)
     vehicle.validate()
-    return m.with_(vehicle=vehicle, wind=wind_config(cell.wind, seed, spec.altitude_m, cell.mass_kg),
+    wind = wind_config(cell.wind, seed, spec.altitude_m, cell.mass_kg)
+    payload = m.payload
+    if declare_drag and wind.is_physical:
+        payload = replace(payload, drag_n_per_mps2=float(wind.drag_coefficients()[1]))
+    return m.with_(vehicle=vehicle, wind=wind, payload=payload,
                    name=f"{m.name}-m{cell.mass_kg:g}-l{cell.cable_m:g}-{cell.wind}")
 
 
-def build_jobs(cells: list[Cell], n: int, seed0: int, base: ForestSpec, mode: str, out: Path) -> list[Job]:
-    """One job per (cell, seed)."""
+def build_jobs(cells: list[Cell], n: int, seed0: int, base: ForestSpec, mode: str, out: Path,
+               declare_drag: bool = True) -> list[Job]:
+    """One job per (cell, seed); ``declare_drag`` as :func:`cell_mission`."""
     jobs = []
     for c in cells:
         for seed in range(seed0, seed0 + n):
             run_dir = out / "runs" / f"m{c.mass_kg:g}" / f"l{c.cable_m:g}" / c.wind / f"s{seed}"
-            jobs.append(Job(key=f"{c.key}|{seed}", mission=cell_mission(c, seed, base), run_dir=run_dir,
+            jobs.append(Job(key=f"{c.key}|{seed}", mission=cell_mission(c, seed, base, declare_drag),
+                            run_dir=run_dir,
                             mode=mode, plots=False, keep_run_dir=False))
     return jobs
 
@@ -157,11 +165,12 @@ def table_markdown(cells: list[Cell], per: dict[str, dict[str, Any]]) -> str:
 
 
 def envelope(cells: list[Cell], n: int, *, seed0: int = 0, base: ForestSpec | None = None, mode: str = "mavlink",
-             workers: int = 2, out: Path, progress: bool = True) -> dict[str, Any]:
-    """Fly the grid and write ``envelope.md``, ``envelope.json``, ``results.jsonl`` and ``envelope.png``."""
+             workers: int = 2, out: Path, progress: bool = True, declare_drag: bool = True) -> dict[str, Any]:
+    """Fly the grid and write ``envelope.md``, ``envelope.json``, ``results.jsonl`` and ``envelope.png``;
+    ``declare_drag`` as :func:`cell_mission`."""
     base = base or ForestSpec(density_per_100m2=4.0, width_m=6.0)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = build_jobs(cells, n, seed0, base, mode, out)
+    jobs = build_jobs(cells, n, seed0, base, mode, out, declare_drag)
     wall0 = time.monotonic()
     results = run_jobs(jobs, workers, progress)
     wall = time.monotonic() - wall0
@@ -170,14 +179,16 @@ def envelope(cells: list[Cell], n: int, *, seed0: int = 0, base: ForestSpec | No
             fh.write(json.dumps(r) + "\n")
     per = summarise(results, cells)
     summary = {"mode": mode, "n_per_cell": n, "seed0": seed0, "density_per_100m2": base.density_per_100m2,
-               "width_m": base.width_m, "length_m": base.length_m, "wall_s": wall, "missions": len(results),
+               "width_m": base.width_m, "length_m": base.length_m,
+               "payload_drag": "declared" if declare_drag else "identified", "wall_s": wall, "missions": len(results),
                "cells": [{"mass_kg": c.mass_kg, "cable_m": c.cable_m, "wind": c.wind, **per[c.key]} for c in cells]}
     (out / "envelope.json").write_text(json.dumps(summary, indent=2) + "\n")
     from lab.figures import plot_envelope
 
     png = plot_envelope(summary, out / "envelope.png")
     head = (f"# Payload envelope: {n} forests per cell ({base.density_per_100m2:g} trunks/100 m², "
-            f"{base.width_m:g} m corridor, {mode} mode), {len(results)} flights in {wall:.0f} s\n\n")
+            f"{base.width_m:g} m corridor, {mode} mode, payload drag {'declared' if declare_drag else 'identified'}), "
+            f"{len(results)} flights in {wall:.0f} s\n\n")
     (out / "envelope.md").write_text(head + table_markdown(cells, per) + f"\n![envelope]({png.name})\n")
     return summary
 

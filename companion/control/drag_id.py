@@ -18,6 +18,12 @@ The estimate is given once Σ|Δv|² reaches :data:`SXX_MIN` (about a second of 
 for the flight (c is the payload's, not the weather's); the wind then follows as w = v + u/√c. In calm air and
 eq. 49 (no payload drag) the regression's slope is noise about zero: a c below :data:`C_MIN` is taken as none, so
 those flights are planned exactly as before.
+
+A payload whose drag the mission declares (``[payload] drag_n_per_mps2`` = k, as it declares mass and cable) has
+c = k/(m·g) from take-off (``c_declared``): no speed-up is waited for, and the wind follows from the equilibrium at
+once, the hover before the cruise included. In turbulence one speed-up cannot separate c from the wind's own change
+(light turbulence, forest 8: the wind along the path changed by 3.5 m/s while the vehicle sped up by 5, and c came
+out at 0.35x the truth, after the speed-up it should have shaped; docs/measurements.md, 2026-12-04).
 """
 
 from __future__ import annotations
@@ -35,11 +41,19 @@ TAU_S = SWING_BIAS_TAU_S  # (s) the low-pass on v: the one on e, so their lags m
 C_MIN = 0.0012
 
 
-class DragIdentifier:
-    """c (rad per (m/s)²) and the wind (m/s, NED x y) from the swing's wind equilibrium; see module docstring."""
+def declared_drag_c(drag_n_per_mps2: float, payload_kg: float, g_mps2: float) -> float:
+    """c = k/(m·g) (rad per (m/s)²) of a payload of ``payload_kg`` whose drag coefficient k the mission declares
+    (N per (m/s)²; 0: not declared)."""
+    return drag_n_per_mps2 / (payload_kg * g_mps2) if drag_n_per_mps2 > 0.0 else 0.0
 
-    def __init__(self, tau_s: float = TAU_S) -> None:
+
+class DragIdentifier:
+    """c (rad per (m/s)²) and the wind (m/s, NED x y) from the swing's wind equilibrium; see module docstring.
+    ``c_declared`` (> 0): the payload's declared c (:func:`declared_drag_c`), used instead of the regression's."""
+
+    def __init__(self, tau_s: float = TAU_S, c_declared: float = 0.0) -> None:
         self.tau_s = tau_s
+        self.c_declared = c_declared
         self._vf: tuple[float, float] | None = None
         self._t: float | None = None
         self._hist: deque[tuple[float, float, float, float, float]] = deque()  # (t, ux, uy, vx, vy)
@@ -49,7 +63,10 @@ class DragIdentifier:
 
     @property
     def c(self) -> float:
-        """The drag angle per (m/s)² of airspeed (rad), 0 while unknown or below :data:`C_MIN`."""
+        """The drag angle per (m/s)² of airspeed (rad): the declared one, else the identified one (0 while unknown or
+        below :data:`C_MIN`)."""
+        if self.c_declared > 0.0:
+            return self.c_declared
         if self.sxx < SXX_MIN or self.sxy <= 0.0:
             return 0.0
         c = (self.sxy / self.sxx) ** 2

@@ -44,7 +44,8 @@ Format (TOML; every table strict: unknown keys, missing required keys and wrong 
 ``[payload]`` lets the companion's model differ from it: a measured ``mass_kg`` / ``cable_length_m`` overrides
 ``[vehicle]`` m / l for the companion (and for identification: a given value is never identified);
 ``identify = true`` asks for :func:`companion.estimation.payload_id.identify_payload` on the values not given;
-``drag_n_per_mps2`` is the payload's drag coefficient for the swing estimator (default 0: negligible drag).
+``drag_n_per_mps2`` is the payload's drag coefficient for the swing estimator and the shaped planner's drag budget
+(default 0: negligible drag, or identified in flight).
 :meth:`Mission.companion_params` is the model the companion should fly with before any identification.
 
 A start, goal or waypoint whose airframe circle (r_uav + L_uav) would overlap an obstacle's safety ring
@@ -115,7 +116,8 @@ class PayloadConfig:
     """The ``[payload]`` table: measured payload mass (kg) and cable length (m), each None when not given,
     whether to identify the ones not given in flight, and the payload's drag coefficient ``drag_n_per_mps2``
     (k in p = −k·|v|·v, N per (m/s)²: ½·ρ·C_d·A, e.g. 0.043 for a 30 cm sphere; 0, the default, for a payload
-    whose drag is negligible), which the swing estimator starts from and refines (docs/swing-estimation.md)."""
+    whose drag is negligible or unknown), which the swing estimator starts from and refines (docs/swing-estimation.md)
+    and the shaped planner's speed-up budgets from take-off (:mod:`companion.control.drag_id`)."""
 
     mass_kg: float | None = None
     cable_length_m: float | None = None

@@ -22,7 +22,7 @@ import numpy as np
 from companion.control import make_position_controller
 from companion.control.adapt import adapt_to_payload
 from companion.control.disturbance import ForceObserver
-from companion.control.drag_id import DragIdentifier
+from companion.control.drag_id import DragIdentifier, declared_drag_c
 from companion.control.swing_bias import SwingBias
 from companion.core.envelope import full_cable_r_max_m
 from companion.core.obstacles import Obstacle
@@ -114,7 +114,8 @@ class HopMixin:
         self.swing_bias = SwingBias(params.g / pendulum_omega_rad_s(params, "held") ** 2, params.g,
                                     self.cfg.feedforward.rate_filter_s)
         self.push = ForceObserver(params.M + params.m, params.m, params.l, self.cfg.feedforward.rate_filter_s)
-        self.drag_id = DragIdentifier()
+        self.drag_id = DragIdentifier(c_declared=declared_drag_c(self.mission.payload.drag_n_per_mps2, params.m,
+                                                                 params.g))
         self._airframe_r = params.r_uav + params.L_uav
         # the speed cap inside the space the range sensor saw free: what passes before a lower cap takes effect is
         # a scan, a re-plan, and the reference's lag behind the plan (shaped: half its shapers' widths; a velocity

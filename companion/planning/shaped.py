@@ -101,6 +101,7 @@ class ShapedPlanner:
         self._search_goal: np.ndarray | None = None  # the goal of the last replan (a new one: search again)
         self.plan_option: tuple[bool, float] = (False, 0.0)
         self.plan_drag_c = self._search_drag_c = 0.0  # the payload drag (PlanInput.drag_c) the plan was timed with
+        self.plan_wind = self._search_wind = (0.0, 0.0)  # the wind (PlanInput.wind_mps) the plan was timed with
         self.plan_profile: Profile | None = None  # the unshaped plan being flown, from absolute row plan_k0
         self.plan_k0 = 0
         self.stop_requested = False
@@ -210,15 +211,16 @@ class ShapedPlanner:
             self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
             return
         why = "cap" if why is None and sp0 > cap + CAP_SLACK_MPS else why  # too fast for it: re-timed, not optional
-        if why is None and timing.drag_changed(inp.drag_c, self.plan_drag_c):
-            why = "drag"  # timed for another payload drag than measured now: re-timed, not optional
+        if why is None and (timing.drag_changed(inp.drag_c, self.plan_drag_c) or (
+                inp.drag_c > 0.0 and timing.wind_changed(inp.wind_mps, self.plan_wind))):
+            why = "drag"  # timed for another payload drag or wind than measured now: re-timed, not optional
         p = p if cap >= p.shaped_v_max_mps else replace(p, shaped_v_max_mps=cap)
         if why is None:
             self.last = {"kept": True, "reason": "valid, nothing changed"}
             return
         self.searches += 1
         self._search_t, self._search_sig, self._search_pred = t, obstacle_signature(obstacles), r.pred
-        self._search_ring_m, self._search_drag_c = ring_now, inp.drag_c
+        self._search_ring_m, self._search_drag_c, self._search_wind = ring_now, inp.drag_c, tuple(inp.wind_mps)
         options = None
         if why == "refresh":
             # nothing changed and the plan is good: re-time its own route and try one other option in turn
@@ -332,7 +334,8 @@ class ShapedPlanner:
             self.plan_end_k = k_r + len(rows) - 1
             self.plan_profile, self.plan_k0 = cand.profile, k_r
             self.plan_reaches_goal = cand.reaches_goal
-            self.plan_option, self.plan_drag_c = (cand.walled, cand.extra_m), self._search_drag_c
+            self.plan_option, self.plan_drag_c, self.plan_wind = ((cand.walled, cand.extra_m), self._search_drag_c,
+                                                                  self._search_wind)
             self.splices += 1
             self.last.update({"spliced": True, "duration_s": cand.duration_s, "extra_m": cand.extra_m})
         else:

@@ -26,6 +26,9 @@ use_kernel_cache(Path(__file__))
 
 #: (m/s) below this speed a drag budget never stops the speed-up (:func:`_drag_accel`): the flight makes progress
 DRAG_V_PROGRESS_MPS = 1.0
+#: (m/s) the speed-up budgets the trailing in a headwind this much stronger than the measured wind: ~1.3 σ of light
+#: turbulence along the path (Dryden, low altitude: σ_u ≈ 1.5 m/s at 3 m)
+DRAG_GUST_MPS = 2.0
 #: the speed-up kept below DRAG_V_PROGRESS_MPS, as a fraction of the acceleration bound
 DRAG_A_FLOOR = 0.25
 
@@ -116,12 +119,16 @@ def _spline_eval(s, y, mm, q, out):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _drag_accel(v, c, wt, wn, budget, g, a_floor):  # pragma: no cover - compiled
-    """The speed-up (m/s²) at speed ``v`` (m/s) that keeps the planned swing atan(a/g) plus the payload's drag
-    trailing along the path, c·|w − v|·(v − w_t) (rad, none with a tailwind faster than v; wind ``wt`` along the
-    path and ``wn`` across it, m/s; c the drag angle per (m/s)² of airspeed), within ``budget`` (rad); at least
-    ``a_floor`` below :data:`DRAG_V_PROGRESS_MPS`; 0 once the trailing alone fills the budget."""
-    rel = v - wt
-    room = budget - max(c * math.sqrt(rel * rel + wn * wn) * rel, 0.0)
+    """The speed-up (m/s²) at speed ``v`` (m/s) that keeps the planned swing atan(a/g) plus what flying adds to the
+    payload's drag trailing along the path within ``budget`` (rad). The trailing is c·|w − v|·(v − w_t) (none with
+    a tailwind faster than v; wind ``wt`` along the path and ``wn`` across it, m/s; c the drag angle per (m/s)² of
+    airspeed), budgeted in a headwind :data:`DRAG_GUST_MPS` stronger than measured (the plan is timed with the wind
+    of its moment; light turbulence moves it by ~1.5 m/s rms), less what the measured wind alone trails it at a
+    standstill (that part no timing changes: budgeting it made moderate-wind flights crawl). At least ``a_floor``
+    below :data:`DRAG_V_PROGRESS_MPS`; 0 once the trailing fills the budget."""
+    rel = v - wt + DRAG_GUST_MPS
+    hover = max(-c * math.sqrt(wt * wt + wn * wn) * wt, 0.0)  # what the wind alone trails it at a standstill
+    room = budget - max(c * math.sqrt(rel * rel + wn * wn) * rel - hover, 0.0)
     acc = g * math.tan(min(room, 1.0)) if room > 0.0 else 0.0
     if v < DRAG_V_PROGRESS_MPS:
         acc = max(acc, a_floor)
@@ -172,6 +179,14 @@ def drag_changed(c_now: float, c_plan: float) -> bool:
     Only a new drag estimate re-times a plan: re-timing for each change of the measured wind (or for the drag
     measured now) slowed the moderate-turbulence flights by 20-30 % and cost collisions (issue 28)."""
     return abs(c_now - c_plan) > DRAG_RETIME_FRAC * max(c_now, c_plan)
+
+
+WIND_RETIME_MPS = 2.0  # (m/s) a plan timed in a wind this far from the newest estimate is re-timed (the gust margin)
+
+
+def wind_changed(w_now: tuple[float, float], w_plan: tuple[float, float]) -> bool:
+    """Whether a plan timed in wind ``w_plan`` must be re-timed for the newest estimate ``w_now`` (m/s, NED x y)."""
+    return math.hypot(w_now[0] - w_plan[0], w_now[1] - w_plan[1]) > WIND_RETIME_MPS
 
 
 @dataclass(frozen=True, slots=True)
