@@ -48,7 +48,7 @@ class PlanInput:
     the swing's slow equilibrium (:mod:`companion.control.swing_bias`: measured from forces, so a re-plan's swing
     is not in it); 0 without a swing input.
 
-    ``drag_c``: the payload's drag angle per (m/s)² of airspeed (rad), as identified in flight
+    ``drag_c``: the payload's drag angle per (m/s)² of airspeed (rad), as declared or identified in flight
     (:mod:`companion.control.drag_id`; 0: none or not yet known); ``wind_mps``: the wind (m/s, NED x y) measured
     with it. The shaped planner's timing budgets the trailing they give
     (:class:`~companion.planning.timing.DragBudget`).
