@@ -108,8 +108,7 @@ def build_jobs(cells: list[Cell], n: int, seed0: int, base: ForestSpec, mode: st
         for seed in range(seed0, seed0 + n):
             run_dir = out / "runs" / f"m{c.mass_kg:g}" / f"l{c.cable_m:g}" / c.wind / f"s{seed}"
             jobs.append(Job(key=f"{c.key}|{seed}", mission=cell_mission(c, seed, base, declare_drag),
-                            run_dir=run_dir,
-                            mode=mode, plots=False, keep_run_dir=False))
+                            run_dir=run_dir, mode=mode, plots=False, keep_run_dir=False))
     return jobs
 
 

@@ -121,7 +121,7 @@ def test_the_budget_counts_the_motion_s_trailing_with_a_gust_margin_not_the_wind
     assert np.all(np.arctan(acc[speeding_up, 0] / 9.81) + trail[speeding_up] <= budget + 0.01)
     # still air: the margin assumes a 2 m/s headwind gust, so the speed-up is gentler than the trailing alone asks
     calm = speed_profile(path, 0.0, drag=DragBudget(c, (0.0, 0.0), budget), **kw)
-    _, vel, acc = sample_motion(calm, t := np.arange(0.0, calm.duration_s, 0.01))
+    _, vel, acc = sample_motion(calm, np.arange(0.0, calm.duration_s, 0.01))
     up = (acc[:, 0] > 1e-6) & (vel[:, 0] > 1.0)
     assert DRAG_GUST_MPS == 2.0
     assert np.all(np.arctan(acc[up, 0] / 9.81) + c * (vel[up, 0] + 2.0) ** 2 <= budget + 0.01)

@@ -181,7 +181,8 @@ def drag_changed(c_now: float, c_plan: float) -> bool:
     return abs(c_now - c_plan) > DRAG_RETIME_FRAC * max(c_now, c_plan)
 
 
-WIND_RETIME_MPS = 2.0  # (m/s) a plan timed in a wind this far from the newest estimate is re-timed (the gust margin)
+#: (m/s) a plan timed in a wind this far from the newest estimate is re-timed: beyond what the gust margin covers
+WIND_RETIME_MPS = DRAG_GUST_MPS
 
 
 def wind_changed(w_now: tuple[float, float], w_plan: tuple[float, float]) -> bool:
