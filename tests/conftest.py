@@ -22,9 +22,11 @@ def pytest_configure(config: object) -> None:
 
 
 #: Source text that shows a test file starts processes (a vehicle, a companion, a router, a proxy, a ground station).
-#: Such tests run on the wall clock, lockstep ones included (a vehicle that does not answer within a second is lost),
-#: so the README's test command runs them one at a time after the rest has run on both cores: `-m serial` / `-m "not
-#: serial"`. Two lockstep flights beside another worker's flights lost their vehicle for 1.01 s once (2026-12-03).
+#: Such tests are ``serial`` by default: the README's test command runs them one at a time after the rest has run on
+#: both cores (`-m "not serial"`, then `-m serial`), because real-time flights, rates and deadlines need the machine
+#: to themselves. A file (or a test) that starts processes but does not depend on the wall clock (lockstep flights,
+#: no deadline, no upper bound on a duration) says so with ``pytest.mark.shares_cores`` and runs on both cores; a
+#: test marked ``serial`` by hand stays serial inside such a file.
 _STARTS_PROCESSES = ("subprocess", "spawn_vehicle", "Popen", "SitlProcess", "fly_mission", "run_fly", "_cli(",
                      "mavsdk_drone", "_operator_helpers", "lab.procs", "run_evaluate", "evaluate(")
 
@@ -49,7 +51,8 @@ def starts_processes(path: Path) -> bool:
 
 
 def pytest_collection_modifyitems(config: object, items: list) -> None:
-    """Mark every test of a file that starts processes ``serial`` (see :func:`starts_processes`)."""
+    """Mark every test of a file that starts processes ``serial`` unless it is marked ``shares_cores`` (see
+    :func:`starts_processes`)."""
     import pytest
 
     starts: dict[Path, bool] = {}
@@ -57,5 +60,5 @@ def pytest_collection_modifyitems(config: object, items: list) -> None:
         path = Path(item.path)
         if path not in starts:
             starts[path] = starts_processes(path)
-        if starts[path]:
+        if starts[path] and item.get_closest_marker("shares_cores") is None:
             item.add_marker(pytest.mark.serial)

@@ -35,7 +35,7 @@ from companion.launch.fly import fly_mission
 from companion.launch.sitl import SitlProcess
 from companion.launch.spec import FlySpec
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.shares_cores]
 
 
 

@@ -12,6 +12,8 @@ import pytest
 from lab.evaluate import evaluate
 from lab.forests import ForestSpec
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 WALL_CLOCK = ("wall_time_s", "job_wall_s", "finished_unix_s", "worker_pid", "worker_rss_mb")  # where and when, not what
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -15,6 +15,8 @@ from lab.evaluate import evaluate
 from lab.forests import ForestSpec
 from lab.runner import classify
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 
 def _r(cls_inputs: dict, seed: int, **kw) -> dict:
     base = {"reached_goal": True, "collisions": 0, "time_to_goal_s": 10.0, "max_swing_rad": 0.2,

@@ -10,6 +10,8 @@ import pytest
 
 from lab.experiments import findings, report_markdown
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 
 def _row(**kw) -> dict:
     r = {"class": "success", "reached_goal": True, "time_to_goal_s": 10.0, "max_swing_rad": 0.2,

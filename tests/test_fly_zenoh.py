@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.slow  # every test here flies a mission or a peer against the vehicle
+pytestmark = [pytest.mark.slow, pytest.mark.shares_cores]  # each flies a mission or a peer against the vehicle
 
 ROOT = Path(__file__).resolve().parents[1]
 FOREST = ROOT / "config" / "missions" / "forest.toml"

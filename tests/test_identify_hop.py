@@ -152,6 +152,7 @@ def _assert_identified_and_flown(r: subprocess.CompletedProcess, rep: dict) -> N
 
 
 @pytest.mark.slow
+@pytest.mark.shares_cores
 def test_lockstep_flight_hops_identifies_and_flies_the_identified_payload(tmp_path):
     _assert_identified_and_flown(*_fly(tmp_path))
 

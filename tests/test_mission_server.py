@@ -18,6 +18,8 @@ from pymavlink.dialects.v20 import common as M
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 from sim_bridge.mission_server import RETRY_S, TIMEOUT_S, MissionServer, Peer
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 HOME = (47.397742, 8.545594, 488.0)
 MISSION, FENCE, RALLY = M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_FENCE, M.MAV_MISSION_TYPE_RALLY
 REL, GLOBAL_INT, MFRAME = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_MISSION

@@ -17,6 +17,8 @@ from companion.core.payload_check import HOVER_FRACTION_LIMIT, thrust_margin
 from companion.core.vehicle_params import VehicleParams
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 M = mavlink2
 ROOT = Path(__file__).resolve().parents[1]
 FOREST = (ROOT / "config" / "missions" / "forest.toml").read_text()

@@ -21,6 +21,8 @@ from companion.estimation.payload_watch import IMU_STEP_S, PayloadWatch
 from lab.swing_scenarios import cruise_start_s, hop_mission, imu_attitude_series, record_truth
 from lab.swing_sim import SensorConfig
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

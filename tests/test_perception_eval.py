@@ -17,6 +17,8 @@ from lab.perception_eval import CLOCK_T0_S, blind_world, build_jobs
 from lab.perception_report import summarise_cell
 from lab.perception_score import match_trunks, sightable
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 
 def _path(x0: float, x1: float, n: int = 101, z: float = -2.0) -> tuple[np.ndarray, np.ndarray]:
     """A straight flight along y = 0 from x0 to x1 (m) in 10 s at height -z."""

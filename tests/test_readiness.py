@@ -18,6 +18,8 @@ from companion.estimation.vehicle_state import VehicleState
 from companion.flight.sequence import FlightSequence, Observation, SequenceConfig, State
 from lab.procs import free_udp_port
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 PREARM = readiness.MAV_SYS_STATUS_PREARM_CHECK
 SENSORS = 0x2F  # gyro, accel, mag, baro, GPS (any sensor bits: only the pre-arm bit matters here)

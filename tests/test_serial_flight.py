@@ -57,6 +57,7 @@ def _stop(proc: subprocess.Popen) -> int:
 
 
 @pytest.mark.slow
+@pytest.mark.shares_cores  # lockstep
 def test_table2_forest_over_a_serial_pty_pair_flies_as_over_udp(tmp_path):
     """Lockstep: the same flight, bit for bit, as ``fly --sitl`` over UDP (the link carries the same frames in the
     same order; only the carrier differs)."""
@@ -92,6 +93,7 @@ def test_table2_forest_over_a_serial_pty_pair_flies_as_over_udp(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.shares_cores  # lockstep
 def test_a_signed_flight_over_serial(tmp_path):
     """``fly --sitl --serial --signing-key``: both ends sign over the pty; the forest completes, nothing rejected."""
     key = tmp_path / "link.key"
@@ -143,7 +145,8 @@ def test_fly_sitl_serial_sigkilled_leaves_no_vehicle_and_no_pty_pair(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("victim", ["pty_pair", "vehicle"])
-@pytest.mark.parametrize("realtime", [False, True], ids=["lockstep", "realtime"])
+@pytest.mark.parametrize("realtime", [pytest.param(False, marks=pytest.mark.shares_cores), True],
+                         ids=["lockstep", "realtime"])
 def test_serial_link_loss_mid_flight_is_link_lost(tmp_path, victim, realtime):
     """SIGKILL the pty pair (the device vanishes under the companion) or the vehicle mid-mission: ``link_lost``
     (exit 3) as on UDP, the report says so; the companion exits by itself and nothing of the test is left running."""

@@ -17,6 +17,8 @@ from companion.errors import ConfigError
 from companion.mavlink_io import signing as sg
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 KEY = bytes(range(32))
 TICK = 1 | 2 | 4 | 64 | 128
 

@@ -15,6 +15,8 @@ from companion.flight.setup import FlightSetup
 from companion.mavlink_io import signing as sg
 from companion.mavlink_io.link import MavlinkLink
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 KEY = bytes(range(32))
 WRONG = bytes(32 * [7])
 

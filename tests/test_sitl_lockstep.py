@@ -18,6 +18,8 @@ from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 from sim_bridge.sitl_config import SitlConfig
 from sim_bridge.vehicle import SitlVehicle
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 M = mavlink2
 
 

@@ -25,6 +25,8 @@ from sim_bridge.lidar import Lidar, LidarConfig
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 from sim_bridge.world import WorldArrays
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 M = mavlink2
 ROOT = Path(__file__).resolve().parents[1]
 FOREST = load_world("forest")

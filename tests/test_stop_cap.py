@@ -19,6 +19,8 @@ from companion.flight.core import FlightCore
 from companion.planning.stop_cap import SeenFree, stop_cap_mps
 from sim_bridge.physics import VehicleSim
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 WALL_M = 5.0  # the scan saw free this far ahead of the start, and nothing beyond (m)
 
 

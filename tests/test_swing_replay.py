@@ -16,7 +16,7 @@ from companion.mavlink_io.link import tlog_frames
 from lab.swing_replay import main, replay
 
 ROOT = Path(__file__).resolve().parents[1]
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.shares_cores]
 
 
 @pytest.fixture(scope="module")

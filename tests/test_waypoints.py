@@ -20,6 +20,8 @@ from companion.planning.fence_guard import fence_margin_m, fence_obstacles
 from companion.report.metrics import compute_metrics, waypoint_lines
 from lab.inprocess import fly_inprocess
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 FOREST_WP = ROOT / "config" / "missions" / "forest_waypoints.toml"
 

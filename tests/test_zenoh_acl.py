@@ -15,7 +15,7 @@ import pytest
 
 from lab.procs import free_tcp_port
 
-pytestmark = pytest.mark.slow  # every test here flies a mission or a peer against the vehicle
+pytestmark = [pytest.mark.slow, pytest.mark.shares_cores]  # each flies a mission or a peer against the vehicle
 
 ROOT = Path(__file__).resolve().parents[1]
 ZCONF = ROOT / "config" / "zenoh"
