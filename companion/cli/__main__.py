@@ -1,7 +1,5 @@
 """``python -m companion.cli``: the same as ``slungpilot``."""
 
-import sys
+from companion.cli.main import run
 
-from companion.cli.main import main
-
-sys.exit(main())
+run()
