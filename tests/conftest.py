@@ -28,7 +28,7 @@ def pytest_configure(config: object) -> None:
 #: no deadline, no upper bound on a duration) says so with ``pytest.mark.shares_cores`` and runs on both cores; a
 #: test marked ``serial`` by hand stays serial inside such a file. (Once, 2026-12-03, with every test on both
 #: cores, a lockstep flight beside another worker's flights lost its vehicle for 1.01 s; the shared phase as it is
-#: now ran green three times, 2026-12-04: docs/measurements.md.)
+#: now ran green four times, 2026-12-04: docs/measurements.md.)
 _STARTS_PROCESSES = ("subprocess", "spawn_vehicle", "Popen", "SitlProcess", "fly_mission", "run_fly", "_cli(",
                      "mavsdk_drone", "_operator_helpers", "lab.procs", "run_evaluate", "evaluate(")
 
