@@ -28,6 +28,7 @@ import os
 import signal
 import sys
 from collections.abc import Callable, Iterator
+from typing import NoReturn
 
 log = logging.getLogger(__name__)
 
@@ -111,3 +112,13 @@ def sigterm_as_interrupt() -> contextlib.AbstractContextManager[None]:
         raise KeyboardInterrupt("terminated (SIGTERM)")
 
     return signals_handled(interrupt, signal.SIGTERM)
+
+
+def exit_now(code: int) -> NoReturn:
+    """End this process with ``code`` once its work is done: what it printed and logged flushed, then
+    ``os._exit``, without the interpreter's module teardown (numba and llvmlite take 0.1-0.8 s to unload). Only
+    for a command whose files are written and whose children and threads are stopped."""
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

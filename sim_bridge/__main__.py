@@ -1,9 +1,8 @@
 """``python -m sim_bridge``: start the bundled SITL vehicle (see ``--help`` and docs/sitl.md)."""
 
-import logging
-import os
 import sys
 
+from companion.proclife import exit_now
 from sim_bridge.cli import main
 
 try:
@@ -14,9 +13,5 @@ if not isinstance(code, int):
     if code is not None:
         print(code, file=sys.stderr)
     code = 0 if code is None else 1
-# The vehicle writes no files; after flushing what it printed and logged, skip the interpreter's module
-# teardown (numba/llvmlite take ~0.35 s to unload), which every lockstep run and test would otherwise wait for.
-logging.shutdown()
-sys.stdout.flush()
-sys.stderr.flush()
-os._exit(code)
+# The vehicle writes no files: skip the interpreter's module teardown, which every lockstep run would wait for.
+exit_now(code)

@@ -312,16 +312,14 @@ def run() -> None:
     except SystemExit as exc:  # argparse: --help, bad flags
         sys.exit(exc.code)
     import multiprocessing
-    import os
     import threading
+
+    from companion.proclife import exit_now
 
     if not isinstance(code, int) or multiprocessing.active_children() or any(
             t.is_alive() and not t.daemon for t in threading.enumerate() if t is not threading.main_thread()):
         sys.exit(code)
-    logging.shutdown()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
+    exit_now(code)
 
 
 if __name__ == "__main__":
