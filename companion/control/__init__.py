@@ -7,6 +7,7 @@ from companion.control.position import (
     PositionOutput,
     SwingAccelEstimator,
     feedforward_acc,
+    feedforward_xyz,
     make_position_controller,
     payload_reaction_n,
 )
@@ -21,6 +22,7 @@ __all__ = [
     "SwingAccelEstimator",
     "attitude_from_force",
     "feedforward_acc",
+    "feedforward_xyz",
     "limit_force",
     "limit_force_xyz",
     "load_controller_config",

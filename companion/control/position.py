@@ -106,10 +106,11 @@ def payload_reaction_n(swing: np.ndarray, swing_acc: np.ndarray, m_kg: float, l_
     return np.array(_payload_reaction(al, be, dal, dbe, dda, ddb, m_kg, l_m))
 
 
-def _feedforward(
+def feedforward_xyz(
     al: float, be: float, dal: float, dbe: float, dda: float, ddb: float, ff: FeedForwardGains, l_m: float,
-    sign: float,
+    sign: float = 1.0,
 ) -> tuple[float, float, float]:
+    """:func:`feedforward_acc` on floats (m/s², NED): the control tick's form, no arrays."""
     ux = ff.k_angle * al + ff.k_rate * dal - ff.a1 * dda
     uy = -(ff.k_angle * be + ff.k_rate * dbe - ff.a2 * ddb)
     uz = -ff.a3 * (dda + ddb)
@@ -123,7 +124,7 @@ def feedforward_acc(
     """Anti-swing acceleration (m/s², NED), see module docstring; ``sign`` −1 flips it (for the test)."""
     al, be, dal, dbe = (float(v) for v in swing)
     dda, ddb = (float(v) for v in swing_acc)
-    return np.array(_feedforward(al, be, dal, dbe, dda, ddb, ff, l_m, sign))
+    return np.array(feedforward_xyz(al, be, dal, dbe, dda, ddb, ff, l_m, sign))
 
 
 class SwingAccelEstimator:
@@ -228,7 +229,7 @@ class SmcPositionController:
             dda, ddb = float(swing_acc[0]), float(swing_acc[1])
             f_pay = _payload_reaction(al, be, dal, dbe, dda, ddb, p.m, p.l)
             if self.ff is not None:
-                ff = _feedforward(al, be, dal, dbe, dda, ddb, self.ff, p.l, self.ff_sign)
+                ff = feedforward_xyz(al, be, dal, dbe, dda, ddb, self.ff, p.l, self.ff_sign)
                 bx, by = self.ff_bias
                 if bx != 0.0 or by != 0.0:  # the swing's slow equilibrium (a steady wind's drag): not a swing
                     ff = (ff[0] - bx, ff[1] - by, ff[2])

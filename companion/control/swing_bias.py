@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 
 from companion.control.params import FeedForwardGains
-from companion.control.position import SwingAccelEstimator, _feedforward
+from companion.control.position import SwingAccelEstimator, feedforward_xyz
 
 TAU_S = 0.5  # (s) the observer's low-pass: a gust's drag comes and goes over seconds
 DEADBAND_RAD = 0.03  # (rad) an equilibrium inside this is the model's own error, not a wind (see module docstring)
@@ -96,7 +96,7 @@ def feedforward_offsets(ctl, bias: SwingBias, t_s: float, swing, swing_acc, vel_
     if swing_nom is None:
         ctl.ff_center = (0.0, 0.0)
     else:
-        fx, fy, _ = _feedforward(*swing_nom, ff_cfg, l_m, 1.0)
+        fx, fy, _ = feedforward_xyz(*swing_nom, ff_cfg, l_m, 1.0)
         ctl.ff_center = (trust * fx, trust * fy)
     ba, bb = bias.update(t_s, swing, swing_acc, vel_ned_mps)
     if ba == 0.0 and bb == 0.0:

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from companion.flight.phase import CorePhase
 
 
-@dataclass(frozen=True, slots=True)
-class Command:
+class Command(NamedTuple):
     """One attitude setpoint plus what led to it (for SET_ATTITUDE_TARGET, the report and telemetry).
 
     q_ned_frd_wxyz: attitude quaternion [w, x, y, z] body FRD → NED; thrust_n (N) and thrust_norm (0..1,
@@ -20,6 +19,7 @@ class Command:
     envelope_mode: ``"swing"`` or ``"full_cable"``; phase; ff_accel (3,) m/s² anti-swing feed-forward;
     plan_mode: ``"track"`` or ``"escape"`` (safe planner's trap escape), ``"brake"`` / ``"no_route"`` (shaped
     planner stopping); no_route: the planner found no route to the goal (the mission ends ``no_route``).
+    A named tuple: immutable, and cheap to build every tick.
     """
 
     t_s: float

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from companion.control import feedforward_acc
+from companion.control import feedforward_xyz
 from companion.control.params import FeedForwardGains
 from companion.core.mission import Mission
 from companion.estimation.estimate import Estimate
@@ -219,6 +219,5 @@ def planned_swing_acc(out: PlanOutput, ref_acc: list[float], trust: float, ff_cf
     r = out.reference
     if r is None:
         return None
-    a, b, da, db, dda, ddb = r.swing_nom
-    ff = feedforward_acc(np.array((a, b, da, db)), np.array((dda, ddb)), ff_cfg, cable_l_m)
-    return [ref_acc[0] - trust * float(ff[0]), ref_acc[1] - trust * float(ff[1]), ref_acc[2] - trust * float(ff[2])]
+    fx, fy, fz = feedforward_xyz(*(float(v) for v in r.swing_nom), ff_cfg, cable_l_m)
+    return [ref_acc[0] - trust * fx, ref_acc[1] - trust * fy, ref_acc[2] - trust * fz]

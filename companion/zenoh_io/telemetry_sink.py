@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -53,8 +52,8 @@ class ZenohTelemetrySink:
             payload = np.asarray(est.pos_ned_m, dtype=float) + self.cable_l_m * np.array(
                 [math.sin(a) * math.cos(b), -math.sin(b), math.cos(a) * math.cos(b)])
         zt.publish_state(t, est.pos_ned_m, est.vel_ned_mps, est.euler_rad, payload)
-        if cmd is not None and dataclasses.is_dataclass(cmd):
-            zt.publish_setpoint(t, {f.name: getattr(cmd, f.name) for f in dataclasses.fields(cmd) if f.name != "t_s"})
+        if cmd is not None:
+            zt.publish_setpoint(t, {k: v for k, v in cmd._asdict().items() if k != "t_s"})
         zt.publish_status(t, self.status_fn(app) if self.status_fn is not None else {})
         obstacles = zt.last_obstacles
         pilot = getattr(app, "pilot", None)
