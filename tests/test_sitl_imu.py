@@ -17,6 +17,7 @@ from sim_bridge.imu import ImuModel, ImuNoise
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 from sim_bridge.physics import VehicleSim
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
 P = VehicleParams()
 
 

@@ -11,6 +11,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 
+pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
 M = mavlink2
 TICK = 1 | 2 | 4 | 64 | 128  # SET_ATTITUDE_TARGET ignoring everything: advances lockstep time only
 POSCTL_MODE = 3 << 16
