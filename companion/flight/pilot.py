@@ -53,9 +53,8 @@ log = logging.getLogger(__name__)
 
 MAV_RESULT_ACCEPTED = 0
 OPTIONAL_STREAMS = {"message_interval:ESTIMATOR_STATUS"}  # nice to have: refusing them is no warning
-#: (s) lockstep: no position or attitude for this long (wall time) is a lost link. A dead vehicle is told within it
-#: (the fault suite asks < 2 s); a loaded machine stalled a flight's vehicle for 1.02 s (2026-12-04, a router, two
-#: pairs and three in-process flights on 2 cores), which the 1.0 s of before called link_lost.
+#: (s) lockstep: no position or attitude for this long (wall time) is a lost link: longer than a loaded machine
+#: stalls a process (1.02 s seen), shorter than the fault suite's 2 s to tell a dead vehicle (docs/measurements.md)
 LOCKSTEP_TELEMETRY_LOSS_S = 1.5
 SWING_WAIT_S = 5.0  # with a swing estimator: the longest the climb waits at the start altitude for its trust (s)
 
