@@ -9,7 +9,8 @@ ground stations); the rest (no process, or lockstep ones: ``shares_cores``) has 
 so a real-time flight gets a CPU whenever it wants one and the lockstep flights fill what it leaves. (At nice 19
 instead, a real-time vehicle fell 0.66 s behind and the Zenoh flood test ended ``link_lost``: docs/measurements.md,
 2026-12-04.) Each phase writes its own log, printed whole when it ends, and a line a minute says how far both are.
-Extra arguments go to both pytest runs (``python tests/run_suite.py -x -k fly``; not ``-m``, which each phase sets).
+Extra arguments go to both pytest runs (``python tests/run_suite.py -x -k fly``); a ``-m`` expression is joined to
+each phase's own (``-m "not slow"``: the daily check).
 
 Exit status: 0 when both phases pass (a phase that selects nothing counts as passing while the other ran), else
 the first failure's. Ctrl-C or SIGTERM stops both the way a terminal's Ctrl-C does (SIGINT: pytest finishes its
@@ -36,9 +37,9 @@ NO_TESTS = 5  # pytest's exit status when nothing was selected
 PROGRESS_S = 60.0
 STOP_WAIT_S = 60.0  # after SIGINT, how long a phase may take to tear down before it is killed
 
-PHASES = {  # name: (pytest arguments, in the background)
-    "serial": (["-q", "-m", "serial"], False),
-    "shared": (["-q", "-n", "2", "--dist", "loadfile", "-m", "not serial"], True),
+PHASES = {  # name: (pytest arguments, its marker expression, in the background)
+    "serial": (["-q"], "serial", False),
+    "shared": (["-q", "-n", "2", "--dist", "loadfile"], "not serial", True),
 }
 
 
@@ -56,8 +57,19 @@ def _preexec(background: bool):
     return pre
 
 
+def _split_markers(extra: list[str]) -> tuple[str | None, list[str]]:
+    """(the ``-m`` expression among ``extra`` or None, the other arguments)."""
+    if "-m" in extra:
+        i = extra.index("-m")
+        if i + 1 < len(extra):
+            return extra[i + 1], extra[:i] + extra[i + 2:]
+    return None, extra
+
+
 def _start(name: str, extra: list[str], logdir: Path) -> tuple[subprocess.Popen, Path]:
-    args, background = PHASES[name]
+    args, phase_markers, background = PHASES[name]
+    markers, extra = _split_markers(extra)
+    args = [*args, "-m", phase_markers if markers is None else f"({phase_markers}) and ({markers})"]
     log_path = logdir / f"{name}.log"
     idle_io = ["ionice", "-c", "3"] if background and shutil.which("ionice") else []  # disk time only when idle
     cmd = [*idle_io, sys.executable, "-m", "pytest", *args, "--basetemp", str(logdir / f"tmp-{name}"),

@@ -38,6 +38,11 @@ def test_one_status_for_both_phases(codes, status):
     assert run_suite._status(codes) == status
 
 
+def test_a_marker_expression_is_joined_to_each_phase_s_own():
+    assert run_suite._split_markers(["-x", "-m", "not slow", "-k", "fly"]) == ("not slow", ["-x", "-k", "fly"])
+    assert run_suite._split_markers(["-x"]) == (None, ["-x"])
+
+
 def _runner(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, str(HERE / "run_suite.py"), *args], cwd=HERE.parent,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
