@@ -22,13 +22,13 @@ def pytest_configure(config: object) -> None:
 
 
 #: Source text that shows a test file starts processes (a vehicle, a companion, a router, a proxy, a ground station).
-#: Such tests are ``serial`` by default: the README's test command (tests/run_suite.py) runs them one at a time at
-#: normal priority, beside the rest on both cores at SCHED_IDLE (`-m serial` and `-n 2 -m "not serial"`), because
-#: real-time flights, rates and deadlines need a CPU whenever they want one. A file (or a test) that starts processes
-#: but does not depend on the wall clock (lockstep flights, no deadline, no upper bound on a duration) says so with
-#: ``pytest.mark.shares_cores`` and runs on both cores; a test marked ``serial`` by hand stays serial inside such a
-#: file. (Lockstep flights beside others have lost their vehicle for 1.01-1.02 s on a loaded machine, 2026-12-03
-#: and 12-04; the lockstep limit is 1.5 s since: docs/measurements.md.)
+#: Such tests are ``serial`` by default: the README's test command runs them one at a time after the rest has run on
+#: both cores (`-m "not serial"`, then `-m serial`; tests/run_suite.py runs the two side by side, the rest at
+#: SCHED_IDLE), because real-time flights, rates and deadlines need the machine to themselves. A file (or a test)
+#: that starts processes but does not depend on the wall clock (lockstep flights, no deadline, no upper bound on a
+#: duration) says so with ``pytest.mark.shares_cores`` and runs on both cores; a test marked ``serial`` by hand stays
+#: serial inside such a file. (Lockstep flights beside others have lost their vehicle for 1.01-1.02 s on a loaded
+#: machine, 2026-12-03 and 12-04; the lockstep limit is 1.5 s since: docs/measurements.md.)
 _STARTS_PROCESSES = ("subprocess", "spawn_vehicle", "Popen", "SitlProcess", "fly_mission", "run_fly", "_cli(",
                      "mavsdk_drone", "_operator_helpers", "lab.procs", "run_evaluate", "evaluate(")
 
