@@ -51,7 +51,6 @@ class PlanInput(NamedTuple):
     with it. The shaped planner's timing budgets the trailing they give
     (:class:`~companion.planning.timing.DragBudget`).
 
-
     This and the outputs below are named tuples: immutable, and built every control tick at a fifth of a frozen
     dataclass's cost.
     """
