@@ -9,9 +9,14 @@ suite restores the defaults for itself, and through it for every child it starts
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 from pathlib import Path
+
+#: set by tests/run_suite.py for the phase that runs on xdist workers: each worker is interrupted when the phase's
+#: pytest goes (the runner has it killed with the runner; a worker's teardown then stops what its test started)
+WORKERS_DIE_WITH_PYTEST = "SLUNGPILOT_WORKERS_DIE_WITH_PYTEST"
 
 
 def pytest_configure(config: object) -> None:
@@ -19,6 +24,10 @@ def pytest_configure(config: object) -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     if signal.getsignal(signal.SIGQUIT) == signal.SIG_IGN:
         signal.signal(signal.SIGQUIT, signal.SIG_DFL)
+    if os.environ.get(WORKERS_DIE_WITH_PYTEST) and hasattr(config, "workerinput"):
+        from companion import proclife
+
+        proclife.die_with_parent(os.getppid(), signal.SIGINT)
 
 
 #: Source text that shows a test file starts processes (a vehicle, a companion, a router, a proxy, a ground station).

@@ -16,7 +16,7 @@ each phase's own (``-m "not slow"``: the daily check).
 
 Exit status: 0 when both phases pass (a phase that selects nothing counts as passing while the other ran), else
 the first failure's. Ctrl-C or SIGTERM stops both the way a terminal's Ctrl-C does (SIGINT: pytest finishes its
-teardown); whatever kills this process, the kernel sends both phases SIGINT (:mod:`companion.proclife`).
+teardown); whatever kills this process, nothing it started outlives it (:func:`_preexec`).
 """
 
 from __future__ import annotations
@@ -31,6 +31,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from conftest import WORKERS_DIE_WITH_PYTEST
 
 from companion import proclife
 
@@ -47,8 +49,11 @@ PHASES = {  # name: (pytest arguments, its marker expression, in the background)
 
 def _preexec(background: bool):
     """Between fork and exec in a phase's process: the background one runs SCHED_IDLE (a CPU only when nothing
-    else wants it; inherited by every process it starts); both are tied to us with SIGINT."""
-    tie = proclife.preexec(signal.SIGINT)
+    else wants it; inherited by every process it starts). Both die with us: the serial phase runs its tests itself
+    and gets SIGINT (its teardown stops what the test started); the background one is killed, and its xdist workers
+    are interrupted when it goes (``WORKERS_DIE_WITH_PYTEST``, tests/conftest.py): interrupted, its pytest would
+    wait for them to finish their tests."""
+    tie = proclife.preexec(signal.SIGKILL if background else signal.SIGINT)
 
     def pre() -> None:
         if background and hasattr(os, "SCHED_IDLE"):
@@ -78,8 +83,9 @@ def _start(name: str, extra: list[str], logdir: Path) -> tuple[subprocess.Popen,
            "-o", f"cache_dir=.pytest_cache/{name}", *extra]
     out = log_path.open("w")
     # a session of its own: a terminal's Ctrl-C reaches this runner, which stops each phase once (_stop)
+    env = {**os.environ, WORKERS_DIE_WITH_PYTEST: "1"} if background else None
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=out, stderr=subprocess.STDOUT, preexec_fn=_preexec(background),
-                            start_new_session=True)
+                            start_new_session=True, env=env)
     out.close()
     return proc, log_path
 

@@ -57,8 +57,8 @@ def test_both_phases_run_and_the_runner_says_so():
     assert "1 passed" in out and "run_suite: passed" in out, out
 
 
-def test_sigterm_stops_both_phases_and_nothing_is_left(tmp_path):
-    psutil = pytest.importorskip("psutil")
+def _sleeping_run(tmp_path: Path, psutil) -> tuple[subprocess.Popen, list]:
+    """The runner on the sleeper, once the sleeper sleeps; (the runner, [the sleeper, the phases still running])."""
     pid_file = tmp_path / "sleeper.pid"
     r = _runner("-k", "the_sleeper_sleeps_only_when_asked", env={SLEEPER_ENV: str(pid_file)})
     deadline = time.monotonic() + 120
@@ -68,8 +68,25 @@ def test_sigterm_stops_both_phases_and_nothing_is_left(tmp_path):
     sleeper = psutil.Process(int(pid_file.read_text()))
     phases = [p for p in psutil.Process(r.pid).children() if "pytest" in " ".join(p.cmdline())]
     assert any("not serial" in " ".join(p.cmdline()) for p in phases), phases  # the serial one selected nothing
+    return r, [sleeper, *phases]
+
+
+def test_sigterm_stops_both_phases_and_nothing_is_left(tmp_path):
+    psutil = pytest.importorskip("psutil")
+    r, started = _sleeping_run(tmp_path, psutil)
     r.send_signal(signal.SIGTERM)
     out, _ = r.communicate(timeout=90)
     assert r.returncode == 130 and "interrupted; both phases stopped" in out, out
-    _, alive = psutil.wait_procs([sleeper, *phases], timeout=10)
+    _, alive = psutil.wait_procs(started, timeout=10)
+    assert not alive, alive
+
+
+def test_sigkill_of_the_runner_leaves_nothing_running_5_s_later(tmp_path):
+    """Killed, the runner runs no code: the kernel kills the background phase's pytest, and its xdist worker (the
+    sleeper's) is interrupted as its pytest goes (tests/conftest.py)."""
+    psutil = pytest.importorskip("psutil")
+    r, started = _sleeping_run(tmp_path, psutil)
+    r.kill()
+    r.communicate(timeout=30)
+    _, alive = psutil.wait_procs(started, timeout=5)
     assert not alive, alive
