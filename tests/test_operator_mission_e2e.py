@@ -5,9 +5,11 @@ a fence (inclusion square, exclusion circle) to the bundled vehicle on its own G
 --connect ... --mission autopilot --base-mission forest`` downloads and flies them through MAVProxy (the companion
 is MAVProxy's master, the vehicle and the operator's link are its outputs: MAVProxy never forwards between two
 outputs, docs/autopilots.md). On MAVProxy's output the ground station (system 255, the one the companion obeys)
-hears the companion's STATUSTEXT, pauses the flight mid-leg (MAV_CMD_DO_PAUSE_CONTINUE 0 to component 191), sees
-the vehicle hold, resumes it (param1 1) and the mission completes: every waypoint in order, no collision, airframe
-and payload inside the fence all along (checked on the flight log against the uploaded fence's geometry).
+hears the companion's STATUSTEXT and its HEARTBEAT (an onboard controller, not a second ground station), is refused a
+pause under a system id it is not (DENIED, counted in the report), pauses the flight mid-leg
+(MAV_CMD_DO_PAUSE_CONTINUE 0 to component 191), sees the vehicle hold, resumes it (param1 1) and the mission
+completes: every waypoint in order, no collision, airframe and payload inside the fence all along (checked on the
+flight log against the uploaded fence's geometry).
 
 Timing is generous on waiting, never on speed: a command without an answer is sent again (the command protocol),
 and the hold is measured from 5 s after the pause (the reference brakes at its own limits first).
@@ -52,6 +54,7 @@ def _upload(port: int) -> None:
 def _pause_mid_leg(gcs, fly) -> None:
     """Pause once the cruise is 1.5 s old, hold ``HOLD_S``, resume; then wait for the end."""
     gcs.pump(1.5)  # mid-leg, moving
+    assert gcs.command(0, as_sysid=200) == (M.MAV_RESULT_DENIED, 200)  # not the GCS it obeys
     assert gcs.command(0) == (M.MAV_RESULT_ACCEPTED, 255), gcs.texts
     assert gcs.pump(10.0, lambda: gcs.said("paused")), gcs.texts
     gcs.pump(HOLD_S)
@@ -81,7 +84,10 @@ def test_a_ground_station_s_mission_is_flown_paused_resumed_and_completed_throug
     n, margin = fence_margins_m(log, route_fence())
     assert n > 1000 and margin > 0.0, margin  # airframe and payload inside the fence, every sample
     # the pause: asked mid-leg while moving, then held still until the resume
-    orders = {o["order"]: o["t_s"] for o in rep["operator"]["orders"]}
+    op = rep["operator"]
+    assert set(op["denied_by_sender"]) == {"200/190"} and op["gcs_sysid"] == 255  # once (twice if an ACK was lost)
+    assert any("denied" in x for x in texts), texts
+    orders = {o["order"]: o["t_s"] for o in op["orders"]}
     t_pause, t_resume = orders["pause"], orders["resume"]
     t, pos, vel = log["t_s"], log["pos_ned_m"], log["vel_ned_mps"]
     speed = np.hypot(vel[:, 0], vel[:, 1])
