@@ -5,6 +5,11 @@ command stops, holds or lands. A child inherits an *ignored* SIGINT from whoever
 without job control starts every background command (``pytest &`` in a script) with SIGINT and SIGQUIT ignored:
 the children would then ignore the test's Ctrl-C and those tests fail for a reason that is not the code's. So the
 suite restores the defaults for itself, and through it for every child it starts.
+
+The suite starts about a thousand Python processes (vehicles, companions, workers). Where the environment sets
+``PYTHONDONTWRITEBYTECODE`` (this project's CI machines do), each of them would compile every module it imports
+again: the suite writes bytecode caches for itself and its children all the same (``__pycache__`` is ignored by
+git; docs/measurements.md has the minutes this saves).
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ from __future__ import annotations
 import os
 import re
 import signal
+import sys
 from pathlib import Path
 
 #: set by tests/run_suite.py for the phase that runs on xdist workers: each worker is interrupted when the phase's
@@ -20,6 +26,8 @@ WORKERS_DIE_WITH_PYTEST = "SLUNGPILOT_WORKERS_DIE_WITH_PYTEST"
 
 
 def pytest_configure(config: object) -> None:
+    sys.dont_write_bytecode = False
+    os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
     if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     if signal.getsignal(signal.SIGQUIT) == signal.SIG_IGN:

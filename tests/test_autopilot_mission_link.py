@@ -25,6 +25,8 @@ from companion.core.mission import Mission
 from companion.flight.setup import FlightSetup
 from companion.launch.autopilot_mission import Refusal, fetch_autopilot_mission
 
+pytestmark = pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
+
 PEER = Path(__file__).parent / "helpers" / "mission_peer.py"
 HOME = (47.397742, 8.545594, 488.0)
 BASE = Mission(name="base", start_ned_m=np.array([0.0, 0.0, -2.0]), goal_ned_m=np.array([10.0, 0.0, -2.0]),

@@ -22,6 +22,8 @@ from companion.mavlink_io.link import TlogWriter
 from companion.report.journal import JOURNAL, PARTIAL, Journal, read_journal
 from companion.report.metrics import FlightLog
 
+pytestmark = pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
+
 CALL_BOUND_S = 10.0  # only a hang would take this long: the calls under test return in microseconds
 
 

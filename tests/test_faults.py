@@ -30,6 +30,7 @@ def test_vehicle_killed_is_link_lost_within_2_s(workdir, realtime):
     assert r["exit_s"] < 10.0, r  # report written and out, not minutes of streaming into the void
 
 
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_100k_spoofed_and_mutated_frames_change_nothing(workdir):
     r = faults.fuzz(workdir, n=100_000)
     assert r["sent"] == 100_000
@@ -39,6 +40,7 @@ def test_100k_spoofed_and_mutated_frames_change_nothing(workdir):
     assert r["metrics"] == r["reference_metrics"]
 
 
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_exceptions_in_every_tick_hold_then_land_without_falling(workdir):
     r = faults.tick_exception(workdir, at_s=6.0)
     assert r["outcome"] == "tick_errors" and r["final_phase"] == "landed", r
@@ -47,6 +49,7 @@ def test_exceptions_in_every_tick_hold_then_land_without_falling(workdir):
     assert r["max_descent_mps"] < 1.5, r  # an autopilot landing, not a fall
 
 
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_companion_killed_leaves_a_journal_the_report_is_rebuilt_from(workdir):
     r = faults.companion_killed_report(workdir, after_s=3.0)
     assert not r["report_before_rebuild"]  # kill -9: nothing at exit ran
@@ -55,6 +58,7 @@ def test_companion_killed_leaves_a_journal_the_report_is_rebuilt_from(workdir):
     assert r["lost_s"] <= 1.0, r  # at most a second of flight missing
 
 
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_a_paused_companion_does_not_blame_the_vehicle_for_its_own_deafness(workdir):
     """SIGSTOP/SIGCONT of the companion for 0.7 s mid-flight (a VM pause): the vehicle kept streaming into our
     socket, so this is no lost link (it was, before deaf spells: link_lost after 0.71 s). The flight goes on."""
@@ -88,6 +92,7 @@ def test_50_ms_jitter_and_reordering_do_not_make_it_diverge(workdir):
     assert r["reached_goal"] == (r["outcome"] == "completed"), r
 
 
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_with_signing_forged_and_unsigned_disarms_and_spoofs_are_ignored(workdir):
     r = faults.signed_forced_disarm(workdir, n=20)
     assert r["exit_code"] == 0 and r["outcome"] == "completed" and r["final_phase"] == "landed", r
@@ -110,6 +115,7 @@ def test_companion_killed_the_bundled_vehicle_holds_then_lands(workdir):
     assert r["max_descent_mps"] < 1.5, r
 
 
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_an_unstable_control_loop_is_handed_to_the_vehicles_hold_then_lands(workdir):
     r = faults.diverged(workdir)
     assert r["outcome"] == "diverged" and r["exit_code"] == 6, r

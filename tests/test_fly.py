@@ -96,6 +96,7 @@ def test_bad_mission_file_refused_before_takeoff_with_exit_2(tmp_path, edit, mat
 
 @pytest.mark.slow
 @pytest.mark.serial  # --realtime
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_ctrl_c_mid_flight_holds_lands_and_leaves_report_and_log(tmp_path):
     run_dir = tmp_path / "abort"
     proc = subprocess.Popen(
@@ -234,6 +235,7 @@ def test_ctrl_c_in_lockstep_holds_and_lands(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.serial  # --realtime
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_ctrl_c_in_the_terminal_reaches_the_companion_only_which_lands_the_vehicle(tmp_path):
     """A terminal sends SIGINT to the whole foreground process group: the bundled vehicle runs in its own, so it is
     still flying while the companion holds and lands it, and is stopped last (issue 14)."""

@@ -26,6 +26,8 @@ from companion.flight.core_hop import HOP_M, HOP_WINDOW_S, hop_room_m
 from companion.flight.identification import Identification
 from companion.flight.phase import CorePhase
 
+pytestmark = pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 FOREST = ROOT / "config" / "missions" / "forest.toml"
 

@@ -19,7 +19,7 @@ from mavsdk.plugins.offboard import Attitude, OffboardError, PositionNedYaw, Vel
 from mavsdk.plugins.telemetry import FlightMode  # noqa: E402
 from mavsdk_drone import Drone  # noqa: E402
 
-pytestmark = pytest.mark.slow  # every test here flies a mission or a peer against the vehicle
+pytestmark = [pytest.mark.slow, pytest.mark.paired]  # every test here flies a mission or a peer against the vehicle
 
 HOME = (47.397742, 8.545594, 488.0)
 TEST_BUDGET_S = 60.0

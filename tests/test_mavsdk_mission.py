@@ -21,7 +21,7 @@ from mavsdk.plugins.mission_raw import MissionItem, MissionRawError  # noqa: E40
 from mavsdk_drone import Drone  # noqa: E402
 from pymavlink.dialects.v20 import common as M  # noqa: E402
 
-pytestmark = pytest.mark.slow  # a real-time vehicle and MAVSDK's server per test
+pytestmark = [pytest.mark.slow, pytest.mark.paired]  # a real-time vehicle and MAVSDK's server per test
 
 HOME = (47.397742, 8.545594, 488.0)
 TEST_BUDGET_S = 60.0

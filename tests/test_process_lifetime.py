@@ -25,7 +25,8 @@ import companion
 ROOT = Path(companion.__file__).resolve().parents[1]
 GONE_WITHIN_S = 5.0
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux's PR_SET_PDEATHSIG")
+pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"), reason="needs Linux's PR_SET_PDEATHSIG"),
+              pytest.mark.paired]  # wall clock, light: may run beside one other such test (tests/conftest.py)
 
 
 def _start(*args: str, stderr: Path) -> subprocess.Popen:

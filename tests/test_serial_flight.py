@@ -114,6 +114,7 @@ def test_a_signed_flight_over_serial(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_fly_sitl_serial_sigkilled_leaves_no_vehicle_and_no_pty_pair(tmp_path):
     """``fly --sitl --serial`` SIGKILLed in flight: its vehicle and its pty pair (tied to it) are gone within 5 s."""
     import psutil
@@ -145,7 +146,8 @@ def test_fly_sitl_serial_sigkilled_leaves_no_vehicle_and_no_pty_pair(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("victim", ["pty_pair", "vehicle"])
-@pytest.mark.parametrize("realtime", [pytest.param(False, marks=pytest.mark.shares_cores), True],
+@pytest.mark.parametrize("realtime", [pytest.param(False, marks=pytest.mark.shares_cores),
+                                      pytest.param(True, marks=pytest.mark.paired)],
                          ids=["lockstep", "realtime"])
 def test_serial_link_loss_mid_flight_is_link_lost(tmp_path, victim, realtime):
     """SIGKILL the pty pair (the device vanishes under the companion) or the vehicle mid-mission: ``link_lost``

@@ -26,6 +26,8 @@ from companion.mavlink_io.link import MavlinkLink
 from companion.mavlink_io.transport import LinkUrl
 from lab.pty_pair import PtyPair
 
+pytestmark = pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 TOOLS = ["socat", "relay"] if shutil.which("socat") else ["relay"]
 

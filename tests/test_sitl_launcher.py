@@ -12,6 +12,8 @@ import pytest
 from companion.core.mission import load_mission
 from companion.launch.sitl import SitlProcess
 
+pytestmark = pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
+
 FOREST = Path(__file__).resolve().parents[1] / "config" / "missions" / "forest.toml"
 
 

@@ -19,6 +19,8 @@ from sim_bridge.position_hold import PositionHoldGains, position_hold_target
 from sim_bridge.stream_rates import RateScheduler
 from sim_bridge.telemetry import ned_to_geodetic
 
+pytestmark = pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
+
 M = mavlink2
 
 

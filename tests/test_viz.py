@@ -38,6 +38,8 @@ from companion.core.rotations import quat_from_euler  # noqa: E402
 from companion.viz import scene  # noqa: E402
 from companion.viz.recorder import Recorder  # noqa: E402
 
+pytestmark = pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMEDRIVER = shutil.which("chromedriver")

@@ -27,6 +27,8 @@ from companion.cli.bench_zenoh import free_tcp_port
 from companion.zenoh_io import schema as ts
 from companion.zenoh_io.session import zenoh_config
 
+pytestmark = pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -22,6 +22,8 @@ from companion.zenoh_io.session import add_zenoh_arguments, zenoh_config, zenoh_
 from companion.zenoh_io.telemetry import ZenohTelemetry
 from companion.zenoh_io.telemetry_options import TelemetryOptions, _Every
 
+pytestmark = pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
