@@ -103,6 +103,7 @@ def test_with_signing_forged_and_unsigned_disarms_and_spoofs_are_ignored(workdir
     assert r["companion_rejected"].get("foreign_sender", 0) >= 40, r
 
 
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_companion_killed_the_bundled_vehicle_holds_then_lands(workdir):
     """kill -9 of the companion in flight (real time): the vehicle's own failsafe, PX4's way — hold after
     COM_OF_LOSS_T (1 s), land after COM_FAIL_ACT_T (5 s), disarm on the ground. Never a fall, never hovering on."""

@@ -29,6 +29,7 @@ pytestmark = [pytest.mark.slow,
 FLY_ARGS = ["--planner", "safe"]
 
 
+@pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)
 def test_gcs_land_lands_where_the_vehicle_is(tmp_path):
     """MAV_CMD_NAV_LAND to the companion mid-leg: ACCEPTED, it brakes, the vehicle lands there; outcome aborted."""
     with mavproxy_flight(tmp_path, FLY_ARGS) as (gcs, fly, run):

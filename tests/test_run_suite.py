@@ -44,7 +44,8 @@ def test_a_marker_expression_is_joined_to_each_phase_s_own():
 
 
 def _runner(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, str(HERE / "run_suite.py"), *args], cwd=HERE.parent,
+    """The runner on this file only (collecting the whole suite would take each phase ~7 s), with ``args``."""
+    return subprocess.Popen([sys.executable, str(HERE / "run_suite.py"), str(Path(__file__)), *args], cwd=HERE.parent,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             env={**os.environ, **(env or {})})
 
