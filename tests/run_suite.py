@@ -1,4 +1,5 @@
-"""The suite's two phases at once, one beside the other (the README's test command runs them one after the other).
+"""The suite's two phases at once, one beside the other (the README's test command runs them one after the other,
+the serial tests in two runs: ``paired`` ones two at a time, the rest alone; this runner keeps them one at a time).
 
 ``tests/conftest.py`` marks a test ``serial`` when it needs the wall clock (real-time flights, the fault suite,
 ground stations); the rest (no process, or lockstep ones: ``shares_cores``) has no deadline. This runs

@@ -1,4 +1,4 @@
-"""The README's test command (tests/run_suite.py): both phases side by side, one status, stopped by SIGTERM with
+"""The side-by-side runner for daily work (tests/run_suite.py): both phases at once, one status, stopped by SIGTERM with
 nothing left running. Each case runs the real runner on a test of this file (real pytest processes)."""
 
 from __future__ import annotations
