@@ -41,14 +41,14 @@ def pytest_configure(config: object) -> None:
 #: Source text that shows a test file starts processes (a vehicle, a companion, a router, a proxy, a ground station).
 #: Such tests are ``serial`` by default: the README's test command runs them after the rest has run on both cores (`-m
 #: "not serial"`), because real-time flights, rates and deadlines need the machine to themselves. A serial test that
-#: checks only outcomes (no rate, jitter or deadline at stake) and mostly waits on the wall clock (measured at ~0.7 of a
-#: core or less) says so with ``pytest.mark.paired``: those run two at a time (`-n 2 -m "serial and paired"`), the
-#: others one at a time (`-m "serial and not paired"`). (tests/run_suite.py runs all serial tests one at a time beside
-#: the rest, at SCHED_IDLE.) A file (or a test) that starts processes but does not depend on the wall clock (lockstep
-#: flights, no deadline, no upper bound on a duration) says so with ``pytest.mark.shares_cores`` and runs on both cores;
-#: a test marked ``serial`` by hand stays serial inside such a file. (Lockstep flights beside others have lost their
-#: vehicle for 1.01-1.02 s on a loaded machine, 2026-12-03 and 12-04; the lockstep limit is 1.5 s since:
-#: docs/measurements.md.)
+#: checks only outcomes (no rate, jitter or deadline at stake) and mostly waits on the wall clock (measured: most at
+#: half a core or less, a few of 4-12 s at one core) says so with ``pytest.mark.paired``: those run two at a time (`-n 2
+#: -m "serial and paired"`), the others one at a time (`-m "serial and not paired"`). (tests/run_suite.py runs all
+#: serial tests one at a time beside the rest, at SCHED_IDLE.) A file (or a test) that starts processes but does not
+#: depend on the wall clock (lockstep flights, no deadline, no upper bound on a duration) says so with
+#: ``pytest.mark.shares_cores`` and runs on both cores; a test marked ``serial`` by hand stays serial inside such a
+#: file. (Lockstep flights beside others have lost their vehicle for 1.01-1.02 s on a loaded machine, 2026-12-03 and
+#: 12-04; the lockstep limit is 1.5 s since: docs/measurements.md.)
 _STARTS_PROCESSES = ("subprocess", "spawn_vehicle", "Popen", "SitlProcess", "fly_mission", "run_fly", "_cli(",
                      "mavsdk_drone", "_operator_helpers", "lab.procs", "run_evaluate", "evaluate(")
 
