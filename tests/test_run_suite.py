@@ -67,15 +67,15 @@ def _sleeping_run(tmp_path: Path, psutil) -> tuple[subprocess.Popen, list]:
         assert time.monotonic() < deadline and r.poll() is None, "the sleeper never started"
         time.sleep(0.2)
     sleeper = psutil.Process(int(pid_file.read_text()))
-    phases = []
+    phases: dict = {}  # the phases still running: process -> command line
     for p in psutil.Process(r.pid).children():
         try:
             cmd = " ".join(p.cmdline())
         except psutil.Error:  # gone already: the serial phase selects nothing here and exits at once
             continue
         if "pytest" in cmd:
-            phases.append(p)
-    assert any("not serial" in " ".join(p.cmdline()) for p in phases), phases  # the serial one selected nothing
+            phases[p] = cmd
+    assert any("not serial" in cmd for cmd in phases.values()), phases  # the serial one selected nothing
     return r, [sleeper, *phases]
 
 
