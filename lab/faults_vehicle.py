@@ -20,16 +20,18 @@ from lab.procs import ROOT, Proc, flown_figures, fly_argv, free_udp_port, read_r
 
 
 def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, drop: float = 0.0,
-           vehicle: str = "bundled") -> dict[str, Any]:
+           vehicle: str = "bundled", air_mode: int | None = None) -> dict[str, Any]:
     """The forest in real time through a proxy that delays each datagram by ``delay ± jitter`` (reordering
     them): the altitude must stay within 0.5 m of the mission's and the outcome must be honest. ``vehicle``
-    ``ardupilot``: ArduCopter SITL with its payload (``forest_arducopter_sitl``) instead of the bundled vehicle."""
+    ``ardupilot``: ArduCopter SITL with its payload (``forest_arducopter_sitl``) instead of the bundled vehicle.
+    ``air_mode``: the bundled vehicle's ``MC_AIRMODE`` (``sitl --airmode``; None: its default, 2)."""
     from lab.udp_proxy import _addr  # noqa: F401  (the proxy runs as its own process; imported to fail early)
 
     run_dir = workdir / (f"jitter-{delay_ms:g}-{jitter_ms:g}" + ("" if vehicle == "bundled" else f"-{vehicle}"))
     veh_port, vside, comp_port = free_udp_port(), free_udp_port(), free_udp_port()
     # the vehicle sends to the proxy's vehicle side (ArduCopter dials it from an ephemeral port)
-    sim, extra = _start_vehicle(vehicle, vside, 0, workdir, onboard_port=veh_port)
+    sim, extra = _start_vehicle(vehicle, vside, 0, workdir, onboard_port=veh_port,
+                                vehicle_args=() if air_mode is None else ("--airmode", str(air_mode)))
     if vehicle == "ardupilot":
         extra = [*extra, "--mission", "forest_arducopter_sitl", "--ready-timeout", "120"]
     proxy = subprocess.Popen([sys.executable, "-m", "lab.udp_proxy", "--vehicle",
@@ -65,15 +67,16 @@ def jitter(workdir: Path, *, delay_ms: float = 50.0, jitter_ms: float = 25.0, dr
             "link": rep["link"], "loop_lag": rep.get("loop_lag")}
 
 
-def _start_vehicle(kind: str, comp_port: int, instance: int, workdir: Path,
-                   onboard_port: int | None = None) -> tuple[subprocess.Popen, list[str]]:
+def _start_vehicle(kind: str, comp_port: int, instance: int, workdir: Path, onboard_port: int | None = None,
+                   vehicle_args: tuple[str, ...] = ()) -> tuple[subprocess.Popen, list[str]]:
     """A real-time vehicle sending its onboard link to ``comp_port``: the bundled one (its onboard link bound to
     ``onboard_port``, any free one by default; returned once it says it is ready), PX4 SIH (port 14540+I) or
-    ArduCopter SITL (:mod:`lab.sitl_external`); and the ``fly`` options it needs."""
+    ArduCopter SITL (:mod:`lab.sitl_external`); and the ``fly`` options it needs. ``vehicle_args``: more
+    ``sitl`` options for the bundled one."""
     if kind == "bundled":
         argv = [sys.executable, "-m", "sim_bridge", "--onboard-port", str(onboard_port or free_udp_port()),
                 "--onboard-remote", f"127.0.0.1:{comp_port}", "--gcs-port", str(free_udp_port()), "--gcs-remote",
-                f"127.0.0.1:{free_udp_port()}"]
+                f"127.0.0.1:{free_udp_port()}", *vehicle_args]
         sim = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                                start_new_session=True, preexec_fn=proclife.preexec())
         assert sim.stdout is not None

@@ -34,6 +34,7 @@ from companion.flight.core import FlightCore
 from companion.flight.phase import CorePhase
 from companion.report.metrics import FlightLog
 from lab.swing_sim import EstimatorDriver, TruthLog, TruthRecorder
+from sim_bridge.inner_loop import AIR_MODE_ALL
 from sim_bridge.physics import VehicleSim
 
 log = logging.getLogger(__name__)
@@ -138,6 +139,7 @@ def fly_inprocess(
     link_seed: int = 0,
     true_vehicle: VehicleParams | None = None,
     on_tick: Callable[[FlightCore, float], None] | None = None,
+    air_mode: int = AIR_MODE_ALL,
 ) -> FlightLog:
     """Fly ``mission`` from take-off to the end of the hold (or timeout); returns the flight log.
 
@@ -149,6 +151,7 @@ def fly_inprocess(
     With ``record`` False only the last tick is kept (for throughput measurements). ``true_vehicle``: the vehicle
     the physics flies when it differs from the mission's (a mis-declared payload: the companion flies
     ``mission.vehicle``); the wind is the mission's ``[wind]``, eq. 49 or physical drag, never told to the core.
+    ``air_mode``: the vehicle mixer's PX4 ``MC_AIRMODE`` (:mod:`sim_bridge.inner_loop`; the bundled vehicle's 2).
     """
     source, driver = _swing_input(mission, swing_source, swing_sensor, estimator)
     recorder = TruthRecorder() if (driver is not None or truth is not None) else None
@@ -157,6 +160,7 @@ def fly_inprocess(
     x0[0:2] = mission.start_ned_m[:2]
     sim = VehicleSim(true_vehicle or mission.vehicle, wind=mission.wind, dt_s=physics_dt_s, x0=x0)
     sim.armed = True
+    sim.air_mode = air_mode
     core = FlightCore(mission, gains or ControllerConfig(), VehicleProfile(), period_s=control_period_s)
     link = SlowLink(link_delay_s, link_jitter_s, control_period_s, link_seed) if link_delay_s > 0.0 else None
     tick = 0

@@ -78,6 +78,10 @@ def _wind_arguments(g: argparse._ArgumentGroup) -> None:
 def _autopilot_arguments(g: argparse._ArgumentGroup) -> None:
     """The autopilot's parameters: hover thrust, offboard timeout and loss hold, take-off altitude."""
     g.add_argument("--thr-hover", type=float, help="MPC_THR_HOVER (default 1/thrust_to_weight = 0.4)")
+    g.add_argument("--airmode", type=int, choices=(0, 1, 2), default=2,
+                   help="MC_AIRMODE: the mixer lifts the collective for torque in flight: 0 never (PX4's default), "
+                        "1 for roll/pitch, 2 for yaw too (default 2: eq. 49 puts more yaw torque on the airframe than "
+                        "hover thrust leaves; at 0 its heading wanders ~23 deg)")
     g.add_argument("--offboard-timeout", type=float, default=1.0,
                    help="COM_OF_LOSS_T: offboard setpoint loss timeout, s (sim time; PX4's default 1.0)")
     g.add_argument("--offboard-loss-hold", type=float, default=5.0,
@@ -198,6 +202,7 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
         thr_hover=args.thr_hover,
         offboard_timeout_s=args.offboard_timeout,
         fail_act_t_s=args.offboard_loss_hold,
+        air_mode=args.airmode,
         onboard_peer=_hostport(args.onboard_peer, "--onboard-peer", 0) if args.onboard_peer else None,
         gcs_peer=_hostport(args.gcs_peer, "--gcs-peer", 0) if args.gcs_peer else None,
         onboard_serial=_serial_spec(args.serial) if getattr(args, "serial", None) else None,

@@ -12,12 +12,17 @@ with sat() the boundary layer of eq. 32 (width Δ). With the disturbance d_τ th
 where |S| ≈ |d_τ| / (I·k + k_sat/Δ); the defaults keep the roll error under ~0.5° at eq. 49's 0.59 N·m peak.
 
 Mixer. Rotor thrusts f_i = c_T·ω_i² map to [T, τφ, τθ, τψ] through eq. 13 (X frame, arm d, yaw moment
-c_M/c_T per newton). The inverse is exact; when a rotor would leave [0, f_max], the collective moves first
-(torques have priority, as PX4's mixer with air mode does in flight; on the ground the collective is never
-raised above the request, so torque cannot lift an idling vehicle — PX4 disables air mode there too); what
-does not fit is given up yaw first (the
-largest fraction of the yaw torque that fits is kept), then roll/pitch are scaled down.
+c_M/c_T per newton). The inverse is exact; when a rotor would leave [0, f_max], the collective may be lowered
+(never below what the rotors need), and raised only as PX4's ``MC_AIRMODE`` allows: 0 (PX4's default; always
+on the ground) never, 1 as far as roll/pitch need, 2 for yaw too. What still does not fit is given up yaw
+first (the largest fraction of the yaw torque that fits is kept), then roll/pitch are scaled down.
+
+The bundled vehicle flies 2: eq. 49 puts 0.59 N·m on roll, pitch and yaw at once, more than hover thrust leaves
+for yaw, so at 0 or 1 the heading wanders by ~23° at the paper's scale and spins at 1.3. The price: the mixer
+lifts the collective against a thrust cut, and a companion whose loop is out of margin can watch its vehicle
+climb (``docs/measurements.md``, *The vehicle that climbed by itself*). ``MC_AIRMODE`` 0 flies as a stock PX4.
 """
+
 
 from __future__ import annotations
 
@@ -33,6 +38,9 @@ from companion.core.kernel_cache import use_kernel_cache
 from companion.core.vehicle_params import VehicleParams
 
 _S2 = math.sqrt(2.0) / 2.0
+
+#: PX4's ``MC_AIRMODE`` values: the collective never raised for torque, raised for roll/pitch, raised for all three
+AIR_MODE_OFF, AIR_MODE_ROLL_PITCH, AIR_MODE_ALL = 0, 1, 2
 
 
 @dataclass(frozen=True)
@@ -192,7 +200,8 @@ def max_rotor_thrust_n(rotor: RotorConfig, params: VehicleParams) -> float:
 def _fit(ft, thrust_n, f_max, air_mode, out):  # pragma: no cover - compiled
     """Add the collective closest to T/4 that keeps every rotor in [0, f_max]; False if none does.
 
-    Without ``air_mode`` the collective may not rise above T/4 (torque never lifts an idling vehicle)."""
+    Without ``air_mode`` (a bool here) the collective may not rise above T/4 (torque never lifts an idling
+    vehicle)."""
     lo = -1e300
     hi = 1e300
     for i in range(4):
@@ -209,27 +218,33 @@ def _fit(ft, thrust_n, f_max, air_mode, out):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _mix(thrust_n, tau, a_inv, f_max, air_mode, out):  # pragma: no cover - compiled
-    """Kernel of :func:`mix`: rotor thrusts into ``out`` (4,)."""
+    """Kernel of :func:`mix`: rotor thrusts into ``out`` (4,); ``air_mode`` is ``MC_AIRMODE`` (0, 1, 2)."""
     f_rp = np.empty(4)
     ft = np.empty(4)
     for i in range(4):
         f_rp[i] = a_inv[i, 1] * tau[0] + a_inv[i, 2] * tau[1]
+    if air_mode == 1:  # the collective rises as far as roll/pitch alone need it, and no further for yaw
+        need = 0.0
+        for i in range(4):
+            need = max(need, -f_rp[i])
+        thrust_n = max(thrust_n, 4.0 * need)
+    raise_ok = air_mode == 2
     for i in range(4):
         ft[i] = f_rp[i] + a_inv[i, 3] * tau[2]
-    if _fit(ft, thrust_n, f_max, air_mode, out):
+    if _fit(ft, thrust_n, f_max, raise_ok, out):
         return
     # Does roll/pitch fit alone? Then keep the largest fraction of the yaw torque that still fits.
     rp_scale = 1.0
     for i in range(4):
         ft[i] = f_rp[i]
-    if _fit(ft, thrust_n, f_max, air_mode, out):
+    if _fit(ft, thrust_n, f_max, raise_ok, out):
         lo_s = 0.0
         hi_s = 1.0
         for _ in range(20):
             mid = 0.5 * (lo_s + hi_s)
             for i in range(4):
                 ft[i] = f_rp[i] + mid * a_inv[i, 3] * tau[2]
-            if _fit(ft, thrust_n, f_max, air_mode, out):
+            if _fit(ft, thrust_n, f_max, raise_ok, out):
                 lo_s = mid
             else:
                 hi_s = mid
@@ -243,28 +258,31 @@ def _mix(thrust_n, tau, a_inv, f_max, air_mode, out):  # pragma: no cover - comp
             mid = 0.5 * (lo_s + hi_s)
             for i in range(4):
                 ft[i] = mid * f_rp[i]
-            if _fit(ft, thrust_n, f_max, air_mode, out):
+            if _fit(ft, thrust_n, f_max, raise_ok, out):
                 lo_s = mid
             else:
                 hi_s = mid
         rp_scale = lo_s
         for i in range(4):
             ft[i] = rp_scale * f_rp[i]
-    if not _fit(ft, thrust_n, f_max, air_mode, out):
+    if not _fit(ft, thrust_n, f_max, raise_ok, out):
         for i in range(4):
             out[i] = min(max(thrust_n / 4.0, 0.0), f_max)
 
 
 def mix(
-    thrust_n: float, torque: np.ndarray, rotor: RotorConfig, f_max: float, air_mode: bool = True
+    thrust_n: float, torque: np.ndarray, rotor: RotorConfig, f_max: float, air_mode: int = AIR_MODE_ALL
 ) -> np.ndarray:
     """Rotor thrusts f (4,) in [0, f_max] realising [T, τ] as closely as the limits allow.
 
-    Priority: roll/pitch torque, then yaw torque, then collective thrust. ``air_mode`` (in flight) lets the
-    collective rise to make room for torque; on the ground it may not.
+    Priority: roll/pitch torque, then yaw torque, then collective thrust, which is raised to make room for
+    torque only as ``air_mode`` (PX4's ``MC_AIRMODE``: 0 never, 1 for roll/pitch, 2 for all three) allows.
     """
+    if air_mode not in (AIR_MODE_OFF, AIR_MODE_ROLL_PITCH, AIR_MODE_ALL):
+        raise ValueError(f"air_mode: must be 0, 1 or 2 (PX4's MC_AIRMODE), got {air_mode!r}")
     out = np.empty(4)
-    _mix(float(thrust_n), np.asarray(torque, dtype=np.float64), mixer_inverse(rotor), float(f_max), air_mode, out)
+    _mix(float(thrust_n), np.asarray(torque, dtype=np.float64), mixer_inverse(rotor), float(f_max), int(air_mode),
+         out)
     return out
 
 

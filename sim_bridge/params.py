@@ -138,6 +138,7 @@ def build_param_table(
     obl_action: int = 0,
     fail_act_t_s: float = 5.0,
     imu_noise_scale: float = 1.0,
+    air_mode: int = 2,
 ) -> ParamTable:
     """The vehicle's table: tunables, inner-loop gains, read-only rejection counters ``RJ_<KIND>``."""
     params = [
@@ -148,6 +149,9 @@ def build_param_table(
                   "here, so each holds for COM_FAIL_ACT_T and then lands (5 hold, 6 terminate, 7 disarm refused)"),
         Param("COM_FAIL_ACT_T", fail_act_t_s, 0.0, 25.0, doc="hold this long after offboard loss, then land, s"),
         Param("MIS_TAKEOFF_ALT", takeoff_alt_m, 0.5, 100.0, doc="takeoff altitude above home, m"),
+        Param("MC_AIRMODE", air_mode, 0, 2, is_int=True,
+              doc="the mixer raises the collective for torque in flight: 0 never (PX4's default), 1 for roll/pitch, "
+                  "2 for yaw too (the bundled default: eq. 49's yaw torque needs it)"),
         Param("SIM_WIND_MODEL", 1.0 if wind_model == "paper" else 0.0, 0, 1, is_int=True, doc="0 none, 1 eq. 49"),
         Param("SIM_WIND_SCALE", wind_scale, 0.0, 10.0, doc="wind scale factor (1 = the paper)"),
         Param("SIM_IMU_NSCALE", imu_noise_scale, 0.0, 100.0, doc="IMU noise and bias-walk multiplier (0 ideal)"),

@@ -40,6 +40,7 @@ from companion.core.wind import WindConfig, wind_scale_factor
 from companion.errors import ModelError
 from sim_bridge.contact import _payload_angles
 from sim_bridge.inner_loop import (
+    AIR_MODE_ALL,
     InnerLoopGains,
     RotorConfig,
     gains_packed,
@@ -78,6 +79,7 @@ class VehicleSim:
         self._p_free[1] = 0.0
         self._p_free[6] = max(self._p_free[6], 1e-9)
         self.armed = False
+        self.air_mode = AIR_MODE_ALL  # PX4's MC_AIRMODE (sim_bridge.inner_loop); 2: eq. 49's yaw torque needs it
         self.landed = self.x[IDX_Z] >= 0.0 and abs(self.x[8 + IDX_Z]) < 1e-9
         # payload contact [slack, x, y, z]: a payload below the ground plane in x0 rests on the ground instead
         self._pl = np.zeros(4)
@@ -155,7 +157,7 @@ class VehicleSim:
             self.x, self.t_s, int(n_steps), self.dt_s, self._p, self._p_free, wind_scale_factor(self.wind),
             wtab, TABLE_DT_S, self._drag_k, self.target_euler_rad, tgt_euler_rate, self.rates_only, rates,
             self.target_thrust_n,
-            gp, a_mat, a_inv, f_max, self.armed, self.landed, self._pl,
+            gp, a_mat, a_inv, f_max, self.air_mode, self.armed, self.landed, self._pl,
             self.rotor_thrust_n, self.torque_nm, self.disturbance, self._accel,
         )
         self.t_s = t

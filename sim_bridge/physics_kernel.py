@@ -60,7 +60,7 @@ def _tilt_priority(tgt_euler, psi, tilt):  # pragma: no cover - compiled
 @njit(cache=True)
 def _physics_steps(
     x, t, n, dt, p, p_free, wind_k, wtab, tab_dt, drag_k, tgt_euler, tgt_euler_rate, rates_only, tgt_rates,
-    thrust, gp, a_mat, a_inv, f_max, armed, landed, pl, f_out, tau_out, d_out, a_out,
+    thrust, gp, a_mat, a_inv, f_max, air_mode, armed, landed, pl, f_out, tau_out, d_out, a_out,
 ):  # pragma: no cover - compiled
     """``n`` physics steps in place on ``x``: wind → attitude SMC → mixer → RK4 → ground and cable contact.
 
@@ -97,7 +97,7 @@ def _physics_steps(
             else:
                 _tilt_priority(tgt_euler, x[5], tilt)
                 _smc_torque(x[3:6], x[11:14], tilt, tgt_euler_rate, inertia, gp, tau)
-            _mix(thrust, tau, a_inv, f_max, not landed, f_out)
+            _mix(thrust, tau, a_inv, f_max, 0 if landed else air_mode, f_out)
         else:
             for i in range(4):
                 f_out[i] = 0.0

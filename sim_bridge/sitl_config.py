@@ -30,6 +30,7 @@ class SitlConfig:
     offboard_timeout_s: float = 1.0  # COM_OF_LOSS_T (PX4 v1.15 default)
     obl_action: int = 0  # COM_OBL_RC_ACT
     fail_act_t_s: float = 5.0  # COM_FAIL_ACT_T: hold after offboard loss, then land
+    air_mode: int = 2  # MC_AIRMODE (sim_bridge.inner_loop): PX4's default is 0; eq. 49's yaw torque needs 2
     takeoff_alt_m: float = 2.5
     home: tuple[float, float, float] = (47.397742, 8.545594, 488.0)
     onboard_bind: tuple[str, int] = ("127.0.0.1", 14580)
@@ -65,6 +66,8 @@ class SitlConfig:
             raise ValueError("thr_hover: must be in [0.05, 0.95]")
         if not 0 <= self.obl_action <= 4:
             raise ValueError("obl_action: COM_OBL_RC_ACT must be 0..4 (5 hold, 6 terminate, 7 disarm: refused)")
+        if self.air_mode not in (0, 1, 2):
+            raise ValueError(f"air_mode: MC_AIRMODE must be 0, 1 or 2, got {self.air_mode}")
         if not 0.0 <= self.fail_act_t_s <= 25.0:
             raise ValueError("fail_act_t: must be in [0, 25] s")
         if self.signing_key is not None and len(self.signing_key) != 32:

@@ -60,7 +60,7 @@ class SitlVehicle(VehicleControl, FlightModes):
             wind_model="none" if cfg.wind.model == "none" else "paper",  # SIM_WIND_MODEL 1: the configured wind
             payload_mass_kg=cfg.params.m, cable_length_m=cfg.params.l, takeoff_alt_m=cfg.takeoff_alt_m,
             gains=InnerLoopGains(), counters=self.counters.counts, obl_action=cfg.obl_action,
-            fail_act_t_s=cfg.fail_act_t_s, imu_noise_scale=cfg.imu.scale,
+            fail_act_t_s=cfg.fail_act_t_s, imu_noise_scale=cfg.imu.scale, air_mode=cfg.air_mode,
         )
         self.imu = ImuModel(dataclasses.replace(cfg.imu, sample_dt_s=cfg.control_period_us * 1e-6))
         self.params.on_change = self._param_changed
@@ -97,8 +97,10 @@ class SitlVehicle(VehicleControl, FlightModes):
     # ------------------------------------------------------------------ construction helpers
     def _new_sim(self, params: VehicleParams, t0_s: float) -> VehicleSim:
         gains = gains_from_params(self.params, InnerLoopGains())
-        return VehicleSim(params, wind=self._wind_from_params(), rotor=self.cfg.rotor, gains=gains,
-                          dt_s=self.cfg.physics_dt_us * 1e-6, t0_s=t0_s)
+        sim = VehicleSim(params, wind=self._wind_from_params(), rotor=self.cfg.rotor, gains=gains,
+                         dt_s=self.cfg.physics_dt_us * 1e-6, t0_s=t0_s)
+        sim.air_mode = int(self.params.value("MC_AIRMODE"))
+        return sim
 
     def _wind_from_params(self) -> WindConfig:
         """The configured wind (``cfg.wind``, all its physical-wind settings) switched by SIM_WIND_MODEL
@@ -110,6 +112,8 @@ class SitlVehicle(VehicleControl, FlightModes):
     def _param_changed(self, prm) -> None:
         if prm.name.startswith("SIM_WIND"):
             self.sim.wind = self._wind_from_params()
+        elif prm.name == "MC_AIRMODE":
+            self.sim.air_mode = int(prm.value)
         elif prm.name.startswith("SMC_"):
             try:
                 g = gains_from_params(self.params, self.sim.gains)

@@ -8,7 +8,15 @@ import pytest
 from companion.core.rotations import euler_from_quat, quat_from_euler
 from companion.core.vehicle_params import VehicleParams
 from companion.core.wind import WindConfig, eq49_signal, wind_disturbance
-from sim_bridge.inner_loop import RotorConfig, max_rotor_thrust_n, mix, mixer_matrix
+from sim_bridge.inner_loop import (
+    AIR_MODE_ALL,
+    AIR_MODE_OFF,
+    AIR_MODE_ROLL_PITCH,
+    RotorConfig,
+    max_rotor_thrust_n,
+    mix,
+    mixer_matrix,
+)
 from sim_bridge.physics import VehicleSim
 
 P = VehicleParams()
@@ -52,14 +60,26 @@ def test_wind_torque_would_flip_an_uncontrolled_vehicle():
     assert abs(math.degrees(x[3])) > 30.0
 
 
-def test_hover_attitude_held_under_wind():
-    """Roll/pitch within 0.5°, yaw within 1° while eq. 49 pushes on all three axes."""
+@pytest.mark.parametrize("air_mode", [AIR_MODE_OFF, AIR_MODE_ROLL_PITCH, AIR_MODE_ALL])
+def test_hover_attitude_held_under_wind(air_mode):
+    """Roll/pitch within 0.5° while eq. 49 pushes on all three axes. Its 0.59 N·m on every channel at once is more
+    than hover thrust leaves for yaw: a mixer that lifts the collective for yaw (PX4's MC_AIRMODE 2) holds yaw
+    within 1° at up to 18 % more thrust than asked; PX4's default (0) and roll/pitch air mode (1) keep the thrust
+    asked for and give up yaw (~23°)."""
     sim = _airborne_sim(WindConfig("paper", 1.0))
+    sim.air_mode = air_mode
     worst = np.zeros(3)
+    thrust_max = 0.0
     for _ in range(3000):
         sim.step(1)
         worst = np.maximum(worst, np.abs(np.degrees(sim.euler_rad)))
-    assert worst[0] < 0.5 and worst[1] < 0.5 and worst[2] < 1.0, worst
+        thrust_max = max(thrust_max, sim.thrust_n)
+    assert worst[0] < 0.5 and worst[1] < 0.5, worst
+    lifted = thrust_max / P.hover_thrust_n - 1.0
+    if air_mode == AIR_MODE_ALL:
+        assert worst[2] < 1.0 and lifted > 0.1, (worst, lifted)
+    else:
+        assert 5.0 < worst[2] < 45.0 and lifted < 1e-3, (worst, lifted)
 
 
 def test_mixer_is_eq13_and_respects_rotor_limits():
@@ -147,16 +167,28 @@ def test_eq49_values():
     np.testing.assert_allclose(wind_disturbance(1.0, WindConfig("paper", 2.0)), np.full(6, 2 * eq49_signal(1.0)))
 
 
-def test_on_ground_torque_demand_never_raises_the_collective():
-    """Air mode off (on the ground): at low thrust the mixer gives up torque instead of adding thrust."""
+def test_air_mode_raises_the_collective_only_as_px4s_mc_airmode_says():
+    """0 (PX4's default; always on the ground): at low thrust torque is given up, never thrust added; 1: the
+    collective rises as far as roll/pitch need, yaw is given up; 2: it rises for all three."""
     rotor = RotorConfig()
     f_max = max_rotor_thrust_n(rotor, P)
+    a = mixer_matrix(rotor)
     for thrust in (0.0, 0.3 * P.hover_thrust_n, P.hover_thrust_n):
-        f = mix(thrust, np.array([0.5, -0.5, 2.0]), rotor, f_max, air_mode=False)
+        f = mix(thrust, np.array([0.5, -0.5, 2.0]), rotor, f_max, air_mode=AIR_MODE_OFF)
         assert f.sum() <= thrust + 1e-9
-    # in flight (air mode) the collective may rise to make room for the torque
-    f = mix(0.3 * P.hover_thrust_n, np.array([0.5, -0.5, 0.5]), rotor, f_max, air_mode=True)
-    np.testing.assert_allclose((mixer_matrix(rotor) @ f)[1:], [0.5, -0.5, 0.5], atol=1e-9)
+    low, tau = 0.3 * P.hover_thrust_n, np.array([0.5, -0.5, 0.5])
+    off = a @ mix(low, tau, rotor, f_max, air_mode=AIR_MODE_OFF)
+    rp = a @ mix(low, tau, rotor, f_max, air_mode=AIR_MODE_ROLL_PITCH)
+    full = a @ mix(low, tau, rotor, f_max, air_mode=AIR_MODE_ALL)
+    np.testing.assert_allclose(full[1:], tau, atol=1e-9)  # everything, the collective lifted for it
+    assert full[0] > low
+    np.testing.assert_allclose(rp[1:3], tau[:2], atol=1e-9)  # roll/pitch whole ...
+    roll_pitch_need = 4.0 * np.max(-(np.linalg.inv(a)[:, 1:3] @ tau[:2]))
+    assert rp[0] == pytest.approx(max(low, roll_pitch_need), abs=1e-9)  # ... lifted only as far as they need
+    assert 0.0 <= rp[3] < tau[2]  # yaw given up
+    assert off[0] <= low + 1e-9 and abs(off[1]) < tau[0]  # nothing lifted: roll/pitch scaled down
+    with pytest.raises(ValueError, match="MC_AIRMODE"):
+        mix(low, tau, rotor, f_max, air_mode=3)
 
 
 def test_idle_on_ground_with_yaw_error_stays_landed():
@@ -201,3 +233,22 @@ def test_eq49_beyond_the_airframes_yaw_authority_is_refused_with_the_numbers():
     with pytest.raises(ValueError, match="no attitude loop can hold it"):
         SitlConfig(wind=WindConfig("paper", 1.5)).validate()
     SitlConfig(wind=WindConfig("paper", 1.0)).validate()
+
+
+def test_mc_airmode_is_the_vehicles_parameter_kept_across_a_reboot():
+    """PX4's name and range (the bundled default 2, not PX4's 0): PARAM_SET 0 reaches the mixer at once and survives
+    the simulated reboot (a new simulation), 3 is refused; ``sitl --airmode`` sets it at start."""
+    from sim_bridge.sitl_config import SitlConfig
+    from sim_bridge.vehicle import SitlVehicle
+
+    v = SitlVehicle(SitlConfig())
+    assert v.params.value("MC_AIRMODE") == 2.0 and v.sim.air_mode == AIR_MODE_ALL  # what eq. 49 needs
+    assert v.params.set("MC_AIRMODE", 0) == (True, "")
+    assert v.sim.air_mode == AIR_MODE_OFF
+    v.sim = v._new_sim(v.sim.params, 0.0)
+    assert v.sim.air_mode == AIR_MODE_OFF
+    ok, why = v.params.set("MC_AIRMODE", 3)
+    assert not ok and "outside" in why and v.sim.air_mode == AIR_MODE_OFF
+    assert SitlVehicle(SitlConfig(air_mode=1)).sim.air_mode == AIR_MODE_ROLL_PITCH
+    with pytest.raises(ValueError, match="MC_AIRMODE must be 0, 1 or 2"):
+        SitlConfig(air_mode=5).validate()

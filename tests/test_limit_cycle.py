@@ -15,6 +15,7 @@ from companion.core.mission import load_mission
 from companion.errors import ConfigError
 from companion.estimation.limit_cycle import LimitCycleDetector
 from lab.inprocess import fly_inprocess
+from sim_bridge.inner_loop import AIR_MODE_ALL
 
 PERIOD_S = 0.004
 
@@ -109,10 +110,11 @@ def _guard(on: bool, soften: bool = False) -> ControllerConfig:
 
 
 def test_the_guard_alone_stops_the_cycle_the_fade_leaves() -> None:
-    """65 ± 25 ms each way, seed 5, the feed-forward faded but the position loop at full stiffness: without the
-    guard the hold cycles at the tilt limit (0.57 rad) and the air-mode mixer climbs 0.65 m; with it, one detection
-    mid-cruise and the hold is steady (0.11 rad, altitude within 0.18 m)."""
-    link = {"link_delay_s": 0.065, "link_jitter_s": 0.025, "link_seed": 5}
+    """65 ± 25 ms each way, seed 5, the feed-forward faded but the position loop at full stiffness, a vehicle whose
+    mixer lifts the collective for yaw (PX4's ``MC_AIRMODE`` 2): without the guard the hold cycles at the tilt limit
+    (0.57 rad) and the mixer climbs 0.65 m; with it, one detection mid-cruise and the hold is steady (0.11 rad,
+    altitude within 0.18 m)."""
+    link = {"link_delay_s": 0.065, "link_jitter_s": 0.025, "link_seed": 5, "air_mode": AIR_MODE_ALL}
     off, off_facts = _fly(_guard(False), **link)
     on, on_facts = _fly(_guard(True), **link)
     tilt_off, alt_off = _hold_tilt_and_alt_error(off)
