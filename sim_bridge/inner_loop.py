@@ -304,12 +304,39 @@ def yaw_authority_at_hover_nm(rotor: RotorConfig, params: VehicleParams) -> floa
     return abs(float(mixer_matrix(rotor)[3, 0])) * params.hover_thrust_n
 
 
-def eq49_torque_problem(scale: float, rotor: RotorConfig, params: VehicleParams, margin: float = 0.9) -> str | None:
-    """Why the airframe cannot fly eq. 49 at ``scale`` (None when it can): its yaw channel's peak must stay within
-    ``margin`` of the yaw torque the rotors give at hover. Beyond it the mixer can only find the yaw torque by
-    raising the collective (air mode), and the vehicle spins up and climbs away (measured: scale 1.5 diverged on
-    take-off, 1.3 flew). Eq. 49 puts the same w(t) on every channel; roll and pitch have ~2.7x the authority."""
+#: how far beyond :func:`eq49_unlifted_scale` eq. 49 may go on a mixer that does not lift for yaw (MC_AIRMODE 0, 1):
+#: the heading wanders and comes back. Measured hovering (``VehicleSim``, 20 s): 0.85 held within 0.6°, 1.0 wandered
+#: 23°, 1.1 62°, 1.2 118°, 1.3 spun
+EQ49_UNLIFTED_OVERDRIVE = 1.2
+
+
+def eq49_unlifted_scale(rotor: RotorConfig, params: VehicleParams) -> float:
+    """The largest eq. 49 scale whose torques (the same w(t) on roll, pitch and yaw) every rotor holds at hover
+    thrust without lifting the collective: the hover share T/4 over the worst rotor's |roll| + |pitch| + |yaw|
+    share of one N·m at eq. 49's peak (0.85 for the default airframe)."""
+    a_inv = mixer_inverse(rotor)
+    share = max(abs(a_inv[i, 1]) + abs(a_inv[i, 2]) + abs(a_inv[i, 3]) for i in range(4))
+    return params.hover_thrust_n / 4.0 / (share * eq49_peak())
+
+
+def eq49_torque_problem(scale: float, rotor: RotorConfig, params: VehicleParams, margin: float = 0.9,
+                        air_mode: int = AIR_MODE_ALL) -> str | None:
+    """Why the airframe cannot fly eq. 49 at ``scale`` (None when it can). With the collective lifted for yaw
+    (``air_mode`` 2) the yaw channel's peak must stay within ``margin`` of the yaw torque the rotors give at hover.
+    Beyond it the mixer can only find the yaw torque by raising the collective, and the vehicle spins up and climbs
+    away (measured: scale 1.5 diverged on take-off, 1.3 flew). Eq. 49 puts the same w(t) on every channel; roll
+    and pitch have ~2.7x the authority. Without (0, 1) the scale must stay within ``EQ49_UNLIFTED_OVERDRIVE`` of
+    :func:`eq49_unlifted_scale`, beyond which the heading wanders ever further and then spins."""
     peak = scale * eq49_peak()
+    if air_mode != AIR_MODE_ALL:
+        held = eq49_unlifted_scale(rotor, params)
+        if scale <= EQ49_UNLIFTED_OVERDRIVE * held:
+            return None
+        return (f"[wind] model \"paper\" scale {scale:g} at MC_AIRMODE {air_mode}: eq. 49 puts up to {peak:.2f} N·m "
+                f"on roll, pitch and yaw at once; without lifting the collective the rotors hold that only up to scale "
+                f"{held:.2f}, and beyond it the heading wanders (23° at 1.0, a spin at 1.3). The largest scale flown "
+                f"at this air mode is {EQ49_UNLIFTED_OVERDRIVE * held:.2f}; use --airmode 2, or model = "
+                f"\"turbulence\" (drag, no torques)")
     authority = yaw_authority_at_hover_nm(rotor, params)
     if peak <= margin * authority:
         return None

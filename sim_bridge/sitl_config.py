@@ -74,6 +74,6 @@ class SitlConfig:
             raise ValueError("signing_key: must be 32 bytes")
         self.imu.validate()
         if self.wind.model == "paper":
-            problem = eq49_torque_problem(self.wind.scale, self.rotor, self.params)
+            problem = eq49_torque_problem(self.wind.scale, self.rotor, self.params, air_mode=self.air_mode)
             if problem is not None:
                 raise ValueError(problem)

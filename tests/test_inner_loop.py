@@ -235,6 +235,38 @@ def test_eq49_beyond_the_airframes_yaw_authority_is_refused_with_the_numbers():
     SitlConfig(wind=WindConfig("paper", 1.0)).validate()
 
 
+def test_eq49_on_a_mixer_that_does_not_lift_for_yaw_is_refused_before_its_heading_spins():
+    """MC_AIRMODE 0/1: the rotors hold eq. 49's three torques at hover only up to scale 0.85 (worst rotor's share);
+    the paper's 1.0 flies with its heading wandering 23°, 1.3 spins (hover, 20 s): refused beyond 1.2 x 0.85."""
+    from companion.core.wind import WindConfig
+    from sim_bridge.inner_loop import EQ49_UNLIFTED_OVERDRIVE, eq49_torque_problem, eq49_unlifted_scale
+    from sim_bridge.sitl_config import SitlConfig
+
+    rotor = RotorConfig()
+    held = eq49_unlifted_scale(rotor, P)
+    assert held == pytest.approx(0.85, abs=0.01)
+    for scale, air_mode in ((0.8, AIR_MODE_OFF), (1.0, AIR_MODE_OFF), (1.0, AIR_MODE_ROLL_PITCH), (1.3, AIR_MODE_ALL)):
+        assert eq49_torque_problem(scale, rotor, P, air_mode=air_mode) is None, (scale, air_mode)
+    why = eq49_torque_problem(1.3, rotor, P, air_mode=AIR_MODE_OFF)
+    assert why is not None and "MC_AIRMODE 0" in why and f"{EQ49_UNLIFTED_OVERDRIVE * held:.2f}" in why
+    with pytest.raises(ValueError, match="without lifting the collective"):
+        SitlConfig(wind=WindConfig("paper", 1.3), air_mode=1).validate()
+    # the claim behind it, at the scale just past the limit: a hovering vehicle whose heading runs away
+    below, beyond = (_heading_excursion_deg(s, AIR_MODE_OFF) for s in (0.8, 1.3))
+    assert below < 1.0 and beyond > 180.0, (below, beyond)
+
+
+def _heading_excursion_deg(scale: float, air_mode: int) -> float:
+    """Largest heading change (°, unwrapped) of a vehicle hovering 20 s under eq. 49 x ``scale``."""
+    sim = _airborne_sim(WindConfig("paper", scale))
+    sim.air_mode = air_mode
+    yaw = []
+    for _ in range(200):
+        sim.step(100)
+        yaw.append(sim.euler_rad[2])
+    return float(np.degrees(np.max(np.abs(np.unwrap(yaw)))))
+
+
 def test_mc_airmode_is_the_vehicles_parameter_kept_across_a_reboot():
     """PX4's name and range (the bundled default 2, not PX4's 0): PARAM_SET 0 reaches the mixer at once and survives
     the simulated reboot (a new simulation), 3 is refused; ``sitl --airmode`` sets it at start."""
