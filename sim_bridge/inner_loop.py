@@ -330,18 +330,17 @@ def eq49_torque_problem(scale: float, rotor: RotorConfig, params: VehicleParams,
     peak = scale * eq49_peak()
     if air_mode != AIR_MODE_ALL:
         held = eq49_unlifted_scale(rotor, params)
-        if scale <= EQ49_UNLIFTED_OVERDRIVE * held:
-            return None
-        return (f"[wind] model \"paper\" scale {scale:g} at MC_AIRMODE {air_mode}: eq. 49 puts up to {peak:.2f} N·m "
-                f"on roll, pitch and yaw at once; without lifting the collective the rotors hold that only up to scale "
-                f"{held:.2f}, and beyond it the heading wanders (23° at 1.0, a spin at 1.3). The largest scale flown "
-                f"at this air mode is {EQ49_UNLIFTED_OVERDRIVE * held:.2f}; use --airmode 2, or model = "
-                f"\"turbulence\" (drag, no torques)")
-    authority = yaw_authority_at_hover_nm(rotor, params)
-    if peak <= margin * authority:
+        largest = EQ49_UNLIFTED_OVERDRIVE * held
+        why = (f" at MC_AIRMODE {air_mode}: eq. 49 puts up to {peak:.2f} N·m on roll, pitch and yaw at once; without "
+               f"lifting the collective the rotors hold that only up to scale {held:.2f}, and beyond it the heading "
+               f"wanders (23° at 1.0, a spin at 1.3). The largest scale flown at this air mode is {largest:.2f}; use "
+               f"--airmode 2, or")
+    else:
+        authority = yaw_authority_at_hover_nm(rotor, params)
+        largest = margin * authority / eq49_peak()
+        why = (f": eq. 49 puts a yaw torque of up to {peak:.2f} N·m on the airframe, more than {margin:g} of the "
+               f"{authority:.2f} N·m its rotors give at hover: no attitude loop can hold it (it spins up and climbs "
+               f"away). The largest scale this airframe flies is {largest:.2f}; for stronger wind use")
+    if scale <= largest:
         return None
-    return (f"[wind] model \"paper\" scale {scale:g}: eq. 49 puts a yaw torque of up to {peak:.2f} N·m on the "
-            f"airframe, "
-            f"more than {margin:g} of the {authority:.2f} N·m its rotors give at hover: no attitude loop can hold it "
-            f"(it spins up and climbs away). The largest scale this airframe flies is "
-            f"{margin * authority / eq49_peak():.2f}; for stronger wind use model = \"turbulence\" (drag, no torques)")
+    return f"[wind] model \"paper\" scale {scale:g}{why} model = \"turbulence\" (drag, no torques)"
