@@ -147,7 +147,7 @@ def test_a_jittery_link_that_reorders_setpoints_is_flown_softly(seed: int) -> No
     0.17-0.58 rad, above 0.4 in 4, 5 and 6, with the in-process cable sensor reading a slack cable as no swing as
     the companion does; 2, 5 and 6 before the wind-push observer of issue 28 nudged the cycle); softened as well, it
     holds (0.086-0.090 rad in all eight) and keeps its altitude within 0.5 m (issue 9's bound for the real-time
-    fault test at 50 ± 25 ms). At PX4's default (air mode off) the same loop does not cycle at all (0.14 rad):
+    fault test at 50 ± 25 ms). At PX4's default (air mode off) the same loop does not cycle (0.14-0.15 rad):
     eq. 49's yaw torque, held by lifting the collective, was half the cycle."""
     mission = load_mission("config/missions/forest.toml")
     kw = {"link_delay_s": 0.065, "link_jitter_s": 0.025, "link_seed": seed}
