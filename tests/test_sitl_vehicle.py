@@ -205,6 +205,20 @@ def test_param_set_then_read_round_trip(vehicle):
     assert {"MPC_THR_HOVER", "SIM_WIND_MODEL", "SMC_K_R", "RJ_BAD_CRC"} <= names
 
 
+def test_airmode_flag_and_param_over_mavlink(vehicle):
+    """``sitl --airmode 0`` starts the mixer as a stock PX4's; MC_AIRMODE reads back over MAVLink, can be set live,
+    and 3 is refused with the value kept."""
+    c = vehicle("--airmode", "0")
+    c.mav.param_request_read_send(1, 1, b"MC_AIRMODE", -1)
+    pv = c.wait_for("PARAM_VALUE", lambda m: m.param_id == "MC_AIRMODE")
+    assert pv.param_value == 0.0 and pv.param_type == M.MAV_PARAM_TYPE_INT32
+    c.mav.param_set_send(1, 1, b"MC_AIRMODE", 1, M.MAV_PARAM_TYPE_INT32)
+    assert c.wait_for("PARAM_VALUE", lambda m: m.param_id == "MC_AIRMODE").param_value == 1.0
+    c.mav.param_set_send(1, 1, b"MC_AIRMODE", 3, M.MAV_PARAM_TYPE_INT32)
+    assert c.wait_for("PARAM_VALUE", lambda m: m.param_id == "MC_AIRMODE").param_value == 1.0
+    assert "outside" in c.statustexts[-1]
+
+
 def test_takeoff_to_2m_then_land_and_auto_disarm(vehicle):
     c = vehicle("--home-alt", "100")
     assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, 102.0) == M.MAV_RESULT_DENIED
