@@ -23,7 +23,6 @@ lifts the collective against a thrust cut, and a companion whose loop is out of 
 climb (``docs/measurements.md``, *The vehicle that climbed by itself*). ``MC_AIRMODE`` 0 flies as a stock PX4.
 """
 
-
 from __future__ import annotations
 
 import math
@@ -305,7 +304,7 @@ def yaw_authority_at_hover_nm(rotor: RotorConfig, params: VehicleParams) -> floa
 
 
 #: how far beyond :func:`eq49_unlifted_scale` eq. 49 may go on a mixer that does not lift for yaw (MC_AIRMODE 0, 1):
-#: the heading wanders and comes back. Measured hovering (``VehicleSim``, 20 s): 0.85 held within 0.6°, 1.0 wandered
+#: the heading wanders and comes back. Measured hovering (``VehicleSim``, 20 s): 0.8 held within 0.6°, 1.0 wandered
 #: 23°, 1.1 62°, 1.2 118°, 1.3 spun
 EQ49_UNLIFTED_OVERDRIVE = 1.2
 
