@@ -102,8 +102,10 @@ def _hold_tilt_and_alt_error(flog) -> tuple[float, float]:
 
 
 def _guard(on: bool, soften: bool = False) -> ControllerConfig:
-    """The feed-forward's lag fade kept; the position softening and the guard as asked."""
+    """The feed-forward's lag fade kept; the position softening and the guard as asked; the slow link's narrower
+    tilt limit off (these tests show the guard on its own)."""
     cfg = ControllerConfig()
+    cfg = dataclasses.replace(cfg, limits=dataclasses.replace(cfg.limits, tilt_slow_link_rad=cfg.limits.tilt_max_rad))
     if not soften:
         cfg = dataclasses.replace(cfg, smc=dataclasses.replace(cfg.smc, lag_scale_start_s=10.0, lag_scale_end_s=11.0))
     return cfg if on else dataclasses.replace(cfg, cycle=dataclasses.replace(cfg.cycle, scale=1.0))

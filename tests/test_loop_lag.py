@@ -93,10 +93,14 @@ def test_the_fade_must_fall() -> None:
         LoopLagEstimator(0.0)
 
 
-def _gains(fade: bool, soften: bool, guard: bool = False) -> ControllerConfig:
-    """The default gains with or without the feed-forward's lag fade, the position loop's softening and the
-    limit-cycle guard (off unless asked: these tests show each mechanism on its own)."""
+def _gains(fade: bool, soften: bool, guard: bool = False, cap: bool = False) -> ControllerConfig:
+    """The default gains with or without the feed-forward's lag fade, the position loop's softening, the
+    limit-cycle guard and the slow link's narrower tilt limit (the last two off unless asked: these tests show each
+    mechanism on its own)."""
     cfg = ControllerConfig()
+    if not cap:
+        lim = cfg.limits
+        cfg = dataclasses.replace(cfg, limits=dataclasses.replace(lim, tilt_slow_link_rad=lim.tilt_max_rad))
     if not fade:
         cfg = dataclasses.replace(cfg, feedforward=dataclasses.replace(
             cfg.feedforward, lag_full_excess_s=10.0, lag_zero_excess_s=11.0))
@@ -189,3 +193,43 @@ def test_a_clean_link_never_fades() -> None:
     assert np.array_equal(np.array(a.pos), np.array(b.pos))
     core = FlightCore(mission)
     assert core.profile.nominal_loop_lag_s == pytest.approx(0.08)
+
+
+def test_the_max_tilt_shrinks_on_a_slow_link() -> None:
+    """An attitude 0.16 s behind its commands: against a clean-link lag of 0.16 s the full 0.6 rad; 65 ms beyond it
+    0.5 rad (halfway from 50 to 80 ms); from 80 ms beyond it 0.4 rad; the report keeps the least."""
+    from companion.flight.loop_margin import LoopMargin
+
+    lim = ControllerConfig().limits
+    margin = LoopMargin(0.004, ControllerConfig().cycle)
+    assert margin.tilt_max(lim, 0.08) == lim.tilt_max_rad  # nothing measured yet
+    for n in range(1000):
+        t = n * 0.004
+        cmd = 0.3 * math.sin(2 * math.pi * 1.3 * t)
+        margin.after(t, (0.3 * math.sin(2 * math.pi * 1.3 * (t - 0.16)), 0.0), (cmd, 0.0), (0.0, 0.0), 0.16)
+    assert margin.lag.lag_s == pytest.approx(0.16, abs=0.005)
+    assert margin.tilt_max(lim, 0.16) == pytest.approx(0.6)
+    assert margin.tilt_max(lim, margin.lag.lag_s - 0.065) == pytest.approx(0.5)
+    assert margin.tilt_max(lim, 0.06) == pytest.approx(0.4)
+    assert margin.stats.facts(0.06)["tilt_max_min_rad"] == pytest.approx(0.4)
+
+
+def test_on_a_jittery_link_the_turn_is_flown_within_the_slow_link_tilt() -> None:
+    """Forest, 50 ± 25 ms each way (loop lag ~0.18 s, 100 ms beyond the bundled vehicle's clean link), its mixer
+    lifting for yaw: the cruise's turn asked for 0.43-0.47 rad at the full limit (seeds 0-7); now no command
+    exceeds 0.4 rad once the lag is measured, and the flight still arrives and holds."""
+    mission = load_mission("config/missions/forest.toml")
+    kw = {"link_delay_s": 0.05, "link_jitter_s": 0.025, "link_seed": 4}
+    cores: list = []
+    capped = fly_inprocess(mission, on_tick=lambda core, t: cores or cores.append(core), **kw)
+    uncapped = fly_inprocess(mission, gains=_gains(fade=True, soften=True, guard=True, cap=False), **kw)
+
+    def turn_tilt(flog) -> float:
+        cmd, t = np.array(flog.euler_cmd)[:, :2], np.asarray(flog.t).ravel()
+        late = t > 6.0
+        return float(np.nanmax(np.arccos(np.cos(cmd[late, 0]) * np.cos(cmd[late, 1]))))
+
+    assert turn_tilt(uncapped) > 0.42
+    assert turn_tilt(capped) <= 0.4 + 1e-9
+    assert cores[0].margin.stats.tilt_max_min_rad == pytest.approx(0.4)
+    assert _hold_tilt(capped) < 0.2 and _alt_error_m(capped, mission) < 0.5

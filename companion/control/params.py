@@ -110,18 +110,33 @@ class PidGains:
 
 @dataclass(frozen=True)
 class LimitGains:
-    """Output limits: max tilt (rad), thrust range as fractions of hover thrust, max acceleration (m/s²)."""
+    """Output limits: max tilt (rad), thrust range as fractions of hover thrust, max acceleration (m/s²).
+
+    On a slow link the max tilt shrinks to ``tilt_slow_link_rad``: linearly from ``slow_link_start_s`` of measured
+    loop lag beyond the autopilot's clean-link lag to ``slow_link_end_s`` (:class:`companion.flight.loop_margin.
+    LoopMargin`). A loop that far out of margin cannot use the full range: at the forest's turn, 170 ms behind a
+    vehicle whose mixer lifts for yaw, its 0.5-0.6 rad commands made the vehicle climb up to 0.4 m
+    (``docs/measurements.md``, 2026-12-04)."""
 
     tilt_max_rad: float = 0.6
     thrust_min_frac: float = 0.2
     thrust_max_frac: float = 2.2
     acc_max_mps2: float = 6.0
+    tilt_slow_link_rad: float = 0.4
+    slow_link_start_s: float = 0.05
+    slow_link_end_s: float = 0.08
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for values outside their physical range."""
         _check_positive(self)
         if self.tilt_max_rad >= 1.4:
             raise ValueError(f"tilt_max_rad: must be < 1.4 rad, got {self.tilt_max_rad}")
+        if self.tilt_slow_link_rad > self.tilt_max_rad:
+            raise ValueError(f"tilt_slow_link_rad: must be <= tilt_max_rad ({self.tilt_max_rad}), got "
+                             f"{self.tilt_slow_link_rad}")
+        if self.slow_link_end_s <= self.slow_link_start_s:
+            raise ValueError(f"slow_link_end_s: must be > slow_link_start_s ({self.slow_link_start_s}), got "
+                             f"{self.slow_link_end_s}")
         if self.thrust_min_frac >= 1.0 or self.thrust_max_frac <= 1.0:
             raise ValueError("thrust_max_frac: thrust range must contain hover (min < 1 < max)")
 

@@ -95,6 +95,7 @@ class FlightCore(CoreOrders, HopMixin):
         self._correction = (0.0, 0.0)  # the controller's last horizontal correction (m/s², NED)
         self.loop_lag = self.margin.lag
         self.lag_trust = 1.0  # the feed-forward's trust from the loop's margin (this tick)
+        self._tilt_max_rad = self.cfg.limits.tilt_max_rad  # this tick's max tilt: smaller on a slow link
         self.ref: ReferenceGenerator | None = None
         self.phase = CorePhase.CLIMB
         #: with a swing estimator as the swing input, the climb holds at the start altitude up to this long (s)
@@ -253,9 +254,8 @@ class FlightCore(CoreOrders, HopMixin):
         )
         acc, acc_ref = ctl.acc_cmd_mps2.tolist(), floats(ref.a if acc_ctl is None else acc_ctl)
         self._correction = (acc[0] - acc_ref[0], acc[1] - acc_ref[1])  # for the limit-cycle guard (m/s², NED)
-        lim = self.cfg.limits
         fx, fy, fz = ctl.force_ned_n.tolist()
-        force = limit_force_xyz(fx, fy, fz, lim.tilt_max_rad, self._thrust_min, self._thrust_max)
+        force = limit_force_xyz(fx, fy, fz, self._tilt_max_rad, self._thrust_min, self._thrust_max)
         q, thrust, euler = attitude_from_force(force, self.yaw_rad)
         self._thrust_prev = thrust
         return Command(
@@ -277,12 +277,14 @@ class FlightCore(CoreOrders, HopMixin):
             self.phase = self._after_climb()
 
     def _update_lag_trust(self) -> None:
-        """This tick's feed-forward trust and the SMC's gain scale (:meth:`LoopMargin.factors`)."""
+        """This tick's feed-forward trust and the SMC's gain scale (:meth:`LoopMargin.factors`), and its max tilt
+        (:meth:`LoopMargin.tilt_max`)."""
         softens = self.controller.softens_with_lag
         self.lag_trust, gain_scale = self.margin.factors(self.t_prev_s, self.cfg, self.profile.nominal_loop_lag_s,
                                                          softens)
         if softens:
             self.controller.gain_scale = gain_scale
+        self._tilt_max_rad = self.margin.tilt_max(self.cfg.limits, self.profile.nominal_loop_lag_s)
 
     def _envelope(self, est: Estimate) -> tuple[np.ndarray | None, float, str, tuple[float, float]]:
         """(swing as an array or None, envelope radius r_max (m), envelope mode, swing accelerations (rad/s²))."""

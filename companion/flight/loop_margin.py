@@ -5,9 +5,10 @@ Pure and synchronous; the flight core calls :meth:`LoopMargin.factors` before it
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
-from companion.control.params import ControllerConfig, CycleGuardGains
+from companion.control.params import ControllerConfig, CycleGuardGains, LimitGains
 from companion.estimation.limit_cycle import LimitCycleDetector
 from companion.estimation.loop_lag import LoopLagEstimator, lag_trust
 
@@ -37,6 +38,16 @@ class LoopMargin:
                 gain *= guard
         self.stats.add(lag, trust, gain, cycle=guard < 1.0)
         return trust, gain
+
+    def tilt_max(self, lim: LimitGains, nominal_s: float) -> float:
+        """This tick's max tilt (rad): ``lim.tilt_max_rad``, shrinking to ``lim.tilt_slow_link_rad`` as the lag
+        measured up to the last tick exceeds the autopilot's clean-link ``nominal_s`` (s) by ``lim.slow_link_start_s``
+        to ``lim.slow_link_end_s``."""
+        f = lag_trust(self.lag.lag_s, nominal_s, lim.slow_link_start_s, lim.slow_link_end_s,
+                      lim.tilt_slow_link_rad / lim.tilt_max_rad)
+        tilt = lim.tilt_max_rad * f
+        self.stats.tilt_max_min_rad = min(self.stats.tilt_max_min_rad, tilt)
+        return tilt
 
     def after(self, t_s: float, euler_rad: Sequence[float], euler_cmd_rad: Sequence[float],
               correction_mps2: tuple[float, float], nominal_s: float) -> None:
@@ -75,6 +86,7 @@ class LagStats:
         self.gain_scale_min = 1.0
         self.softened_ticks = 0
         self.cycle_ticks = 0  # ticks the limit-cycle guard held the loop gain down
+        self.tilt_max_min_rad = math.inf  # the least max tilt a slow link allowed (inf: never asked)
 
     def add(self, lag_s: float | None, trust: float, gain_scale: float = 1.0, cycle: bool = False) -> None:
         if lag_s is not None:
@@ -92,10 +104,11 @@ class LagStats:
 
     def facts(self, nominal_s: float) -> dict[str, float | None]:
         """Loop lag (ms): min, max, last, the profile's nominal; least feed-forward trust and seconds faded; least
-        position-gain scale and seconds softened."""
+        position-gain scale and seconds softened; the least max tilt (rad) a slow link allowed."""
         def ms(v: float | None) -> float | None:
             return None if v is None else round(v * 1e3, 1)
         return {"lag_ms_min": ms(self.lag_min_s), "lag_ms_max": ms(self.lag_max_s), "lag_ms_last": ms(self.last_lag_s),
                 "nominal_ms": ms(nominal_s), "ff_trust_min": round(self.trust_min, 3),
                 "faded_s": round(self.faded_ticks * self.period_s, 2), "gain_scale_min": round(self.gain_scale_min, 3),
-                "softened_s": round(self.softened_ticks * self.period_s, 2)}
+                "softened_s": round(self.softened_ticks * self.period_s, 2),
+                "tilt_max_min_rad": None if math.isinf(self.tilt_max_min_rad) else round(self.tilt_max_min_rad, 3)}
