@@ -233,3 +233,16 @@ def test_on_a_jittery_link_the_turn_is_flown_within_the_slow_link_tilt() -> None
     assert turn_tilt(capped) <= 0.4 + 1e-9
     assert cores[0].margin.stats.tilt_max_min_rad == pytest.approx(0.4)
     assert _hold_tilt(capped) < 0.2 and _alt_error_m(capped, mission) < 0.5
+
+
+def test_a_broken_slow_link_limit_is_refused_naming_the_key(tmp_path) -> None:
+    from companion.control.params import load_controller_config
+    from companion.errors import ConfigError
+
+    bad = tmp_path / "gains.toml"
+    bad.write_text("[limits]\ntilt_slow_link_rad = 0.7\n")  # wider than tilt_max_rad 0.6
+    with pytest.raises(ConfigError, match=r"\[limits\].*tilt_slow_link_rad"):
+        load_controller_config(bad)
+    bad.write_text("[limits]\nslow_link_start_s = 0.1\nslow_link_end_s = 0.08\n")
+    with pytest.raises(ConfigError, match="slow_link_end_s"):
+        load_controller_config(bad)
