@@ -200,17 +200,21 @@ def test_the_max_tilt_shrinks_on_a_slow_link() -> None:
     0.5 rad (halfway from 50 to 80 ms); from 80 ms beyond it 0.4 rad; the report keeps the least."""
     from companion.flight.loop_margin import LoopMargin
 
-    lim = ControllerConfig().limits
-    margin = LoopMargin(0.004, ControllerConfig().cycle)
-    assert margin.tilt_max(lim, 0.08) == lim.tilt_max_rad  # nothing measured yet
+    cfg = ControllerConfig()
+    margin = LoopMargin(0.004, cfg.cycle)
+
+    def tilt_max(nominal_s: float) -> float:
+        return margin.factors(None, cfg, nominal_s, softens=True)[2]
+
+    assert tilt_max(0.08) == cfg.limits.tilt_max_rad  # nothing measured yet
     for n in range(1000):
         t = n * 0.004
         cmd = 0.3 * math.sin(2 * math.pi * 1.3 * t)
         margin.after(t, (0.3 * math.sin(2 * math.pi * 1.3 * (t - 0.16)), 0.0), (cmd, 0.0), (0.0, 0.0), 0.16)
     assert margin.lag.lag_s == pytest.approx(0.16, abs=0.005)
-    assert margin.tilt_max(lim, 0.16) == pytest.approx(0.6)
-    assert margin.tilt_max(lim, margin.lag.lag_s - 0.065) == pytest.approx(0.5)
-    assert margin.tilt_max(lim, 0.06) == pytest.approx(0.4)
+    assert tilt_max(0.16) == pytest.approx(0.6)
+    assert tilt_max(margin.lag.lag_s - 0.065) == pytest.approx(0.5)
+    assert tilt_max(0.06) == pytest.approx(0.4)
     assert margin.stats.facts(0.06)["tilt_max_min_rad"] == pytest.approx(0.4)
 
 

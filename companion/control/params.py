@@ -113,7 +113,7 @@ class LimitGains:
     """Output limits: max tilt (rad), thrust range as fractions of hover thrust, max acceleration (m/s²).
 
     On a slow link the max tilt shrinks to ``tilt_slow_link_rad``: linearly from ``slow_link_start_s`` of measured
-    loop lag beyond the autopilot's clean-link lag to ``slow_link_end_s`` (``LoopMargin.tilt_max`` in
+    loop lag beyond the autopilot's clean-link lag to ``slow_link_end_s`` (``LoopMargin.factors`` in
     :mod:`companion.flight.loop_margin`). A loop that far out of margin cannot use the full range: at the forest's
     turn, 170 ms behind a vehicle whose mixer lifts for yaw, its 0.5-0.6 rad commands made the vehicle climb up to
     0.4 m (``docs/measurements.md``, 2026-12-04)."""

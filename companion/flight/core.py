@@ -277,14 +277,12 @@ class FlightCore(CoreOrders, HopMixin):
             self.phase = self._after_climb()
 
     def _update_lag_trust(self) -> None:
-        """This tick's feed-forward trust and the SMC's gain scale (:meth:`LoopMargin.factors`), and its max tilt
-        (:meth:`LoopMargin.tilt_max`)."""
+        """This tick's feed-forward trust, the SMC's gain scale and the max tilt (:meth:`LoopMargin.factors`)."""
         softens = self.controller.softens_with_lag
-        self.lag_trust, gain_scale = self.margin.factors(self.t_prev_s, self.cfg, self.profile.nominal_loop_lag_s,
-                                                         softens)
+        self.lag_trust, gain_scale, self._tilt_max_rad = self.margin.factors(
+            self.t_prev_s, self.cfg, self.profile.nominal_loop_lag_s, softens)
         if softens:
             self.controller.gain_scale = gain_scale
-        self._tilt_max_rad = self.margin.tilt_max(self.cfg.limits, self.profile.nominal_loop_lag_s)
 
     def _envelope(self, est: Estimate) -> tuple[np.ndarray | None, float, str, tuple[float, float]]:
         """(swing as an array or None, envelope radius r_max (m), envelope mode, swing accelerations (rad/s²))."""

@@ -1,6 +1,6 @@
 """The flight loop's delay margin, kept tick by tick: the measured loop lag, the limit-cycle guard, and what they
-allow this tick — the feed-forward's trust and the position loop's gain scale — plus their record for the report.
-Pure and synchronous; the flight core calls :meth:`LoopMargin.factors` before its setpoint and
+allow this tick — the feed-forward's trust, the position loop's gain scale and the max tilt — plus their record for
+the report. Pure and synchronous; the flight core calls :meth:`LoopMargin.factors` before its setpoint and
 :meth:`LoopMargin.after` once the setpoint is out."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from companion.control.params import ControllerConfig, CycleGuardGains, LimitGains
+from companion.control.params import ControllerConfig, CycleGuardGains
 from companion.estimation.limit_cycle import LimitCycleDetector
 from companion.estimation.loop_lag import LoopLagEstimator, lag_trust
 
@@ -22,32 +22,26 @@ class LoopMargin:
         self.stats = LagStats(period_s)
         self._looking = False  # the lag is past the guard's min_excess_s: the detector is fed
 
-    def factors(self, t_s: float | None, cfg: ControllerConfig, nominal_s: float, softens: bool) -> tuple[float, float]:
-        """(feed-forward trust, position gain scale), each in (0, 1], for the tick at ``t_s`` (s): from the lag
-        measured up to the last tick beyond the autopilot's clean-link ``nominal_s`` (s), times the guard's factor
-        while it holds the loop down. The gain scale is 1 for a controller that does not soften (``softens``)."""
-        ff, smc = cfg.feedforward, cfg.smc
+    def factors(self, t_s: float | None, cfg: ControllerConfig, nominal_s: float,
+                softens: bool) -> tuple[float, float, float]:
+        """(feed-forward trust, position gain scale, max tilt in rad) for the tick at ``t_s`` (s), from the lag
+        measured up to the last tick beyond the autopilot's clean-link ``nominal_s`` (s). Trust and gain scale are in
+        (0, 1], times the guard's factor while it holds the loop down; the gain scale is 1 for a controller that does
+        not soften (``softens``). The max tilt shrinks from ``cfg.limits.tilt_max_rad`` to ``tilt_slow_link_rad``."""
+        ff, smc, lim = cfg.feedforward, cfg.smc, cfg.limits
         lag = self.lag.lag_s
         trust = lag_trust(lag, nominal_s, ff.lag_full_excess_s, ff.lag_zero_excess_s)
         gain = lag_trust(lag, nominal_s, smc.lag_scale_start_s, smc.lag_scale_end_s, smc.lag_scale_min) if softens \
             else 1.0
+        tilt = lim.tilt_max_rad * lag_trust(lag, nominal_s, lim.slow_link_start_s, lim.slow_link_end_s,
+                                            lim.tilt_slow_link_rad / lim.tilt_max_rad)
         guard = 1.0 if t_s is None else self.cycle.scale(t_s)
         if guard < 1.0:
             trust *= guard
             if softens:
                 gain *= guard
-        self.stats.add(lag, trust, gain, cycle=guard < 1.0)
-        return trust, gain
-
-    def tilt_max(self, lim: LimitGains, nominal_s: float) -> float:
-        """This tick's max tilt (rad): ``lim.tilt_max_rad``, shrinking to ``lim.tilt_slow_link_rad`` as the lag
-        measured up to the last tick exceeds the autopilot's clean-link ``nominal_s`` (s) by ``lim.slow_link_start_s``
-        to ``lim.slow_link_end_s``."""
-        f = lag_trust(self.lag.lag_s, nominal_s, lim.slow_link_start_s, lim.slow_link_end_s,
-                      lim.tilt_slow_link_rad / lim.tilt_max_rad)
-        tilt = lim.tilt_max_rad * f
-        self.stats.tilt_max_min_rad = min(self.stats.tilt_max_min_rad, tilt)
-        return tilt
+        self.stats.add(lag, trust, gain, cycle=guard < 1.0, tilt_max_rad=tilt)
+        return trust, gain, tilt
 
     def after(self, t_s: float, euler_rad: Sequence[float], euler_cmd_rad: Sequence[float],
               correction_mps2: tuple[float, float], nominal_s: float) -> None:
@@ -88,7 +82,8 @@ class LagStats:
         self.cycle_ticks = 0  # ticks the limit-cycle guard held the loop gain down
         self.tilt_max_min_rad = math.inf  # the least max tilt a slow link allowed (inf: never asked)
 
-    def add(self, lag_s: float | None, trust: float, gain_scale: float = 1.0, cycle: bool = False) -> None:
+    def add(self, lag_s: float | None, trust: float, gain_scale: float = 1.0, cycle: bool = False,
+            tilt_max_rad: float = math.inf) -> None:
         if lag_s is not None:
             self.last_lag_s = lag_s
             self.lag_min_s = lag_s if self.lag_min_s is None else min(self.lag_min_s, lag_s)
@@ -101,6 +96,8 @@ class LagStats:
         if gain_scale < 1.0:
             self.softened_ticks += 1
             self.gain_scale_min = min(self.gain_scale_min, gain_scale)
+        if tilt_max_rad < self.tilt_max_min_rad:
+            self.tilt_max_min_rad = tilt_max_rad
 
     def facts(self, nominal_s: float) -> dict[str, float | None]:
         """Loop lag (ms): min, max, last, the profile's nominal; least feed-forward trust and seconds faded; least
