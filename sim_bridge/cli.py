@@ -243,9 +243,9 @@ def _skip_numba_blas_probe() -> None:
 
 def run_sitl(args: argparse.Namespace) -> int:
     """Run the vehicle until SIGINT/SIGTERM or --duration; prints ``SITL READY ...`` once bound."""
+    _skip_numba_blas_probe()  # before the first kernel: the settings' eq. 49 check already runs one
     cfg = config_from_args(args)
     scanner = scanner_from_args(args)  # a bad world file or LiDAR flag is refused before anything starts
-    _skip_numba_blas_probe()
 
     def ready(v: SitlVehicle) -> None:
         bind = cfg.onboard_bind

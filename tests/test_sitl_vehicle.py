@@ -314,3 +314,16 @@ def test_broken_vehicle_file_exits_2_naming_file_and_key(tmp_path):
     assert r.returncode == 2
     assert str(bad) in r.stderr and "cable" in r.stderr
     assert r.stderr.count("\n") == 1
+
+
+def test_the_vehicle_starts_without_scipy_linalg():
+    """Numba's first kernel load probes BLAS by importing ``scipy.linalg`` (~0.16 s of every start); the vehicle's
+    kernels need no BLAS and skip the probe (``sim_bridge.cli._skip_numba_blas_probe``). Its settings check
+    compiles the eq. 49 kernel, so the skip must come before it: a start with eq. 49 on, import log read."""
+    out = subprocess.run([sys.executable, "-X", "importtime", "-m", "sim_bridge", "--onboard-port", "0",
+                          "--gcs-port", "0", "--wind", "paper", "--duration", "0.2"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    imported = {line.rsplit("|", 1)[-1].strip() for line in out.stderr.splitlines() if line.startswith("import time")}
+    assert "numba" in imported  # the kernels were loaded in this start
+    assert "scipy.linalg" not in imported
