@@ -33,6 +33,7 @@ from typing import NoReturn
 log = logging.getLogger(__name__)
 
 PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+PR_SET_NAME = 15
 
 
 def _prctl() -> Callable[..., int] | None:
@@ -68,6 +69,15 @@ def die_with_parent(parent_pid: int, sig: int = signal.SIGKILL) -> None:
         return
     if os.getppid() != parent_pid:
         os._exit(1)
+
+
+def set_name(name: str) -> None:
+    """This process's name as ``ps -e``, ``top`` and ``pgrep`` show it (Linux keeps 15 bytes); a forked child that
+    is not the program its command line names says what it is. Does nothing elsewhere."""
+    if _PRCTL is None:
+        return
+    buf = ctypes.create_string_buffer(name.encode()[:15])
+    _PRCTL(PR_SET_NAME, ctypes.cast(buf, ctypes.c_void_p).value or 0, 0, 0, 0)
 
 
 def preexec(sig: int = signal.SIGKILL) -> Callable[[], None] | None:

@@ -231,7 +231,7 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
     return dataclasses.replace(cfg)
 
 
-def _skip_numba_blas_probe() -> None:
+def skip_numba_blas_probe() -> None:
     """Numba's first kernel load imports ``numba.np.arraymath``, which imports ``scipy.linalg`` only to see
     whether BLAS exists for ``np.dot`` & co. inside compiled code (0.6 s of CPU per start, a third of the
     vehicle's). The vehicle's kernels (physics, inner loop, model, wind) use no BLAS, so in the vehicle's own
@@ -243,7 +243,7 @@ def _skip_numba_blas_probe() -> None:
 
 def run_sitl(args: argparse.Namespace) -> int:
     """Run the vehicle until SIGINT/SIGTERM or --duration; prints ``SITL READY ...`` once bound."""
-    _skip_numba_blas_probe()  # before the first kernel: the settings' eq. 49 check already runs one
+    skip_numba_blas_probe()  # before the first kernel: the settings' eq. 49 check already runs one
     cfg = config_from_args(args)
     scanner = scanner_from_args(args)  # a bad world file or LiDAR flag is refused before anything starts
 

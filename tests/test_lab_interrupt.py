@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _tagged(tag: str) -> list[tuple[int, str]]:
     """Every live process whose environment carries ``tag`` (the command and all its descendants), as
-    (pid, command line); zombies excluded (they hold no resources and their parent reaps them)."""
+    (pid, name and command line); zombies excluded (they hold no resources and their parent reaps them)."""
     out = []
     needle = f"SLUNGPILOT_TEST_TAG={tag}".encode()
     for d in Path("/proc").iterdir():
@@ -42,7 +42,9 @@ def _tagged(tag: str) -> list[tuple[int, str]]:
             stat = (d / "stat").read_text()
             if stat[stat.rindex(")") + 2] == "Z":
                 continue
-            out.append((int(d.name), (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")))
+            name = stat[stat.index("(") + 1:stat.rindex(")")]  # a vehicle forked ahead: its parent's command line
+            out.append((int(d.name), name + " " + (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(
+                errors="replace")))
         except OSError:
             continue
     return out

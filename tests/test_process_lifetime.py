@@ -56,8 +56,8 @@ def _wait_for_descendants(proc: subprocess.Popen, pred, timeout_s: float) -> lis
         kids = _descendants(proc.pid)
         cmds = []
         for k in kids:
-            try:
-                cmds.append(" ".join(k.cmdline()))
+            try:  # the name first: a vehicle forked ahead (sim_bridge.prefork) keeps its parent's command line
+                cmds.append(f"{k.name()} {' '.join(k.cmdline())}")
             except psutil.Error:
                 cmds.append("")
         if pred(cmds):

@@ -158,6 +158,7 @@ def spec_from_args(args: argparse.Namespace, mission: Mission) -> FlySpec:
         plots=not args.no_plots, narrate=not getattr(args, "quiet", False), zenoh=zspec,
         view=(lambda m, d: flight_view(args, m, d)) if not getattr(args, "no_recording", False) else None,
         config_facts=effective_config, autopilot_mission=args.mission == AUTOPILOT_MISSION, world=world,
+        vehicle_fork=getattr(args, "vehicle_fork", None) if args.sitl else None,
     )
 
 

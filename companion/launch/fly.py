@@ -182,7 +182,7 @@ async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path
     if setup.rt_priority and not setup.lockstep:  # the simulated autopilot at the same priority, as PX4's
         extra += ["--rt-priority", str(setup.rt_priority)]
     sitl = await stack.enter_async_context(SitlProcess(mission, run_dir, lockstep=setup.lockstep, extra_args=extra,
-                                                       serial=spec.sitl_serial))
+                                                       serial=spec.sitl_serial, fork=spec.vehicle_fork))
     return replace(setup, connect=sitl.companion_url, sock=sitl.companion_sock)
 
 

@@ -14,13 +14,16 @@ import signal
 import socket
 import sys
 from pathlib import Path
+from typing import Protocol
 
 from companion import proclife
 from companion.core.mission import Mission
 from companion.errors import LinkError
+from companion.launch.forked_child import ForkedChild
 
 log = logging.getLogger(__name__)
 
+VEHICLE_COMMAND = (sys.executable, "-m", "sim_bridge")  #: how the bundled vehicle is started (its arguments follow)
 PTY_BAUD = 921600  # nominal on a pseudo-terminal (docs/companion.md, Links)
 
 
@@ -35,6 +38,23 @@ def vehicle_toml(mission: Mission) -> str:
     """The mission's vehicle parameters in config/vehicle.toml format."""
     lines = ["[vehicle]"] + [f"{k} = {v!r}" for k, v in mission.vehicle.as_dict().items()]
     return "\n".join(lines) + "\n"
+
+
+class VehicleFork(Protocol):
+    """A vehicle process forked ahead of its command line (``sim_bridge.prefork.PreforkedVehicle``): started with
+    :meth:`launch` instead of ``python -m sim_bridge``, it skips the interpreter's start and, when warm, its imports
+    and kernels."""
+
+    pid: int
+
+    def launch(self, args: list[str], stderr_path: Path) -> int:
+        """Become ``python -m sim_bridge *args`` (stdin /dev/null, stderr into ``stderr_path``); the read end of its
+        stdout. Raises OSError when the child is gone."""
+        ...
+
+    def discard(self) -> None:
+        """Let it go unlaunched (it exits; reaped)."""
+        ...
 
 
 class _PortTaken(Exception):
@@ -53,6 +73,7 @@ class SitlProcess:
         extra_args: list[str] | None = None,
         ready_timeout_s: float = 60.0,
         serial: bool = False,
+        fork: VehicleFork | None = None,
     ) -> None:
         self.mission = mission
         self.workdir = workdir
@@ -60,6 +81,7 @@ class SitlProcess:
         self.serial = serial  # the onboard link over a pseudo-terminal pair instead of UDP (``fly --sitl --serial``)
         self.pty_pair: asyncio.subprocess.Process | None = None
         self.extra_args = extra_args or []
+        self.fork = fork  # used for the first start only (a retry on taken ports execs a fresh one)
         self.ready_timeout_s = ready_timeout_s
         # The companion's socket is bound here and handed to the link, so no other process can take the port
         # between choosing it and using it; the vehicle's ports are retried if another process won the race.
@@ -68,9 +90,10 @@ class SitlProcess:
         self.companion_port = self.companion_sock.getsockname()[1]
         self.vehicle_port = free_udp_port()
         self.gcs_port = free_udp_port()
-        self.proc: asyncio.subprocess.Process | None = None
+        self.proc: asyncio.subprocess.Process | ForkedChild | None = None
         self.ready_line = ""
         self._stderr_path = workdir / "sitl.log"
+        self._stderr = None  # the log file's handle when this process opened it (not for a forked vehicle)
 
     @property
     def companion_url(self) -> str:
@@ -86,7 +109,7 @@ class SitlProcess:
         vfile = self.workdir / "vehicle.toml"
         vfile.write_text(vehicle_toml(self.mission))
         argv = [
-            sys.executable, "-m", "sim_bridge",
+            *VEHICLE_COMMAND,
             "--onboard-port", str(self.vehicle_port),
             "--onboard-remote", f"127.0.0.1:{self.companion_port}",
             "--gcs-port", str(self.gcs_port),
@@ -118,17 +141,31 @@ class SitlProcess:
         await self._stop_pty_pair()
         raise LinkError("could not find free UDP ports for the SITL vehicle")
 
-    async def _start(self) -> None:
-        argv = self.argv()
-        log.info("starting the bundled vehicle: %s", " ".join(argv))
+    async def _spawn(self, argv: list[str]) -> asyncio.subprocess.Process | ForkedChild:
+        """The vehicle's process: the forked one when there is one still unused, else ``argv`` executed in its own
+        session and tied to this process (started from the event loop's thread), so that it dies with the companion
+        however the companion dies, SIGKILL included (docs/companion.md, Process lifetime)."""
+        fork, self.fork = self.fork, None
+        if fork is not None:
+            try:
+                stdout_fd = fork.launch(argv[len(VEHICLE_COMMAND):], self._stderr_path)
+            except OSError as exc:
+                log.warning("the vehicle forked ahead is gone (%s); starting a fresh one", exc)
+                fork.discard()
+            else:
+                return await ForkedChild.attach(fork.pid, stdout_fd)
         self._stderr = self._stderr_path.open("wb")
-        # its own session (process group): a terminal's Ctrl-C reaches the companion only, which then holds, lands
-        # and stops the vehicle last; and tied to this process (started from the event loop's thread), so that it
-        # dies with the companion however the companion dies, SIGKILL included (docs/companion.md, Process lifetime)
-        self.proc = await asyncio.create_subprocess_exec(
+        return await asyncio.create_subprocess_exec(
             *argv, stdout=asyncio.subprocess.PIPE, stderr=self._stderr, stdin=asyncio.subprocess.DEVNULL,
             start_new_session=True, preexec_fn=proclife.preexec(),
         )
+
+    async def _start(self) -> None:
+        argv = self.argv()
+        log.info("starting the bundled vehicle%s: %s", " (forked ahead)" if self.fork else "", " ".join(argv))
+        # its own session (process group): a terminal's Ctrl-C reaches the companion only, which then holds, lands
+        # and stops the vehicle last
+        self.proc = await self._spawn(argv)
         assert self.proc.stdout is not None
         try:
             async with asyncio.timeout(self.ready_timeout_s):
@@ -136,7 +173,8 @@ class SitlProcess:
                     line = await self.proc.stdout.readline()
                     if not line:
                         await self.proc.wait()
-                        self._stderr.close()
+                        if self._stderr is not None:
+                            self._stderr.close()
                         err = self._stderr_path.read_text(errors="replace")
                         if "Address already in use" in err:
                             raise _PortTaken
@@ -208,7 +246,10 @@ class SitlProcess:
                 with contextlib.suppress(ProcessLookupError):
                     proc.kill()
                 await proc.wait()
-        if getattr(self, "_stderr", None) is not None:
+        if self.fork is not None:  # never launched (the start failed before it)
+            self.fork.discard()
+            self.fork = None
+        if self._stderr is not None:
             self._stderr.close()
         await self._stop_pty_pair()  # after the vehicle: its serial device stays until it is gone
         self.companion_sock.close()  # the link has its own reference while it is open

@@ -59,3 +59,6 @@ class FlySpec:
     #: identify the payload from the cruise's first seconds after the flight (~0.6 s of CPU) and report it next to
     #: the declared one (:mod:`companion.estimation.payload_watch`); ``lab`` turns it off for its many flights
     identify_payload: bool = True
+    #: with ``sitl``: the vehicle's process forked ahead of the flight (:class:`companion.launch.sitl.VehicleFork`),
+    #: started instead of a fresh ``python -m sim_bridge``; its creator discards it when the flight did not use it
+    vehicle_fork: Any = None
