@@ -9,6 +9,7 @@ import os
 import sys
 
 from companion.config import dataclass_from_table, read_toml
+from companion.core.kernel_cache import skip_numba_blas_probe
 from companion.core.vehicle_params import VehicleParams, load_vehicle_params
 from companion.core.wind import WindConfig
 from companion.errors import ConfigError
@@ -229,16 +230,6 @@ def config_from_args(args: argparse.Namespace) -> SitlConfig:
     except ValueError as exc:
         raise ConfigError(f"sitl options: {exc}") from None
     return dataclasses.replace(cfg)
-
-
-def skip_numba_blas_probe() -> None:
-    """Numba's first kernel load imports ``numba.np.arraymath``, which imports ``scipy.linalg`` only to see
-    whether BLAS exists for ``np.dot`` & co. inside compiled code (0.6 s of CPU per start, a third of the
-    vehicle's). The vehicle's kernels (physics, inner loop, model, wind) use no BLAS, so in the vehicle's own
-    process that probe is answered "no BLAS" without importing scipy. A future kernel that needs BLAS would
-    fail to compile with numba's "scipy 0.16+ is required" error, not silently."""
-    if "numba.np.arraymath" not in sys.modules:
-        sys.modules.setdefault("scipy.linalg.cython_blas", None)  # type: ignore[assignment]
 
 
 def run_sitl(args: argparse.Namespace) -> int:

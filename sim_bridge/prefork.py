@@ -51,7 +51,7 @@ def preload() -> None:
     from sim_bridge import cli
     from sim_bridge.vehicle import SitlVehicle
 
-    cli.skip_numba_blas_probe()
+    cli.skip_numba_blas_probe()  # the vehicle's kernels use no BLAS (companion.core.kernel_cache)
     parser = argparse.ArgumentParser()
     cli.add_sitl_arguments(parser)
     SitlVehicle(cli.config_from_args(parser.parse_args([]))).warm_up()

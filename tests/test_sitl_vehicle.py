@@ -318,7 +318,7 @@ def test_broken_vehicle_file_exits_2_naming_file_and_key(tmp_path):
 
 def test_the_vehicle_starts_without_scipy_linalg():
     """Numba's first kernel load probes BLAS by importing ``scipy.linalg`` (~0.16 s of every start); the vehicle's
-    kernels need no BLAS and skip the probe (``sim_bridge.cli.skip_numba_blas_probe``). Its settings check
+    kernels need no BLAS and skip the probe (``companion.core.kernel_cache.skip_numba_blas_probe``). Its settings check
     compiles the eq. 49 kernel, so the skip must come before it: a start with eq. 49 on, import log read."""
     out = subprocess.run([sys.executable, "-X", "importtime", "-m", "sim_bridge", "--onboard-port", "0",
                           "--gcs-port", "0", "--wind", "paper", "--duration", "0.2"],

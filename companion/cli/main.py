@@ -301,6 +301,10 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args = build_parser(argv).parse_args(argv)
     args.vehicle_fork = _fork_vehicle_ahead(args)
+    if args.command == "fly":  # before any kernel loads: fly runs only our kernels, none of which uses BLAS
+        from companion.core.kernel_cache import skip_numba_blas_probe
+
+        skip_numba_blas_probe()
     try:
         return dispatch(args)
     finally:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 from pathlib import Path
 
 import numba
@@ -38,3 +39,14 @@ def use_kernel_cache(*extra_sources: Path) -> None:
     if os.environ.get("NUMBA_CACHE_DIR"):
         return
     numba.config.CACHE_DIR = str(kernel_cache_dir(CORE_KERNEL_SOURCES + tuple(extra_sources)))
+
+
+def skip_numba_blas_probe() -> None:
+    """Numba's first kernel load imports ``numba.np.arraymath``, which imports ``scipy.linalg`` only to see whether
+    BLAS exists for ``np.dot`` & co. inside compiled code (~0.16 s, and the only reason the vehicle or ``fly`` would
+    import scipy). No kernel of ours uses BLAS inside compiled code, so a process that runs only our kernels (the
+    vehicle, ``slungpilot fly``) answers the probe "no BLAS" without importing scipy; call this before the first
+    kernel loads, and only in a program of our own (a user's kernel with ``np.dot`` would then fail to compile with
+    numba's "scipy 0.16+ is required" error). Does nothing once numba has probed."""
+    if "numba.np.arraymath" not in sys.modules:
+        sys.modules.setdefault("scipy.linalg.cython_blas", None)  # type: ignore[assignment]
