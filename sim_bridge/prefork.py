@@ -85,6 +85,11 @@ class PreforkedVehicle:
         cmd = {"args": list(args), "stderr": str(stderr_path), "cpus": sorted(os.sched_getaffinity(0))}
         try:
             os.write(self._cmd_w, (json.dumps(cmd) + "\n").encode())
+        except OSError:  # the child is gone (its pipe has no reader): reap it
+            os.close(self.stdout_fd)
+            with contextlib.suppress(ChildProcessError):
+                os.waitpid(self.pid, 0)
+            raise
         finally:
             os.close(self._cmd_w)
         return self.stdout_fd

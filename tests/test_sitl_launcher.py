@@ -88,7 +88,7 @@ def test_the_vehicle_dies_with_the_process_that_started_it_even_by_sigkill(tmp_p
 
 # ------------------------------------------------------------------------------------ a vehicle forked ahead
 _FORKED = """
-import asyncio, json, socket, sys
+import asyncio, json, os, socket, sys
 from pathlib import Path
 from companion.core.mission import load_mission
 from companion.errors import LinkError
@@ -110,6 +110,16 @@ async def main(case):
                 return {"error": None}
         except LinkError as exc:
             return {"error": str(exc)}
+    if case == "dead":
+        os.kill(fork.pid, 9)
+        os.waitid(os.P_PID, fork.pid, os.WEXITED | os.WNOWAIT)  # dead, not yet reaped
+        async with sitl:
+            try:
+                os.waitpid(fork.pid, os.WNOHANG)
+                reaped = False
+            except ChildProcessError:
+                reaped = True
+            return {"ready": sitl.ready_line, "fresh": sitl.proc.pid != fork.pid, "reaped": reaped}
     squatter = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     squatter.bind(("127.0.0.1", sitl.vehicle_port))  # the forked vehicle cannot bind: a fresh one takes over
     async with sitl:
@@ -132,6 +142,11 @@ def _forked(tmp_path: Path, case: str) -> dict:
 def test_a_forked_vehicle_that_cannot_bind_its_port_is_replaced_by_a_fresh_one(tmp_path):
     r = _forked(tmp_path, "taken")
     assert r["ready"].startswith("SITL READY") and r["port_changed"] and not r["forked_pid_used"]
+
+
+def test_a_forked_vehicle_found_dead_is_reaped_and_replaced_by_a_fresh_one(tmp_path):
+    r = _forked(tmp_path, "dead")
+    assert r["ready"].startswith("SITL READY") and r["fresh"] and r["reaped"], r
 
 
 def test_a_forked_vehicle_that_refuses_its_arguments_says_why(tmp_path):

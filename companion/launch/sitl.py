@@ -49,7 +49,7 @@ class VehicleFork(Protocol):
 
     def launch(self, args: list[str], stderr_path: Path) -> int:
         """Become ``python -m sim_bridge *args`` (stdin /dev/null, stderr into ``stderr_path``); the read end of its
-        stdout. Raises OSError when the child is gone."""
+        stdout. Raises OSError when the child is gone (reaped by then)."""
         ...
 
     def discard(self) -> None:
@@ -149,9 +149,8 @@ class SitlProcess:
         if fork is not None:
             try:
                 stdout_fd = fork.launch(argv[len(VEHICLE_COMMAND):], self._stderr_path)
-            except OSError as exc:
+            except OSError as exc:  # it reaped the child
                 log.warning("the vehicle forked ahead is gone (%s); starting a fresh one", exc)
-                fork.discard()
             else:
                 return await ForkedChild.attach(fork.pid, stdout_fd)
         self._stderr = self._stderr_path.open("wb")
