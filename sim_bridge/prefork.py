@@ -8,7 +8,8 @@ the vehicle unless this process did so first (:func:`preload`, then the child in
 for its arguments. :meth:`PreforkedVehicle.launch` sends them: the child's stdin becomes /dev/null, its stdout the
 pipe made at the fork (the caller reads ``SITL READY`` there), its stderr the file named, its CPUs this process's
 CPUs at launch, and it runs :func:`sim_bridge.cli.main` as ``python -m sim_bridge`` would, then exits without the
-interpreter's teardown. An unused child exits when its pipe closes (:meth:`discard`, or this process's exit).
+interpreter's teardown. An unused child is killed by :meth:`discard`, and exits by itself when its pipe closes
+(this process's exit).
 
 Fork only where it is safe: :func:`can_fork` (Linux, one Python thread). Elsewhere the caller starts
 ``python -m sim_bridge`` as before.
@@ -95,12 +96,15 @@ class PreforkedVehicle:
         return self.stdout_fd
 
     def discard(self) -> None:
-        """Let an unlaunched child go: it reads the end of its pipe and exits; reaped here."""
+        """End an unlaunched child at once (it holds nothing yet; it may still be loading the vehicle) and reap it.
+        Nothing for a launched one: its owner stops it."""
         if self.launched:
             return
         self.launched = True
         os.close(self._cmd_w)
         os.close(self.stdout_fd)
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(self.pid, signal.SIGKILL)
         with contextlib.suppress(ChildProcessError):
             os.waitpid(self.pid, 0)
 
