@@ -59,6 +59,8 @@ class ParamTable:
         self._list = list(params)
         self._by_name = {p.name: p for p in self._list}
         self.on_change: Callable[[Param], None] | None = None
+        #: the owner's veto of a value within bounds: (name, value) -> None to accept, or why it is refused
+        self.check: Callable[[str, float], str | None] | None = None
 
     def __len__(self) -> int:
         return len(self._list)
@@ -91,6 +93,9 @@ class ParamTable:
             value = float(round(value))
         if not p.lo <= value <= p.hi:
             return False, f"{name}: {value:g} outside [{p.lo:g}, {p.hi:g}]"
+        why = self.check(name, value) if self.check is not None else None
+        if why is not None:
+            return False, f"{name} {value:g} refused: {why}"
         p.value = float(value)
         if self.on_change is not None:
             self.on_change(p)

@@ -77,3 +77,17 @@ class SitlConfig:
             problem = eq49_torque_problem(self.wind.scale, self.rotor, self.params, air_mode=self.air_mode)
             if problem is not None:
                 raise ValueError(problem)
+
+
+#: the parameters whose live change :func:`live_wind_problem` checks
+LIVE_WIND_PARAMS = ("MC_AIRMODE", "SIM_WIND_SCALE", "SIM_WIND_MODEL")
+
+
+def live_wind_problem(cfg: SitlConfig, values: dict[str, float]) -> str | None:
+    """Why the parameter ``values`` (:data:`LIVE_WIND_PARAMS`, as they would be after a PARAM_SET) cannot be flown,
+    or None: eq. 49 beyond the torque the mixer holds at that ``MC_AIRMODE``, as :meth:`SitlConfig.validate` refuses
+    it at the start. Physical wind (``cfg.wind.model`` not ``paper``/``none``) or SIM_WIND_MODEL 0: nothing to check."""
+    if values["SIM_WIND_MODEL"] < 0.5 or cfg.wind.model not in ("paper", "none"):
+        return None
+    return eq49_torque_problem(values["SIM_WIND_SCALE"], cfg.rotor, cfg.params,
+                               air_mode=round(values["MC_AIRMODE"]))

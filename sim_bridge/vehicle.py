@@ -32,7 +32,7 @@ from sim_bridge.link import MavUdpLink, RejectCounters
 from sim_bridge.params import build_param_table, gains_from_params
 from sim_bridge.physics import InnerLoopGains, VehicleSim
 from sim_bridge.position_hold import PositionHoldGains
-from sim_bridge.sitl_config import SitlConfig
+from sim_bridge.sitl_config import LIVE_WIND_PARAMS, SitlConfig, live_wind_problem
 from sim_bridge.vehicle_control import VehicleControl
 
 log = logging.getLogger(__name__)
@@ -64,6 +64,7 @@ class SitlVehicle(VehicleControl, FlightModes):
         )
         self.imu = ImuModel(dataclasses.replace(cfg.imu, sample_dt_s=cfg.control_period_us * 1e-6))
         self.params.on_change = self._param_changed
+        self.params.check = self._param_check
         self.sim = self._new_sim(cfg.params, 0.0)
         self.hold_gains = PositionHoldGains()
         self.t_us = 0
@@ -108,6 +109,11 @@ class SitlVehicle(VehicleControl, FlightModes):
         on = self.params.value("SIM_WIND_MODEL") >= 0.5
         model = (self.cfg.wind.model if self.cfg.wind.model != "none" else "paper") if on else "none"
         return dataclasses.replace(self.cfg.wind, model=model, scale=self.params.value("SIM_WIND_SCALE"))
+
+    def _param_check(self, name: str, value: float) -> str | None:
+        """A live change refused as the start would be (:func:`sim_bridge.sitl_config.live_wind_problem`)."""
+        vals = {n: self.params.value(n) for n in LIVE_WIND_PARAMS} | {name: value}
+        return live_wind_problem(self.cfg, vals) if name in LIVE_WIND_PARAMS else None
 
     def _param_changed(self, prm) -> None:
         if prm.name.startswith("SIM_WIND"):

@@ -123,3 +123,23 @@ def test_bench_fly_flies_this_tree_and_another_interleaved():
     lines = [ln for ln in proc.stdout.splitlines() if "end to end" in ln and "in flight" in ln]
     assert [ln.split(":")[0].strip() for ln in lines] == ["this", str(ROOT)]
     assert all("goal: True" in ln for ln in lines)
+
+
+def test_sitl_airmode_reaches_the_vehicle_and_needs_sitl():
+    """``fly --sitl --sitl-airmode 0`` starts the bundled vehicle with ``--airmode 0``; without --sitl it is refused
+    (a real autopilot's MC_AIRMODE is its own)."""
+    from companion.cli.fly import spec_from_args
+    from companion.cli.main import build_parser
+    from companion.errors import ConfigError
+
+    def spec(*argv: str):
+        args = build_parser(["fly"]).parse_args(["fly", "--no-zenoh", *argv])
+        from companion.cli.fly import mission_from_args
+
+        return spec_from_args(args, mission_from_args(args))
+
+    sitl_args = spec("--sitl", "--sitl-airmode", "0").sitl_args
+    assert sitl_args[sitl_args.index("--airmode") + 1] == "0"
+    assert "--airmode" not in spec("--sitl").sitl_args
+    with pytest.raises(ConfigError, match="--sitl-airmode: only with --sitl"):
+        spec("--sitl-airmode", "1")

@@ -219,6 +219,32 @@ def test_airmode_flag_and_param_over_mavlink(vehicle):
     assert "outside" in c.statustexts[-1]
 
 
+def test_live_changes_that_put_eq49_beyond_the_mixer_are_refused(vehicle):
+    """What the start refuses is refused live too, with the value kept and the reason in a STATUSTEXT: eq. 49 at 1.2
+    flies at MC_AIRMODE 2 (up to 1.34) but not at 0 (up to 1.02); 2.0 not at all; with the wind off, anything."""
+    c = vehicle("--wind", "paper", "--wind-scale", "1.2")
+
+    said: list[str] = []
+
+    def set_param(name: str, value: float) -> float:
+        n = len(c.statustexts)
+        c.mav.param_set_send(1, 1, name.encode(), value, M.MAV_PARAM_TYPE_REAL32)
+        v = c.wait_for("PARAM_VALUE", lambda m: m.param_id == name).param_value
+        said.append("".join(c.statustexts[n:]))  # a long reason comes in 50-character chunks
+        return v
+
+    assert set_param("MC_AIRMODE", 0) == 2.0
+    assert "MC_AIRMODE 0 refused" in said[-1] and "1.02" in said[-1], said[-1]
+    assert set_param("SIM_WIND_SCALE", 2.0) == pytest.approx(1.2)
+    assert "SIM_WIND_SCALE 2 refused" in said[-1], said[-1]
+    assert set_param("SIM_WIND_SCALE", 1.0) == pytest.approx(1.0)  # within both limits
+    assert set_param("MC_AIRMODE", 0) == 0.0
+    assert set_param("SIM_WIND_SCALE", 1.2) == pytest.approx(1.0)  # now the scale is what would not fit
+    assert set_param("SIM_WIND_MODEL", 0) == 0.0
+    assert set_param("SIM_WIND_SCALE", 5.0) == pytest.approx(5.0)  # no eq. 49 flies: nothing to hold
+    assert set_param("SIM_WIND_MODEL", 1) == 0.0  # switching it back on at 5 would not fit
+
+
 def test_takeoff_to_2m_then_land_and_auto_disarm(vehicle):
     c = vehicle("--home-alt", "100")
     assert c.command(M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, 102.0) == M.MAV_RESULT_DENIED

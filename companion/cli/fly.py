@@ -141,6 +141,10 @@ def spec_from_args(args: argparse.Namespace, mission: Mission) -> FlySpec:
     if args.signing_key is not None:
         sitl_args += ["--signing-key", str(args.signing_key)]
     sitl_args += _true_payload_args(args)
+    if getattr(args, "sitl_airmode", None) is not None:
+        if not args.sitl:
+            raise ConfigError("--sitl-airmode: only with --sitl (a real autopilot's MC_AIRMODE is its own parameter)")
+        sitl_args += ["--airmode", str(args.sitl_airmode)]
     world = _world_from_args(args)
     zspec = None
     if not args.no_zenoh:

@@ -81,6 +81,10 @@ def _bundled_vehicle_arguments(p: argparse.ArgumentParser) -> None:
                         "companion is told; a mis-declared payload)")
     p.add_argument("--true-cable-length-m", type=float, default=None, metavar="M",
                    help="with --sitl: the bundled vehicle's real cable length, m (the mission's is the declared one)")
+    p.add_argument("--sitl-airmode", type=int, choices=(0, 1, 2), default=None, metavar="0|1|2",
+                   help="with --sitl: the bundled vehicle's MC_AIRMODE (PX4's: 0 never lifts the collective for "
+                        "torque, as a stock PX4; 1 for roll/pitch; 2, the default, also for yaw, which eq. 49 needs "
+                        "above scale 1.02; docs/sitl.md)")
     p.add_argument("--world", default=None, metavar="FILE|NAME",
                    help="with --sitl: the trunks that stand in the simulated world (a world TOML, or a shipped one: "
                         "forest, forest_crossing), which the vehicle's LiDAR sees; the report scores clearance "
