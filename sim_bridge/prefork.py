@@ -25,6 +25,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 from pathlib import Path
 
 from companion import proclife
@@ -38,7 +39,8 @@ ENV_SWITCH = "SLUNGPILOT_FORK_VEHICLE"
 
 def can_fork() -> bool:
     """Whether a vehicle can be forked from here: Linux (the child must die with us), no other Python thread (a
-    thread's locks, e.g. logging's, would be held for ever in the child), and not switched off (:data:`ENV_SWITCH`)."""
+    thread's locks, e.g. logging's, would be held for ever in the child; numpy's native BLAS pool holds none the child
+    needs: the vehicle uses no BLAS), and not switched off (:data:`ENV_SWITCH`)."""
     return (os.environ.get(ENV_SWITCH, "1") != "0" and hasattr(os, "fork") and proclife.supported()
             and threading.active_count() == 1)
 
@@ -68,7 +70,9 @@ class PreforkedVehicle:
         parent = os.getpid()
         sys.stdout.flush()
         sys.stderr.flush()
-        self.pid = os.fork()
+        with warnings.catch_warnings():  # Python 3.12+ warns of any OS thread (numpy's BLAS pool): see can_fork
+            warnings.filterwarnings("ignore", "This process .* is multi-threaded", DeprecationWarning)
+            self.pid = os.fork()
         if self.pid == 0:  # the child: never returns
             os.close(self._cmd_w)
             os.close(self.stdout_fd)
