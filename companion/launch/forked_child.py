@@ -5,7 +5,6 @@ is: ``pid``, ``stdout`` (a StreamReader on its pipe), ``returncode``, ``wait()``
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import os
 import signal
 from typing import Any
@@ -84,8 +83,3 @@ class ForkedChild:
 
     def kill(self) -> None:
         self.send_signal(signal.SIGKILL)
-
-    def close(self) -> None:
-        """Stop reading its stdout (the child is stopped by its owner)."""
-        with contextlib.suppress(Exception):
-            self._transport.close()

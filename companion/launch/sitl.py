@@ -1,7 +1,8 @@
 """Start the bundled SITL vehicle as a separate process on free loopback ports (for ``fly --sitl``).
 
 The companion never imports the simulator: it runs ``python -m sim_bridge`` and talks MAVLink to it, the
-same way it talks to PX4 or ArduPilot.
+same way it talks to PX4 or ArduPilot. Where the command line or the lab forked the vehicle ahead
+(``sim_bridge.prefork``), it hands that child the same arguments instead (:class:`VehicleFork`).
 """
 
 from __future__ import annotations
