@@ -80,6 +80,30 @@ def set_name(name: str) -> None:
     _PRCTL(PR_SET_NAME, ctypes.cast(buf, ctypes.c_void_p).value or 0, 0, 0, 0)
 
 
+def set_command_line(argv: list[str]) -> bool:
+    """Rewrite this process's command line as ``ps``, ``htop`` and ``/proc/PID/cmdline`` show it, in place and cut
+    to the length of the one it started with (the kernel's argument area; what ``setproctitle`` does on Linux): a
+    forked child that runs another program says which. Python's own ``sys.argv`` is a copy and unchanged. False
+    where it cannot (not Linux, or the area is not where ``/proc/self/stat`` says)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        with open("/proc/self/stat", "rb") as f:
+            stat = f.read()
+        with open("/proc/self/cmdline", "rb") as f:
+            current = f.read()
+        fields = stat[stat.rindex(b")") + 2:].split()
+        start, end = int(fields[45]), int(fields[46])  # arg_start, arg_end: fields 48 and 49 of proc(5)
+    except (OSError, ValueError, IndexError):
+        return False
+    size = end - start
+    if size < 2 or size != len(current):
+        return False
+    data = "\0".join(argv).encode()[: size - 1]
+    ctypes.memmove(start, data + b"\0" * (size - len(data)), size)
+    return True
+
+
 def preexec(sig: int = signal.SIGKILL) -> Callable[[], None] | None:
     """A ``preexec_fn`` that ties the child to this process (see :func:`die_with_parent`), or None where that
     is not supported. Call it in the thread that starts the child. The function runs between fork and exec:

@@ -119,7 +119,7 @@ def _child(cmd_r: int, out_w: int, parent: int) -> None:
     try:
         os.setsid()  # a terminal's Ctrl-C reaches the companion only, which stops the vehicle last
         proclife.die_with_parent(parent)
-        proclife.set_name("sim_bridge")  # its command line stays the forking command's
+        proclife.set_name("sim_bridge")
         signal.signal(signal.SIGINT, signal.default_int_handler)  # a pool worker ignores it; the vehicle may not
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
         if not _preloaded:
@@ -129,6 +129,7 @@ def _child(cmd_r: int, out_w: int, parent: int) -> None:
             code = 0
             return
         cmd = json.loads(line)
+        proclife.set_command_line(["python", "-m", "sim_bridge", *cmd["args"]])  # as ps shows it (cut to fit)
         _redirect(out_w, cmd["stderr"])
         if hasattr(os, "sched_setaffinity"):
             os.sched_setaffinity(0, cmd["cpus"])

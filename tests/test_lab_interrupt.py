@@ -42,7 +42,7 @@ def _tagged(tag: str) -> list[tuple[int, str]]:
             stat = (d / "stat").read_text()
             if stat[stat.rindex(")") + 2] == "Z":
                 continue
-            name = stat[stat.index("(") + 1:stat.rindex(")")]  # a vehicle forked ahead: its parent's command line
+            name = stat[stat.index("(") + 1:stat.rindex(")")]  # a forked vehicle: its command line may be cut
             out.append((int(d.name), name + " " + (d / "cmdline").read_bytes().replace(b"\0", b" ").decode(
                 errors="replace")))
         except OSError:

@@ -56,7 +56,7 @@ def _wait_for_descendants(proc: subprocess.Popen, pred, timeout_s: float) -> lis
         kids = _descendants(proc.pid)
         cmds = []
         for k in kids:
-            try:  # the name first: a vehicle forked ahead (sim_bridge.prefork) keeps its parent's command line
+            try:  # the name first: a vehicle forked ahead (sim_bridge.prefork) rewrites its command line cut to fit
                 cmds.append(f"{k.name()} {' '.join(k.cmdline())}")
             except psutil.Error:
                 cmds.append("")

@@ -170,6 +170,7 @@ def test_a_forked_vehicle_and_an_unlaunched_one_die_with_their_process_even_by_s
         while not all(k.name() == "sim_bridge" for k in kids) and time.monotonic() < end:
             time.sleep(0.02)
         assert all(k.name() == "sim_bridge" and k.ppid() == holder.pid for k in kids)
+        assert " ".join(kids[0].cmdline()).startswith("python -m sim_bridge --onboard-port ")  # as ps shows it
         holder.kill()
         holder.wait(5)
         _gone, alive = psutil.wait_procs(kids, timeout=5)
