@@ -44,11 +44,12 @@ class DragBudget:
     budget_rad: float
     g: float = 9.81
 
-    def array(self, tangents: np.ndarray, a_max: float) -> np.ndarray:
-        """The ``drag`` argument of :func:`_profile` for a path of unit ``tangents`` (n, 2)."""
+    def array(self, tangents: np.ndarray, a_max: float, turn: np.ndarray) -> np.ndarray:
+        """The ``drag`` argument of :func:`_profile` for a path of unit ``tangents`` (n, 2) that turns to the side
+        ``turn`` (n,: the sign of its curvature); the wind across it is signed toward the outside of the turn."""
         wx, wy = self.wind_estimate
         wt = tangents[:, 0] * wx + tangents[:, 1] * wy
-        wn = tangents[:, 1] * wx - tangents[:, 0] * wy
+        wn = (tangents[:, 1] * wx - tangents[:, 0] * wy) * turn
         return np.r_[self.c, self.budget_rad, self.g, DRAG_A_FLOOR * a_max, wt, wn]
 
 
@@ -136,6 +137,19 @@ def _drag_accel(v, c, wt, wn, budget, g, a_floor):  # pragma: no cover - compile
 
 
 @njit(cache=True)
+def _lat_accel(v, c, wt, wn_out, a, budget, g, a_floor):  # pragma: no cover - compiled
+    """The lateral acceleration (m/s²) a bend may ask at speed ``v``: the payload's drag toward the outside of the
+    bend (crosswind ``wn_out`` > 0 blows it there, the wind ``wt`` along the path) and the bend's own swing share
+    ``budget`` (rad); a crosswind toward the inside leaves ``a``. At least ``a_floor``."""
+    rel = v - wt
+    wo = wn_out + DRAG_GUST_MPS  # budgeted in a crosswind this much stronger, as the speed-up in a headwind
+    out = c * math.sqrt(rel * rel + wo * wo) * wo
+    room = budget - max(out, 0.0)
+    lat = g * math.tan(min(room, 1.0)) if room > 0.0 else 0.0
+    return max(min(lat, a), a_floor)
+
+
+@njit(cache=True)
 def _profile(kappa, h, v0, a, v_max, a_brake, vcap, drag):  # pragma: no cover - compiled
     """Speeds at stations h apart with curvature kappa: time-optimal under |a| <= a and v <= vcap (per station;
     see module docstring). ``drag`` (c, budget, g, a_floor, wt[0..n), wn[0..n)) as one array (only four values:
@@ -144,6 +158,11 @@ def _profile(kappa, h, v0, a, v_max, a_brake, vcap, drag):  # pragma: no cover -
     v = np.empty(n)
     for i in range(n):
         v[i] = min(v_max, vcap[i], math.sqrt(a / max(kappa[i], 1e-9)))
+        if len(drag) > 4:  # held only where the current speed comes down to it at half the bound (a bend's
+            # braking shares the bound with its lateral acceleration): never braking harder than the bound for it
+            a_lat = _lat_accel(v[i], drag[0], drag[4 + i], drag[4 + n + i], a, drag[1], drag[2], drag[3])
+            reach = math.sqrt(max(v0 * v0 - a * h * i, 0.0))
+            v[i] = min(v[i], max(math.sqrt(a_lat / max(kappa[i], 1e-9)), reach))
     v[n - 1] = 0.0
     for i in range(n - 2, -1, -1):
         lat = v[i + 1] * v[i + 1] * kappa[i + 1]
@@ -244,13 +263,14 @@ def speed_profile(points: np.ndarray, v0_mps: float, *, a_max_mps2: float, v_max
     ev = np.empty((n, 6))
     _spline_eval(sk, p, mm, s, ev)
     sp = np.maximum(np.hypot(ev[:, 2], ev[:, 3]), 1e-9)
-    kappa = np.abs(ev[:, 2] * ev[:, 5] - ev[:, 3] * ev[:, 4]) / sp**3
+    kappa_signed = (ev[:, 2] * ev[:, 5] - ev[:, 3] * ev[:, 4]) / sp**3
+    kappa = np.abs(kappa_signed)
     kappa = np.maximum(kappa, np.maximum(np.r_[kappa[1:], kappa[-1]], np.r_[kappa[0], kappa[:-1]]))
     vcap = np.full(n, np.inf)
     if caps is not None:
         ends, lim = np.asarray(caps[0], dtype=np.float64), np.asarray(caps[1], dtype=np.float64)
         vcap = lim[np.minimum(np.searchsorted(ends, s, side="left"), len(lim) - 1)]
-    dr = _NO_DRAG if drag is None else drag.array(ev[:, 2:4] / sp[:, None], float(a_max_mps2))
+    dr = _NO_DRAG if drag is None else drag.array(ev[:, 2:4] / sp[:, None], float(a_max_mps2), np.sign(kappa_signed))
     v = _profile(kappa, s[1] - s[0], float(v0_mps), float(a_max_mps2), float(v_max_mps),
                  float(a_brake_mps2 if a_brake_mps2 is not None else a_max_mps2), np.ascontiguousarray(vcap), dr)
     vm = v[:-1] + v[1:]
