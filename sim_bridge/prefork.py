@@ -51,10 +51,11 @@ def preload() -> None:
     global _preloaded
     if _preloaded:
         return
+    from companion.core.kernel_cache import skip_numba_blas_probe
     from sim_bridge import cli
     from sim_bridge.vehicle import SitlVehicle
 
-    cli.skip_numba_blas_probe()  # the vehicle's kernels use no BLAS (companion.core.kernel_cache)
+    skip_numba_blas_probe()  # the vehicle's kernels use no BLAS
     parser = argparse.ArgumentParser()
     cli.add_sitl_arguments(parser)
     SitlVehicle(cli.config_from_args(parser.parse_args([]))).warm_up()
