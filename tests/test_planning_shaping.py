@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from companion.core.model import VehicleParams, rk4_step
-from companion.planning.shaping import box_widths, cascade_lag, pendulum_omega_rad_s, shape_reference
+from companion.planning.shaping import box_widths, cascade_lag, pendulum_omega_rad_s, shape_reference, shaper_taus_s
 from companion.planning.timeline import Timeline
 
 H = 0.01
@@ -152,3 +152,33 @@ def test_timeline_splice_keeps_the_flown_reference_continuous():
     assert np.allclose(np.array(before)[:, :6], np.array(after)[:, :6], rtol=0.0, atol=1e-12)
     later = np.array([tl.sample(t_now + k * H) for k in range(3, 200)])
     assert np.max(np.abs(np.diff(later[:, 4]))) < 0.2  # and it bends smoothly into the new plan
+
+
+def _lead_ratio(l_m: float, taus: tuple[float, ...]) -> float:
+    """Peak airframe acceleration over peak planned acceleration for a plan whose acceleration flips sign at the
+    cascade's rhythm (re-plans in turbulence), on a cable of ``l_m``."""
+    omega = pendulum_omega_rad_s(VehicleParams(l=l_m), "held")
+    widths = box_widths(taus, H)
+    n = 800
+    rows = np.zeros((n, 6))
+    half = round(0.5 * (taus[1] + taus[2]) / H)  # the worst rhythm for the cascade's second derivative
+    rows[100:700, 4] = np.where((np.arange(600) // half) % 2 == 0, 1.0, -1.0)
+    rows[:, 2] = np.cumsum(rows[:, 4]) * H
+    rows[:, 0] = np.cumsum(rows[:, 2]) * H
+    ref = shape_reference(rows, widths, H, omega, 9.81)
+    return float(np.max(np.abs(ref[:-2, 4])))
+
+
+def test_longer_cables_scale_the_cascade_so_the_lead_keeps_its_share():
+    taus, period = (0.3, 0.35, 0.4), 2.01
+    one = pendulum_omega_rad_s(VehicleParams(l=1.0), "held")
+    assert shaper_taus_s(taus, one, period) == taus  # Table 1's cable (period 2.006 s): as configured
+    assert shaper_taus_s(taus, pendulum_omega_rad_s(VehicleParams(l=0.5), "held"), period) == taus
+    three = pendulum_omega_rad_s(VehicleParams(l=3.0), "held")
+    scaled = shaper_taus_s(taus, three, period)
+    assert scaled == pytest.approx([t * 2.0 * math.pi / three / period for t in taus])
+    # the airframe's peak acceleration per unit of planned acceleration: with the 1 m widths a 3 m cable asks
+    # ~2.5 times what a 1 m cable does; with the scaled ones no more
+    r1 = _lead_ratio(1.0, taus)
+    assert _lead_ratio(3.0, taus) > 2.0 * r1
+    assert _lead_ratio(3.0, scaled) <= 1.05 * r1

@@ -30,7 +30,7 @@ from companion.core.vehicle_params import VehicleParams
 from companion.estimation.estimate import Estimate
 from companion.flight.phase import CorePhase
 from companion.planning import make_planner
-from companion.planning.shaping import pendulum_omega_rad_s
+from companion.planning.shaping import pendulum_omega_rad_s, shaper_taus_s
 from companion.planning.stop_cap import LATENCY_S, SeenCap
 
 log = logging.getLogger(__name__)
@@ -121,8 +121,9 @@ class HopMixin:
         # a scan, a re-plan, and the reference's lag behind the plan (shaped: half its shapers' widths; a velocity
         # planner's reference lags its desired velocity: the safe planner's goal braking looks goal_lookahead_s ahead)
         pl = self.cfg.planner
+        taus = shaper_taus_s(pl.shaper_tau_s, pendulum_omega_rad_s(params, "held"), pl.shaper_period_s)
         self.cap = SeenCap(pl.shaped_a_max_mps2 if self._timed else pl.a_goal_mps2,
-                           LATENCY_S + (0.5 * sum(pl.shaper_tau_s) if self._timed else pl.goal_lookahead_s),
+                           LATENCY_S + (0.5 * sum(taus) if self._timed else pl.goal_lookahead_s),
                            self._airframe_r)
 
     def adopt_payload(self, params: VehicleParams) -> None:

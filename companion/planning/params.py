@@ -29,7 +29,8 @@ class PlannerParams:
 
     Shaped planner (:mod:`companion.planning.shaped`): ``shaped_a_max_mps2`` bound on the planned payload
     acceleration (the nominal swing is atan(a/g): 1.85 m/s² is 0.187 rad), ``shaped_v_max_mps`` speed cap,
-    ``shaper_tau_s`` the three moving-average widths (s) of the smoothing cascade, ``shaped_step_s`` the time
+    ``shaper_tau_s`` the three moving-average widths (s) of the smoothing cascade for pendulum periods up to
+    ``shaper_period_s`` (a longer period scales them by its ratio to it), ``shaped_step_s`` the time
     step of the planned reference, ``replan_rate_hz`` how often the plan is checked against the latest obstacles
     (and the route search rerun whenever an obstacle appeared, vanished, changed or left its predicted
     track, the envelope grew, or the plan failed the check), ``route_refresh_s`` how often the search reruns
@@ -73,6 +74,7 @@ class PlannerParams:
     shaped_a_max_mps2: float = 1.85
     shaped_v_max_mps: float = 6.0
     shaper_tau_s: tuple[float, float, float] = (0.3, 0.35, 0.4)
+    shaper_period_s: float = 2.01
     shaped_step_s: float = 0.01
     replan_rate_hz: float = 20.0
     route_refresh_s: float = 0.5

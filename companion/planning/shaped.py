@@ -53,7 +53,7 @@ from companion.planning.legs_route import remaining_vias, route_through
 from companion.planning.params import PlannerParams
 from companion.planning.route import find_route
 from companion.planning.shaped_obstacles import Replan, moved_off_prediction, obstacle_rings, obstacle_signature
-from companion.planning.shaping import box_widths, pendulum_omega_rad_s
+from companion.planning.shaping import box_widths, pendulum_omega_rad_s, shaper_taus_s
 from companion.planning.timeline import Timeline
 from companion.planning.timing import Profile, brake_rows, sample_motion, state_at, stop_along
 
@@ -115,7 +115,7 @@ class ShapedPlanner:
         if vp is None or abs(vp.l - inp.cable_l_m) > 1e-9:
             vp = VehicleParams(l=inp.cable_l_m, g=inp.g_mps2)
         self.omega = pendulum_omega_rad_s(vp, "held")
-        widths = box_widths(p.shaper_tau_s, p.shaped_step_s)
+        widths = box_widths(shaper_taus_s(p.shaper_tau_s, self.omega, p.shaper_period_s), p.shaped_step_s)
         self.tl = Timeline(inp.t_s, inp.ref_pos_m, p.shaped_step_s, widths, self.omega, inp.g_mps2)
         self.plan_end_k = self.tl.index(inp.t_s)
 

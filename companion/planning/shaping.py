@@ -35,6 +35,13 @@ along the route). Three causal moving averages of widths τ1, τ2, τ3 (a quadra
 p_L = F∗u four times differentiable: |a_L'| <= Δa/τ_min, |a_L''| <= Δa/(τ_i·τ_j), so the airframe's
 acceleration a_L + a_L''/ω² and jerk stay bounded; averages never raise |a| above the unshaped bound
 (convex combinations); the cascade delays the motion by (τ1 + τ2 + τ3)/2.
+
+**Longer cables.** The lead's share, |a_L''|/ω² <= 4·max|a_u|/(τ2·τ3·ω²) (the L1 norm of the cascade's second
+derivative), grows with the cable as 1/ω² ≈ l/g: with the widths of a 1 m cable, a 3 m cable's airframe reference
+asks up to ~9 times the planned acceleration where re-plans change it at the cascade's rhythm (moderate
+turbulence: 10-16 m/s² for 1.1 m/s² plans, issue 28). :func:`shaper_taus_s` scales the widths with the
+pendulum's period beyond ``shaper_period_s`` (1 m), so the lead keeps the 1 m cable's share on every cable, at the
+cost of a delay that grows with the period.
 """
 
 from __future__ import annotations
@@ -67,6 +74,13 @@ def pendulum_omega_rad_s(params: VehicleParams, support: str = "held") -> float:
     else:
         raise ValueError(f"support: must be one of {', '.join(SUPPORTS)}, got {support!r}")
     return math.sqrt(p.m * p.g * p.l / inertia)
+
+
+def shaper_taus_s(taus_s: tuple[float, ...], omega_rad_s: float, period_s: float) -> tuple[float, ...]:
+    """The cascade's widths (s) for a pendulum of frequency ``omega_rad_s``: ``taus_s`` up to the period
+    ``period_s``, scaled by the pendulum's period over it beyond (see module docstring, *Longer cables*)."""
+    k = max(1.0, 2.0 * math.pi / omega_rad_s / period_s)
+    return taus_s if k == 1.0 else tuple(k * t for t in taus_s)
 
 
 def box_widths(taus_s: tuple[float, ...], h_s: float) -> tuple[int, int, int]:

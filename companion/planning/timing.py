@@ -277,8 +277,10 @@ def speed_profile(points: np.ndarray, v0_mps: float, *, a_max_mps2: float, v_max
     dt = np.where(vm > 1e-9, 2.0 * (s[1] - s[0]) / np.maximum(vm, 1e-9), 0.0)
     t = np.r_[0.0, np.cumsum(dt)]
     a_t = np.where(dt > 0.0, (v[1:] - v[:-1]) / np.maximum(dt, 1e-12), 0.0)
-    lat = v[:-1] ** 2 * kappa[:-1]
-    a_peak = float(np.max(np.hypot(a_t, lat))) if len(a_t) else 0.0
+    # the peak of the acceleration sampled (:func:`sample_motion`): the spline is in chord length, not arc length,
+    # and a route that turns back on the heading it is clamped to hooks where the two part (|x'| << 1)
+    acc = ev[:-1, 4:6] * (v[:-1] ** 2)[:, None] + ev[:-1, 2:4] * a_t[:, None]
+    a_peak = float(np.max(np.hypot(acc[:, 0], acc[:, 1]))) if len(a_t) else 0.0
     return Profile(sk, p, mm, s, v, t, a_t, float(t[-1]), length, a_peak)
 
 
