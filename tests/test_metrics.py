@@ -244,3 +244,21 @@ def test_the_journal_keeps_the_clock_zero_and_old_run_folders_still_read(tmp_pat
         assert partial.get("obstacle_clock_t0_s") == clock
         rep = rebuild_run(run, plots=False)
         assert rep["collisions"] == collisions and rep["obstacle_clock_t0_s"] == clock
+
+
+def test_the_flight_log_file_reads_back_exactly_with_numpy(tmp_path):
+    """save_npz writes what ``np.load`` reads back bit for bit (NaN, dtypes, shapes), deflated."""
+    from companion.report.run_folder import save_npz
+
+    rng = np.random.default_rng(3)
+    arrays = {"t_s": np.arange(0.0, 10.0, 0.004), "pos_ned_m": rng.normal(size=(2500, 3)),
+              "swing": np.full((2500, 4), np.nan), "phase": np.array(["mission"] * 2500),
+              "ticks": np.arange(2500, dtype=np.int32)}
+    path = tmp_path / "log.npz"
+    save_npz(path, arrays)
+    with np.load(path) as back:
+        assert sorted(back.files) == sorted(arrays)
+        for name, arr in arrays.items():
+            assert back[name].dtype == arr.dtype and back[name].shape == arr.shape
+            assert np.array_equal(back[name], arr, equal_nan=arr.dtype.kind == "f")
+    assert path.stat().st_size < sum(a.nbytes for a in arrays.values()) / 2  # the NaN and the strings deflate

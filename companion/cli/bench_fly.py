@@ -2,7 +2,9 @@
 
 Each flight is a real ``slungpilot fly --sitl`` command (its own processes, as a user runs it). With ``--against
 DIR`` the same flight is also flown by another checkout of the project (``PYTHONPATH=DIR``), interleaved run by
-run, so both trees see the same machine: the numbers compare code, not the VM's mood of the minute.
+run, so both trees see the same machine: the numbers compare code, not the VM's mood of the minute. The other
+tree flies with its own ``config/`` (mission and gains) where it has them: an editable install points the shipped
+configuration at this tree's files, whose keys an older tree may not know.
 """
 
 from __future__ import annotations
@@ -24,12 +26,17 @@ DEFAULT_MISSION = shipped_config("missions/forest.toml")
 def fly_once(tree: Path | None, mission: Path = DEFAULT_MISSION, planner: str | None = None) -> dict[str, Any]:
     """One lockstep forest flight by the code in ``tree`` (None: this one); its numbers."""
     env = dict(os.environ)
+    own: list[str] = []
     if tree is not None:
         env["PYTHONPATH"] = str(tree)
+        if (tree / "config" / "missions" / mission.name).exists():
+            mission = tree / "config" / "missions" / mission.name
+        if (tree / "config" / "controller.toml").exists():
+            own = ["--gains", str(tree / "config" / "controller.toml")]
     with tempfile.TemporaryDirectory(prefix="slungpilot-bench-fly-") as tmp:
         run_dir = Path(tmp) / "run"
         argv = [sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--no-zenoh", "--no-plots",
-                "--no-recording", "--mission", str(mission), "--run-dir", str(run_dir)]
+                "--no-recording", "--mission", str(mission), "--run-dir", str(run_dir), *own]
         if planner:
             argv += ["--planner", planner]
         t0 = time.monotonic()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +78,15 @@ def build_report(flog: FlightLog, mission: Mission, extra: dict[str, Any]) -> di
     return _clean(rep)
 
 
+def save_npz(path: Path, arrays: dict[str, np.ndarray], level: int = 1) -> None:
+    """``arrays`` as a compressed ``.npz`` that ``np.load`` reads, deflated at ``level`` (numpy's own
+    ``savez_compressed`` takes zlib's default, 6: three times the CPU of level 1 for 1 % less on a flight log)."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=level) as zf:
+        for name, arr in arrays.items():
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as fh:
+                np.lib.format.write_array(fh, np.asanyarray(arr), allow_pickle=False)
+
+
 def write_run(
     flog: FlightLog,
     mission: Mission,
@@ -89,7 +99,7 @@ def write_run(
     run_dir.mkdir(parents=True, exist_ok=True)
     rep = build_report(flog, mission, extra)
     arrays = log_arrays(flog)
-    np.savez_compressed(run_dir / "flight_log.npz", **arrays)
+    save_npz(run_dir / "flight_log.npz", arrays)
     if plots and len(flog) > 1:
         from companion.report.plots import plot_flight
 
