@@ -43,7 +43,8 @@ def add_fleet_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lockstep", action="store_true", help="fly in lockstep instead of real time")
     p.add_argument("--rate-hz", type=float, default=None,
                    help="each companion's control rate (default fly's 250 Hz; 100 Hz flies the missions as well and a "
-                        "pair then takes ~0.21 of a core instead of ~0.35: fleet 8 fits 2 cores only at 100 Hz)")
+                        "pair then takes ~0.21 of a core instead of ~0.35 on a slow 2-core VM, where fleet 8 fits only "
+                        "at 100 Hz; a faster CPU carries fleet 8 at 250 Hz, docs/zenoh.md)")
     p.add_argument("--rt-priority", type=int, default=10, metavar="N",
                    help="each companion's --rt-priority (default 10: control threads SCHED_FIFO, so the 2N "
                         "processes sharing this machine cannot preempt a tick; 0 = normal scheduling; refused "
@@ -175,8 +176,9 @@ def capacity_warning(n: int, rate_hz: float, cores: int) -> str | None:
         return None
     fits = [r for r in (200.0, 150.0, 100.0, 50.0) if r < rate_hz and pairs_core_need(n, r) <= 0.9 * cores]
     hint = f"; --rate-hz {fits[0]:g} needs ~{pairs_core_need(n, fits[0]):.1f}" if fits else ""
-    return (f"fleet: {n} pairs at {rate_hz:g} Hz need ~{need:.1f} cores in flight and this machine has {cores}: "
-            f"expect late setpoints, stream loss and vehicles that land on their own{hint}")
+    return (f"fleet: {n} pairs at {rate_hz:g} Hz need ~{need:.1f} cores in flight on the CPU this was measured on "
+            f"(a faster one needs less) and this machine has {cores}: late setpoints, stream loss and vehicles that "
+            f"land on their own are likely{hint}")
 
 
 def run_fleet(args: argparse.Namespace) -> int:
