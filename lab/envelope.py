@@ -86,8 +86,9 @@ def cell_spec(cell: Cell, base: ForestSpec) -> ForestSpec:
 
 def cell_mission(cell: Cell, seed: int, base: ForestSpec, declare_drag: bool = True) -> Mission:
     """The forest of ``seed`` flown with the cell's payload and wind. ``declare_drag``: the mission declares the
-    payload's drag coefficient as it declares its mass and cable (``[payload] drag_n_per_mps2``, the world's own
-    where the wind drags, 0 in calm air and eq. 49, which drag nothing); False: the companion identifies it."""
+    payload's and the airframe's drag coefficients as it declares the mass and cable (``[payload] drag_n_per_mps2``
+    and ``airframe_drag_n_per_mps2``, the world's own where the wind drags, 0 in calm air and eq. 49, which drag
+    nothing); False: neither (the companion identifies the payload's; the lift-off gate is off)."""
     spec = cell_spec(cell, base)
     m = generate_forest(seed, spec)
     vehicle = replace(m.vehicle, m=cell.mass_kg, l=cell.cable_m)
@@ -95,7 +96,8 @@ def cell_mission(cell: Cell, seed: int, base: ForestSpec, declare_drag: bool = T
     wind = wind_config(cell.wind, seed, spec.altitude_m, cell.mass_kg)
     payload = m.payload
     if declare_drag and wind.is_physical:
-        payload = replace(payload, drag_n_per_mps2=float(wind.drag_coefficients()[1]))
+        k_airframe, k_payload = map(float, wind.drag_coefficients())
+        payload = replace(payload, drag_n_per_mps2=k_payload, airframe_drag_n_per_mps2=k_airframe)
     return m.with_(vehicle=vehicle, wind=wind, payload=payload,
                    name=f"{m.name}-m{cell.mass_kg:g}-l{cell.cable_m:g}-{cell.wind}")
 
@@ -185,8 +187,9 @@ def envelope(cells: list[Cell], n: int, *, seed0: int = 0, base: ForestSpec | No
     from lab.figures import plot_envelope
 
     png = plot_envelope(summary, out / "envelope.png")
+    drag = "drags declared" if declare_drag else "payload drag identified"
     head = (f"# Payload envelope: {n} forests per cell ({base.density_per_100m2:g} trunks/100 m², "
-            f"{base.width_m:g} m corridor, {mode} mode, payload drag {'declared' if declare_drag else 'identified'}), "
+            f"{base.width_m:g} m corridor, {mode} mode, {drag}), "
             f"{len(results)} flights in {wall:.0f} s\n\n")
     (out / "envelope.md").write_text(head + table_markdown(cells, per) + f"\n![envelope]({png.name})\n")
     return summary

@@ -153,8 +153,9 @@ def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--envelope-masses", default=None, metavar="KG,..", help="grid masses (default 0.1,0.25,0.5,0.8)")
     p.add_argument("--envelope-cables", default=None, metavar="M,..", help="grid cable lengths (default 0.5,1,2,3)")
     p.add_argument("--envelope-drag", choices=("declared", "identified"), default="declared",
-                   help="the payload's drag coefficient: declared in each mission as its mass and cable are (the "
-                        "world's own where the wind drags; default), or left to the companion to identify in flight")
+                   help="the drag coefficients: the payload's and the airframe's declared in each mission as its "
+                        "mass and cable are (the world's own where the wind drags; default), or the payload's left to "
+                        "the companion to identify in flight (the airframe's then undeclared: no lift-off hold)")
     p.add_argument("--envelope-winds", default=None, metavar="NAME,..",
                    help="grid winds: calm, paper (eq. 49), light (3 m/s mean), moderate (6 m/s mean); default all")
 

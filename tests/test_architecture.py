@@ -28,7 +28,7 @@ PURE_PREFIXES = ("companion.core", "companion.planning", "companion.control", "c
                  "companion.flight.mode_goal", "companion.flight.setup", "companion.flight.mission_frame",
                  "companion.flight.obstacle_view", "companion.flight.flight_record", "companion.flight.facts",
                  "companion.flight.loop_stats", "companion.flight.arrival", "companion.flight.command",
-                 "companion.flight.loop_margin",
+                 "companion.flight.loop_margin", "companion.flight.liftoff",
                  "companion.report.scoring", "companion.flight.legs",
                  "companion.flight.operator",  # the ground station's commands, decided (issue 27)
                  "companion.flight.identification",  # the payload identified, and what the flight does with it

@@ -46,12 +46,13 @@ def test_cells_fly_high_enough_for_the_payload_and_under_the_canopy():
 def test_cells_declare_the_payload_s_drag_where_the_wind_drags():
     base = ForestSpec(density_per_100m2=4.0)
     light = cell_mission(Cell(0.1, 1.0, "light"), 2, base)
-    k = float(light.wind.drag_coefficients()[1])
+    k_air, k = map(float, light.wind.drag_coefficients())
     assert k > 0.0 and light.payload.drag_n_per_mps2 == pytest.approx(k)
+    assert k_air > 0.0 and light.payload.airframe_drag_n_per_mps2 == pytest.approx(k_air)  # the lift-off gate
     assert light.companion_params().m == 0.1  # only the drag is declared: mass and cable are the vehicle's
     assert cell_mission(Cell(0.1, 1.0, "light"), 2, base, declare_drag=False).payload.drag_n_per_mps2 == 0.0
     for wind in ("calm", "paper"):  # no drag in the world: nothing to declare (and those flights fly as before)
-        assert cell_mission(Cell(0.1, 1.0, wind), 2, base).payload.drag_n_per_mps2 == 0.0
+        assert cell_mission(Cell(0.1, 1.0, wind), 2, base).payload.is_default
     from companion.core.mission import mission_to_toml
 
     assert "drag_n_per_mps2" in mission_to_toml(light)  # the run folder's mission.toml replays it as flown

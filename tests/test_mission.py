@@ -112,8 +112,10 @@ def test_payload_table_overrides_the_companions_model_not_the_vehicle(tmp_path):
 
 
 def test_payload_drag_coefficient_round_trips(tmp_path):
-    m = load_mission(_write(tmp_path, GOOD + "[payload]\ndrag_n_per_mps2 = 0.043\n"))
-    assert m.payload.drag_n_per_mps2 == 0.043 and not m.payload.is_default
+    m = load_mission(_write(tmp_path, GOOD + "[payload]\ndrag_n_per_mps2 = 0.043\nairframe_drag_n_per_mps2 = 0.0245\n"))
+    assert m.payload.drag_n_per_mps2 == 0.043 and m.payload.airframe_drag_n_per_mps2 == 0.0245
+    assert not m.payload.is_default
+    assert not load_mission(_write(tmp_path, GOOD + "[payload]\nairframe_drag_n_per_mps2 = 0.02\n")).payload.is_default
     assert m.companion_params() == m.vehicle  # drag alone changes nothing of the model's masses and lengths
     assert load_mission(_write(tmp_path, mission_to_toml(m))).payload == m.payload
 
@@ -128,6 +130,7 @@ def test_payload_drag_coefficient_round_trips(tmp_path):
         ("length = 1.0", "[payload]: unknown key 'length'"),
         ("mass_kg = nan", "[payload] mass_kg: must be finite"),
         ("drag_n_per_mps2 = -0.01", "[payload] drag_n_per_mps2: must be in [0, 10]"),
+        ("airframe_drag_n_per_mps2 = 11.0", "[payload] airframe_drag_n_per_mps2: must be in [0, 10]"),
     ],
 )
 def test_bad_payload_table_names_file_and_key(tmp_path, table, needle):

@@ -45,7 +45,8 @@ Format (TOML; every table strict: unknown keys, missing required keys and wrong 
 ``[vehicle]`` m / l for the companion (and for identification: a given value is never identified);
 ``identify = true`` asks for :func:`companion.estimation.payload_id.identify_payload` on the values not given;
 ``drag_n_per_mps2`` is the payload's drag coefficient for the swing estimator and the shaped planner's drag budget
-(default 0: negligible drag, or identified in flight).
+(default 0: negligible drag, or identified in flight); ``airframe_drag_n_per_mps2`` the airframe's, from which the
+climb judges the wind before it lifts the payload (:mod:`companion.flight.liftoff`; default 0: not judged).
 :meth:`Mission.companion_params` is the model the companion should fly with before any identification.
 
 A start, goal or waypoint whose airframe circle (r_uav + L_uav) would overlap an obstacle's safety ring
@@ -117,12 +118,14 @@ class PayloadConfig:
     whether to identify the ones not given in flight, and the payload's drag coefficient ``drag_n_per_mps2``
     (k in p = −k·|v|·v, N per (m/s)²: ½·ρ·C_d·A, e.g. 0.043 for a 30 cm sphere; 0, the default, for a payload
     whose drag is negligible or unknown), which the swing estimator starts from and refines (docs/swing-estimation.md)
-    and the shaped planner's speed-up budgets from take-off (:mod:`companion.control.drag_id`)."""
+    and the shaped planner's speed-up budgets from take-off (:mod:`companion.control.drag_id`); the airframe's own
+    ``airframe_drag_n_per_mps2`` (0: unknown), for the wind before the lift-off (:mod:`companion.flight.liftoff`)."""
 
     mass_kg: float | None = None
     cable_length_m: float | None = None
     identify: bool = False
     drag_n_per_mps2: float = 0.0
+    airframe_drag_n_per_mps2: float = 0.0
 
     def validate(self) -> None:
         """Raise ``ValueError("<key>: ...")`` for non-physical values."""
@@ -130,14 +133,16 @@ class PayloadConfig:
             raise ValueError(f"mass_kg: must be in (0, 100], got {self.mass_kg}")
         if self.cable_length_m is not None and not (0.0 < self.cable_length_m <= 20.0):
             raise ValueError(f"cable_length_m: must be in (0, 20] (the model's range), got {self.cable_length_m}")
-        if not (math.isfinite(self.drag_n_per_mps2) and 0.0 <= self.drag_n_per_mps2 <= 10.0):
-            raise ValueError(f"drag_n_per_mps2: must be in [0, 10] N per (m/s)², got {self.drag_n_per_mps2}")
+        for key in ("drag_n_per_mps2", "airframe_drag_n_per_mps2"):
+            v = getattr(self, key)
+            if not (math.isfinite(v) and 0.0 <= v <= 10.0):
+                raise ValueError(f"{key}: must be in [0, 10] N per (m/s)², got {v}")
 
     @property
     def is_default(self) -> bool:
         """True when the table says nothing (absent or empty)."""
         return self.mass_kg is None and self.cable_length_m is None and not self.identify and \
-            self.drag_n_per_mps2 == 0.0
+            self.drag_n_per_mps2 == 0.0 and self.airframe_drag_n_per_mps2 == 0.0
 
 
 @dataclass(frozen=True)
@@ -326,6 +331,8 @@ def mission_to_toml(mission: Mission) -> str:
         lines.append(f"identify = {'true' if p.identify else 'false'}")
         if p.drag_n_per_mps2:
             lines.append(f"drag_n_per_mps2 = {float(p.drag_n_per_mps2)!r}")
+        if p.airframe_drag_n_per_mps2:
+            lines.append(f"airframe_drag_n_per_mps2 = {float(p.airframe_drag_n_per_mps2)!r}")
     for o in mission.obstacles:
         lines += [
             "",

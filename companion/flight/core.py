@@ -36,6 +36,7 @@ from companion.flight.command import LIFT_MARGIN_M, Command, climb_altitude_ned_
 from companion.flight.core_hop import HopMixin
 from companion.flight.core_orders import DESCENT_MPS, TIMED_PHASES, CoreOrders
 from companion.flight.legs import Legs, capped, leg_plan, legs_done, planned_swing_acc
+from companion.flight.liftoff import LiftOffGate, lift_gate
 from companion.flight.loop_margin import LoopMargin
 from companion.flight.phase import CorePhase
 from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator
@@ -47,7 +48,6 @@ log = logging.getLogger(__name__)
 __all__ = ["ARRIVE_DWELL_S", "LIFT_MARGIN_M", "PHASES", "Command", "FlightCore", "climb_altitude_ned_m"]
 
 PHASES = tuple(CorePhase)
-SWING_READY_FADE = 0.9  # the swing estimate carries this much feed-forward: trusted enough to start the cruise
 
 
 class FlightCore(CoreOrders, HopMixin):
@@ -68,6 +68,8 @@ class FlightCore(CoreOrders, HopMixin):
     push: ForceObserver
     #: the payload's drag angle per (m/s)² and the wind, identified from the swing's equilibrium (issue 28)
     drag_id: DragIdentifier
+    #: whether the climb may lift the payload off in the wind now (issue 28; open unless the drags are declared)
+    lift_gate: LiftOffGate
 
     def __init__(self, mission: Mission, gains: ControllerConfig | None = None, profile: VehicleProfile | None = None,
                  period_s: float = 0.004):
@@ -99,11 +101,12 @@ class FlightCore(CoreOrders, HopMixin):
         self.ref: ReferenceGenerator | None = None
         self.phase = CorePhase.CLIMB
         #: with a swing estimator as the swing input, the climb holds at the start altitude up to this long (s)
-        #: until the estimate is trusted (fade >= SWING_READY_FADE): cruising off on a still-fading feed-forward
+        #: until the estimate is trusted (fade >= SWING_READY_FADE, core_hop): cruising off on a fading feed-forward
         #: swung the payload to 0.35 rad in the first second (bundled vehicle, sensorless). 0 = never wait.
         self.swing_wait_s = 0.0
         self.t_swing_wait_s: float | None = None  # when the climb started waiting for the estimate
         self._climb_z = float(mission.start_ned_m[2])  # where the climb ends (NED z, m; see climb_altitude_ned_m)
+        self.lift_gate = lift_gate(mission, self.params, 0.0, 0.0)  # open; armed by _start for a lift-off climb
         self.timed_out = False
         self.t0_s: float | None = None
         self.t_prev_s: float | None = None
@@ -141,21 +144,6 @@ class FlightCore(CoreOrders, HopMixin):
 
     arrival_tolerance_m = staticmethod(arrival_tolerance_m)
 
-    def _swing_ready(self, est: Estimate) -> bool:
-        """Whether the swing input is ready for the cruise (see :attr:`swing_wait_s`); starts the wait clock."""
-        if self.swing_wait_s <= 0.0 or (est.swing is not None and est.swing_source != "estimate"):
-            return True
-        if est.swing_source == "estimate" and est.swing_fade >= SWING_READY_FADE:
-            return True
-        if self.t_swing_wait_s is None:
-            self.t_swing_wait_s = est.t_s
-            log.info("at the start altitude: waiting up to %.1f s for the swing estimate to settle", self.swing_wait_s)
-        if est.t_s - self.t_swing_wait_s >= self.swing_wait_s:
-            log.warning("the swing estimate did not settle within %.1f s: cruising on the full-cable envelope and "
-                        "the faded feed-forward", self.swing_wait_s)
-            return True
-        return False
-
     def _advance_phase(self, est: Estimate) -> None:
         m = self.mission
         t = est.t_s
@@ -167,7 +155,9 @@ class FlightCore(CoreOrders, HopMixin):
             self.phase = CorePhase.DONE
         if self.phase == CorePhase.CLIMB:
             assert self.ref is not None
-            if abs(float(est.pos_ned_m[2]) - self._climb_z) < ARRIVE_VERT_M and abs(
+            if self.lift_gate.timed_out(t):  # the wind held the payload on the ground too long: no route from here
+                self.no_route, self.phase = True, CorePhase.DONE
+            elif abs(float(est.pos_ned_m[2]) - self._climb_z) < ARRIVE_VERT_M and abs(
                 self.ref.p[2] - self._climb_z
             ) < 0.02 and self._swing_ready(est):
                 self.phase = self._after_climb()
@@ -273,6 +263,7 @@ class FlightCore(CoreOrders, HopMixin):
         self.t0_s = est.t_s
         self.yaw_rad = float(est.euler_rad[2])
         self._climb_z = climb_altitude_ned_m(z, float(self.mission.start_ned_m[2]), self.params.l)
+        self.lift_gate = lift_gate(self.mission, self.params, z, self._climb_z)
         if abs(z - self._climb_z) < ARRIVE_VERT_M:
             self.phase = self._after_climb()
 
@@ -307,7 +298,8 @@ class FlightCore(CoreOrders, HopMixin):
         f_att, f_rep, plan_mode = _ZERO2, _ZERO2, "track"
         if self.phase == CorePhase.CLIMB:
             vdx = vdy = 0.0
-            vdz = self._vertical_speed(self._climb_z)
+            vdz = self._vertical_speed(self.lift_gate.target_z(est.t_s, (float(pos[0]), float(pos[1])), ref.p[2],
+                                                               self.push.mean, obs, self._climb_z))
         elif self.phase == CorePhase.CRUISE:
             vel = est.vel_ned_mps
             goal, z_goal, legs_in, cap = leg_plan(self.legs, self.mission, self._goal_xy, False)

@@ -40,6 +40,7 @@ MIN_HOP_M = 0.5  # less room than this: no hop
 HOP_WINDOW_S = 8.0  # IMU and attitude kept from the hop's start (s of vehicle time)
 HOP_STEP_M = 0.05  # the room along the hop is checked every this far (m)
 HOP_MARGIN_M = 0.1  # beyond the full-cable envelope and the trunk's safety ring (m)
+SWING_READY_FADE = 0.9  # the swing estimate carries this much feed-forward: trusted enough to start the cruise
 
 
 def hop_room_m(start_xy: np.ndarray, unit_xy: np.ndarray, obstacles: Sequence[Obstacle], clearance_m: float,
@@ -57,8 +58,23 @@ def hop_room_m(start_xy: np.ndarray, unit_xy: np.ndarray, obstacles: Sequence[Ob
 
 
 class HopMixin:
-    """The flight core's identification hop and payload adoption (mixed into
-    :class:`~companion.flight.core.FlightCore`, whose attributes it uses)."""
+    """The flight core's identification hop, the climb's wait for a trusted swing estimate and payload adoption
+    (mixed into :class:`~companion.flight.core.FlightCore`, whose attributes it uses)."""
+
+    def _swing_ready(self, est: Estimate) -> bool:
+        """Whether the swing input is ready for the cruise (see :attr:`swing_wait_s`); starts the wait clock."""
+        if self.swing_wait_s <= 0.0 or (est.swing is not None and est.swing_source != "estimate"):
+            return True
+        if est.swing_source == "estimate" and est.swing_fade >= SWING_READY_FADE:
+            return True
+        if self.t_swing_wait_s is None:
+            self.t_swing_wait_s = est.t_s
+            log.info("at the start altitude: waiting up to %.1f s for the swing estimate to settle", self.swing_wait_s)
+        if est.t_s - self.t_swing_wait_s >= self.swing_wait_s:
+            log.warning("the swing estimate did not settle within %.1f s: cruising on the full-cable envelope and "
+                        "the faded feed-forward", self.swing_wait_s)
+            return True
+        return False
 
     def _identify_done(self, est: Estimate) -> bool:
         """Whether the identify phase may end: identified, and the swing input ready (see :meth:`end_identify`)."""

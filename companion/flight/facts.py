@@ -34,6 +34,7 @@ def pilot_facts(p: Pilot) -> dict[str, Any]:
         "autopilot_params": p.params,
         "mission_frame": p.frame.facts(),
         "arrival": dict(p.core.arrival),
+        "lift_off": p.core.lift_gate.facts(),  # how long the climb held the payload on the ground for the wind
         # scans mapped, refused by reason, returns dropped, the map's counts (None: perception never started)
         "perception": p.sensing.facts(),
     }

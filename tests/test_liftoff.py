@@ -1,0 +1,151 @@
+"""The lift-off held for the wind (issue 28): the climb keeps the payload on the ground while the airframe's measured
+push says the wind would swing it, once lifted, into a trunk; it lifts off when that is clear, and after
+MAX_WAIT_S says there is no route. Deterministic: the gate's arithmetic, and in-process flights in seeded Dryden
+turbulence and in a steady wind."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.core.mission import mission_to_toml
+from companion.core.obstacles import Obstacle
+from companion.core.wind import WindConfig
+from companion.flight.liftoff import (
+    GUST_MPS,
+    MAX_WAIT_S,
+    OVERSHOOT,
+    WAIT_BELOW_M,
+    LiftOffGate,
+    blocking_trunk,
+    payload_reach_m,
+)
+from companion.report.metrics import compute_metrics
+from lab.envelope import Cell, cell_mission
+from lab.forests import ForestSpec
+from lab.inprocess import fly_inprocess
+
+pytestmark = pytest.mark.shares_cores  # in-process and lockstep flights: no deadline (conftest.py)
+
+ROOT = Path(__file__).resolve().parents[1]
+G = 9.81
+MT = 1.35  # the system's mass (kg): Table 1's airframe and 0.1 kg
+K_AIR = 0.5 * 1.225 * 0.04  # the bundled world's airframe drag coefficient (N per (m/s)²)
+C_PAY = 0.0034  # a 0.1 kg payload's drag angle per (m/s)² in the grid (rad)
+TRUNK = Obstacle(x_m=0.2, y_m=-1.81, radius_m=0.21)  # forest 27's trunk next to the take-off point
+
+
+def _push_for(wind_mps: float) -> float:
+    """The push (m/s² of the whole system) the airframe's drag gives at rest in ``wind_mps``."""
+    return K_AIR * wind_mps ** 2 / MT
+
+
+def test_the_reach_is_the_overshot_drag_equilibrium_in_the_wind_plus_a_gust():
+    reach = payload_reach_m(_push_for(13.6), MT, K_AIR, C_PAY, 3.0)
+    w = 13.6 + GUST_MPS
+    assert reach == pytest.approx(3.0 * math.sin(min(OVERSHOOT * math.atan(C_PAY * w * w), math.pi / 2)))
+    assert payload_reach_m(0.0, MT, K_AIR, C_PAY, 3.0) == pytest.approx(
+        3.0 * math.sin(OVERSHOOT * math.atan(C_PAY * GUST_MPS ** 2)))  # calm air: the gust margin's reach only
+    assert payload_reach_m(_push_for(40.0), MT, K_AIR, C_PAY, 3.0) == pytest.approx(3.0)  # never beyond the cable
+
+
+def test_only_a_trunk_along_the_downwind_reach_blocks():
+    west = (0.0, -1.0)
+    assert blocking_trunk((0.0, 0.0), west, 2.0, [TRUNK]) is TRUNK
+    assert blocking_trunk((0.0, 0.0), west, 1.2, [TRUNK]) is None  # the reach ends before its ring
+    assert blocking_trunk((0.0, 0.0), (0.0, 1.0), 3.0, [TRUNK]) is None  # blown away from it
+    assert blocking_trunk((0.0, 0.0), (1.0, 0.0), 3.0, [TRUNK]) is None  # 1.81 m to the side of the reach
+
+
+def _gate() -> LiftOffGate:
+    return LiftOffGate(K_AIR, C_PAY, MT, 3.0, -3.0)
+
+
+def test_the_climb_waits_below_the_lift_off_while_blocked_and_lifts_once_clear():
+    gate = _gate()
+    gust = (0.0, -_push_for(13.6))  # the wind blows west, towards the trunk
+    assert gate.target_z(0.0, (0.0, 0.0), -1.0, gust, [TRUNK], -3.3) == pytest.approx(-3.0 + WAIT_BELOW_M)
+    assert gate.target_z(1.0, (0.0, 0.0), -2.6, gust, [TRUNK], -3.3) == pytest.approx(-2.6)
+    assert not gate.open and gate.waited_s == pytest.approx(1.0) and gate.worst["trunk_x_m"] == TRUNK.x_m
+    lull = (0.0, -_push_for(3.0))
+    assert gate.target_z(1.5, (0.0, 0.0), -2.6, lull, [TRUNK], -3.3) == -3.3  # clear: climbs on, and stays open
+    assert gate.open and gate.target_z(1.6, (0.0, 0.0), -2.7, gust, [TRUNK], -3.3) == -3.3
+    assert gate.facts() == {"armed": True, "waited_s": 1.0, "held_by": gate.worst}
+
+
+def test_a_gate_without_both_drags_declared_never_holds():
+    gate = LiftOffGate(0.0, C_PAY, MT, 3.0, -3.0)
+    assert gate.open and not gate.armed
+    assert gate.target_z(0.0, (0.0, 0.0), -1.0, (0.0, -5.0), [TRUNK], -3.3) == -3.3
+
+
+def test_blocked_for_the_whole_wait_is_no_route():
+    gate = _gate()
+    gust = (0.0, -_push_for(13.6))
+    for k in range(int(MAX_WAIT_S) + 2):
+        gate.target_z(float(k), (0.0, 0.0), -2.6, gust, [TRUNK], -3.3)
+        assert gate.timed_out(float(k)) == (k >= MAX_WAIT_S)
+
+
+@pytest.mark.parametrize(("mass_kg", "cable_m"), [(0.1, 3.0), (0.25, 2.0)])
+def test_forest_27s_gust_at_the_lift_off_no_longer_blows_the_payload_into_the_trunk(mass_kg, cable_m):
+    """The grid's moderate-turbulence flights of forest 27: lifted in a 12-13.6 m/s gust, the payload hit the trunk
+    1.6 m from the take-off point (clearance -0.17 and -0.03 m). With the airframe's drag undeclared (the gate
+    disarmed) they still do; declared, the climb waits a few seconds and the flight is clean."""
+    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
+    mission = cell_mission(Cell(mass_kg, cable_m, "moderate"), 27, spec)
+    assert mission.payload.airframe_drag_n_per_mps2 > 0.0
+    blind = replace(mission, payload=replace(mission.payload, airframe_drag_n_per_mps2=0.0))
+    assert compute_metrics(fly_inprocess(blind), blind)["collisions"] > 0
+    waited = []
+    flog = fly_inprocess(mission, on_tick=lambda core, t: waited.append(core.lift_gate.waited_s))
+    rep = compute_metrics(flog, mission)
+    assert rep["collisions"] == 0 and rep["min_clearance_m"] > 0.3 and rep["reached_goal"]
+    assert 1.0 < waited[-1] < 10.0
+
+
+def _steady_gale():
+    """Forest 27 with 0.1 kg on 3 m in a steady 13 m/s wind from the east, towards the trunk 1.6 m west of the
+    take-off point (both drags declared)."""
+    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
+    mission = cell_mission(Cell(0.1, 3.0, "moderate"), 27, spec)
+    steady = WindConfig("turbulence", 1.0, mean_speed_mps=13.0, direction_deg=90.0, intensity="none",
+                        altitude_m=mission.wind.altitude_m, payload_drag_area_m2=mission.wind.payload_drag_area_m2)
+    assert any(o.x_m == pytest.approx(TRUNK.x_m, abs=0.01) for o in mission.obstacles)
+    return replace(mission, wind=steady, timeout_s=60.0)
+
+
+def test_a_wind_that_never_lets_up_ends_the_flight_on_the_ground_with_no_route():
+    """The payload never leaves the ground, and after MAX_WAIT_S the flight ends ``no_route``."""
+    mission = _steady_gale()
+    cores = []
+    flog = fly_inprocess(mission, on_tick=lambda core, t: cores.append(core) if not cores else None)
+    assert cores[0].result == "no_route" and cores[0].lift_gate.waited_s == pytest.approx(MAX_WAIT_S, abs=0.1)
+    payload_z = np.asarray(flog.arr("payload_pos"))[:, 2]
+    assert np.all(payload_z > -0.05)  # never lifted (NED: z 0 on the ground)
+    assert compute_metrics(flog, mission)["collisions"] == 0
+
+
+def test_over_mavlink_the_held_lift_off_is_reported_and_the_vehicle_holds(tmp_path):
+    """The same gale flown by `fly --sitl` against the bundled vehicle: the report says how long the wind held the
+    payload on the ground and by which trunk, the outcome is no_route, and the vehicle is handed to its own hold."""
+    path = tmp_path / "gale.toml"
+    path.write_text(mission_to_toml(_steady_gale()))
+    run = tmp_path / "run"
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--mission", str(path),
+                        "--no-zenoh", "--no-plots", "--no-recording", "--run-dir", str(run)],
+                       capture_output=True, text=True, timeout=240, cwd=ROOT)
+    rep = json.loads((run / "report.json").read_text())
+    assert rep["outcome"] == "no_route", r.stderr[-2000:]
+    lift = rep["lift_off"]
+    assert lift["armed"] and lift["waited_s"] == pytest.approx(MAX_WAIT_S, abs=0.5)
+    assert lift["held_by"]["trunk_x_m"] == pytest.approx(TRUNK.x_m, abs=0.01) and lift["held_by"]["reach_m"] > 1.6
+    assert rep["collisions"] == 0 and rep["max_swing_rad"] == pytest.approx(0.0, abs=0.01)
+    assert any(t["to"] == "hold" and "no_route" in t["reason"] for t in rep["transitions"])
