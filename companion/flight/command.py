@@ -1,4 +1,5 @@
-"""What the flight core hands out each tick (:class:`Command`) and where its climb ends. Pure data."""
+"""What the flight core hands out each tick (:class:`Command`), what the pilot streams of it (:class:`Setpoint`) and
+where its climb ends. Pure data."""
 
 from __future__ import annotations
 
@@ -7,6 +8,15 @@ from typing import NamedTuple
 import numpy as np
 
 from companion.flight.phase import CorePhase
+
+
+class Setpoint(NamedTuple):
+    """An attitude setpoint to stream: vehicle time (s), attitude quaternion [w, x, y, z] body FRD → NED, thrust
+    (0..1)."""
+
+    t_s: float
+    q_ned_frd_wxyz: np.ndarray
+    thrust_norm: float
 
 
 class Command(NamedTuple):

@@ -21,7 +21,6 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, replace
-from typing import NamedTuple
 
 import numpy as np
 
@@ -32,6 +31,7 @@ from companion.core.rotations import quat_from_euler
 from companion.estimation.estimate import Estimate
 from companion.estimation.swing_feed import SwingFeed, estimator_config
 from companion.estimation.vehicle_state import VehicleState
+from companion.flight.command import Setpoint
 from companion.flight.core import Command, FlightCore
 from companion.flight.flight_record import FlightRecord
 from companion.flight.health import LinkHealth, LockstepClock, RealtimeClock
@@ -57,15 +57,6 @@ OPTIONAL_STREAMS = {"message_interval:ESTIMATOR_STATUS"}  # nice to have: refusi
 #: stalls a process (1.02 s seen), shorter than the fault suite's 2 s to tell a dead vehicle (docs/measurements.md)
 LOCKSTEP_TELEMETRY_LOSS_S = 1.5
 SWING_WAIT_S = 5.0  # with a swing estimator: the longest the climb waits at the start altitude for its trust (s)
-
-
-class Setpoint(NamedTuple):
-    """An attitude setpoint to stream: vehicle time (s), attitude quaternion [w, x, y, z] body FRD → NED, thrust
-    (0..1)."""
-
-    t_s: float
-    q_ned_frd_wxyz: np.ndarray
-    thrust_norm: float
 
 
 @dataclass(frozen=True, slots=True)

@@ -21,9 +21,10 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.core.obstacles import Obstacle
+from companion.flight.command import Setpoint
 from companion.flight.facts import pilot_facts
 from companion.flight.loop_stats import PROVISIONAL_WINDOW_TICKS, LoopStats
-from companion.flight.pilot import Pilot, Setpoint, TickOut
+from companion.flight.pilot import Pilot, TickOut
 from companion.flight.scheduling import GcPacer, involuntary_switches
 from companion.flight.sequence_types import Transition
 from companion.mavlink_io.codec import send_set_attitude_target
