@@ -17,7 +17,8 @@ that gives the wind speed, and so the payload's reach at the lift-off,
 
 which :class:`LiftOffGate` checks against every trunk's safety ring. While it is blocked the climb holds
 :data:`WAIT_BELOW_M` under the lift-off height (the payload still on the ground); it lifts off once the reach is
-clear, and after :data:`MAX_WAIT_S` blocked the flight says there is no route.
+clear, and after :data:`MAX_WAIT_S` blocked the flight says there is no route. The push is measured only where
+the force observer runs (controller ``smc_ff`` with a swing input); elsewhere the gate sees no wind and never holds.
 """
 
 from __future__ import annotations
