@@ -149,3 +149,5 @@ def test_over_mavlink_the_held_lift_off_is_reported_and_the_vehicle_holds(tmp_pa
     assert lift["held_by"]["trunk_x_m"] == pytest.approx(TRUNK.x_m, abs=0.01) and lift["held_by"]["reach_m"] > 1.6
     assert rep["collisions"] == 0 and rep["max_swing_rad"] == pytest.approx(0.0, abs=0.01)
     assert any(t["to"] == "hold" and "no_route" in t["reason"] for t in rep["transitions"])
+    assert "lift-off            held 30.0 s for the wind: the payload would have swung" in r.stdout
+    assert "into the trunk at (0.2, -1.8)" in (run / "summary.txt").read_text()

@@ -141,7 +141,7 @@ def summary_text(rep: dict[str, Any]) -> str:
         f"  min clearance       {_fmt(rep.get('min_clearance_m'), ' m', 3)}   collisions {rep.get('collisions')}",
         f"  sim time            {_fmt(rep.get('sim_time_s'), ' s')}   wall time {_fmt(rep.get('wall_time_s'), ' s')}",
     ]
-    lines += waypoint_lines(rep) + payload_lines(rep.get("payload"))
+    lines += waypoint_lines(rep) + payload_lines(rep.get("payload")) + lift_off_lines(rep.get("lift_off"))
     if loop:
         lines.append(
             f"  loop                {loop.get('ticks')} ticks, tick p50 {_fmt(loop.get('tick_ms_p50'), ' ms', 3)}, "
@@ -151,6 +151,16 @@ def summary_text(rep: dict[str, Any]) -> str:
     if rep.get("run_dir"):
         lines.append(f"  run folder          {rep['run_dir']}")
     return "\n".join(lines)
+
+
+def lift_off_lines(lift: dict[str, Any] | None) -> list[str]:
+    """The summary's lift-off line when the wind held the payload on the ground (:mod:`companion.flight.liftoff`)."""
+    if not lift or not lift.get("waited_s"):
+        return []
+    held = lift.get("held_by") or {}
+    return [f"  lift-off            held {_fmt(lift['waited_s'], ' s', 1)} for the wind: the payload would have swung "
+            f"{_fmt(held.get('reach_m'), ' m')} downwind, into the trunk at ({_fmt(held.get('trunk_x_m'), '', 1)}, "
+            f"{_fmt(held.get('trunk_y_m'), '', 1)})"]
 
 
 def payload_lines(pay: dict[str, Any] | None) -> list[str]:
