@@ -111,7 +111,8 @@ class LiftOffGate:
         return max(self.wait_z_ned_m, climb_z_ned_m)
 
     def facts(self) -> dict[str, Any]:
-        """The report's ``lift_off``: armed (both drags declared), seconds waited, the largest reach that held it."""
+        """The report's ``lift_off``: armed (both drags declared), seconds blocked (from the first blocked tick,
+        climbing below the wait height included), the largest reach that blocked it."""
         return {"armed": self.armed, "waited_s": round(self.waited_s, 3), "held_by": self.worst}
 
     def timed_out(self, t_s: float) -> bool:
