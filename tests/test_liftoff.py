@@ -94,11 +94,11 @@ def test_blocked_for_the_whole_wait_is_no_route():
         assert gate.timed_out(float(k)) == (k >= MAX_WAIT_S)
 
 
-@pytest.mark.parametrize(("mass_kg", "cable_m"), [(0.1, 3.0), (0.25, 2.0)])
+@pytest.mark.parametrize(("mass_kg", "cable_m"), [(0.1, 3.0), (0.1, 2.0)])
 def test_forest_27s_gust_at_the_lift_off_no_longer_blows_the_payload_into_the_trunk(mass_kg, cable_m):
     """The grid's moderate-turbulence flights of forest 27: lifted in a 12-13.6 m/s gust, the payload hit the trunk
-    1.6 m from the take-off point (clearance -0.17 and -0.03 m). With the airframe's drag undeclared (the gate
-    disarmed) they still do; declared, the climb waits a few seconds and the flight is clean."""
+    1.6 m from the take-off point. With the airframe's drag undeclared (the gate disarmed) they still do (clearance
+    -0.14 and -0.05 m); declared, the climb waits a few seconds and the flight is clean."""
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
     mission = cell_mission(Cell(mass_kg, cable_m, "moderate"), 27, spec)
     assert mission.payload.airframe_drag_n_per_mps2 > 0.0

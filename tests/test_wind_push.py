@@ -11,8 +11,17 @@ import pytest
 
 from companion.control.disturbance import DEADBAND_MPS2, ForceObserver, thrust_horizontal
 from companion.core.mission import load_mission
+from companion.core.obstacles import Obstacle
 from companion.planning.base import PlanInput
-from companion.planning.shaped_obstacles import DRIFT_GUST, DRIFT_SLACK_M, drift_margin_m
+from companion.planning.clearance import clearance
+from companion.planning.shaped_obstacles import (
+    DRIFT_SHIFT,
+    DRIFT_SLACK_M,
+    DRIFT_SPREAD,
+    drift_margin_m,
+    obstacle_rings,
+    route_shift_m,
+)
 from companion.report.metrics import compute_metrics
 from lab.envelope import Cell, cell_mission
 from lab.forests import ForestSpec
@@ -68,16 +77,49 @@ def test_a_replan_is_no_push():
     assert max(abs(m) for m in obs.mean) < 0.05
 
 
-def _inp(drift_m: float) -> PlanInput:
+def _inp(drift_m: float, toward_deg: float = -90.0) -> PlanInput:
+    """A plan input whose payload the wind holds ``drift_m`` (m) off, toward ``toward_deg`` (from north, NED)."""
     z2 = np.zeros(2)
+    d = (drift_m * math.cos(math.radians(toward_deg)), drift_m * math.sin(math.radians(toward_deg)))
     return PlanInput(t_s=0.0, pos_m=z2, vel_mps=z2, ref_pos_m=z2, ref_vel_mps=z2, goal_m=np.array([5.0, 0.0]),
-                     r_max_m=0.3, swing=np.zeros(4), cable_l_m=3.0, airframe_r_m=0.28, z_ned_m=-4.0, drift_m=drift_m)
+                     r_max_m=0.3, swing=np.zeros(4), cable_l_m=3.0, airframe_r_m=0.28, z_ned_m=-4.0, drift_m=drift_m,
+                     drift_ned_m=d)
 
 
 def test_the_payload_rings_grow_by_the_drift_beyond_the_ordinary():
     assert drift_margin_m(_inp(0.0)) == 0.0
     assert drift_margin_m(_inp(0.017)) == 0.0  # the Table 2 forest's largest drift in eq. 49
-    assert drift_margin_m(_inp(0.5)) == pytest.approx(DRIFT_GUST * 0.5 - DRIFT_SLACK_M)
+    assert drift_margin_m(_inp(0.5)) == pytest.approx(DRIFT_SPREAD * 0.5 - DRIFT_SLACK_M)
+    assert route_shift_m(_inp(0.017)) == (0.0, 0.0)
+    sx, sy = route_shift_m(_inp(0.5))  # the wind blows toward −y (west): the shift points there
+    assert sx == pytest.approx(0.0, abs=1e-12) and sy == pytest.approx(-DRIFT_SHIFT * (0.5 - DRIFT_SLACK_M))
+
+
+def _rows_along_y(y_m: float) -> np.ndarray:
+    """Reference rows flying north along y = ``y_m`` at 1 m/s, the payload hanging still below (no nominal swing)."""
+    rows = np.zeros((400, 14))
+    rows[:, 0] = np.linspace(-4.0, 4.0, 400)
+    rows[:, 1] = y_m
+    rows[:, 2] = 1.0
+    return rows
+
+
+def test_a_trunk_downwind_of_the_path_needs_the_drift_and_one_upwind_does_not():
+    # a trunk at the origin, the payload held 0.5 m toward −y: a path on the trunk's +y side (upwind of it) carries
+    # the payload toward it, a path on its −y side carries it away. The plan check sees the payload where the wind
+    # holds it, the route search's disc is the one around both the trunk's and the payload's rings
+    trunk = Obstacle(0.0, 0.0, 0.2, height_m=10.0, safe_distance_m=0.1)
+    inp = _inp(0.5)
+    c, ring, _bare, _contact, _moving, pred, rc, _rcontact = obstacle_rings(inp, [trunk], 0.5, 0.1, 0.0)
+    shift = DRIFT_SHIFT * (0.5 - DRIFT_SLACK_M)
+    assert rc[0] == pytest.approx(c[0] + np.array([0.0, 0.5 * shift]))  # the disc moved upwind by half the shift
+    assert ring[0] == pytest.approx(0.2 + 0.1 + 0.5 + 0.1 + 0.5 * shift)
+    # its upwind side reaches the shift farther out, its downwind side stays where it was
+    assert rc[0][1] + ring[0] == pytest.approx(0.9 + shift) and rc[0][1] - ring[0] == pytest.approx(-0.9)
+    gap = 0.3 + drift_margin_m(inp) + 0.5  # the payload's ring, plus a little more than the drift itself
+    first_up, _ = clearance(_rows_along_y(+gap), 0.0, 0.02, 0.0, 3.0, pred)
+    first_down, _ = clearance(_rows_along_y(-gap), 0.0, 0.02, 0.0, 3.0, pred)
+    assert np.isfinite(first_up[0]) and np.isinf(first_down[0])
 
 
 def test_eq49_is_inside_the_bands_so_the_paper_flight_is_flown_as_before():
@@ -91,7 +133,7 @@ def test_eq49_is_inside_the_bands_so_the_paper_flight_is_flown_as_before():
             return
         peak["push"] = max(peak["push"], math.hypot(*core.push.mean))
         peak["ext"] = max(peak["ext"], math.hypot(*core.controller.ext_acc))
-        peak["drift"] = max(peak["drift"], DRIFT_GUST * core.swing_bias.drift_m(core.params.l))
+        peak["drift"] = max(peak["drift"], core.swing_bias.drift_m(core.params.l))
 
     rep = compute_metrics(fly_inprocess(mis, on_tick=tick), mis)
     assert rep["reached_goal"] and rep["collisions"] == 0

@@ -22,6 +22,11 @@ pendulum frequency is needed and a gust's drag is followed within a second. In c
 act on the airframe only) the residual is the model's error: at most 0.017 rad over the lockstep Table 2 forest,
 computed from its flight logs; an equilibrium inside :data:`DEADBAND_RAD` is taken as none (and fully from twice
 that on, linearly between), so those flights are flown exactly as before (bit-identical logs).
+
+A building gust moves the equilibrium itself, and the payload rides it: its rate then reads as a swing to the
+feed-forward's rate term, which pushed the airframe downwind (1.9 /s × 2 m × 0.35 rad/s ≈ 1.3 m/s² in a moderate
+gust: 0.57 m off the plan past a trunk, 0.35 m with the rate taken off; docs/measurements.md). The equilibrium's rate (:attr:`SwingBias.rate`, of the part beyond the dead band)
+is taken off with it, so the feed-forward damps the swing about the moving equilibrium.
 """
 
 from __future__ import annotations
@@ -53,6 +58,8 @@ class SwingBias:
         self.l_eff_m, self.g, self.tau_s, self.deadband_rad = l_eff_m, g, tau_s, deadband_rad
         self._acc = SwingAccelEstimator(rate_filter_s)  # the same filtered derivative, of the airframe's velocity
         self.mean = (0.0, 0.0)  # the low-passed equilibrium (rad)
+        self.rate = (0.0, 0.0)  # how fast the equilibrium beyond the dead band moves (rad/s)
+        self._gated = (0.0, 0.0)
         self._t: float | None = None
 
     def update(self, t_s: float, swing, swing_acc, vel_ned_mps) -> tuple[float, float]:
@@ -63,22 +70,33 @@ class SwingBias:
         ea = (le * float(swing_acc[0]) + g * float(swing[0]) + ax) / g
         eb = (le * float(swing_acc[1]) + g * float(swing[1]) - ay) / g
         if self._t is not None and t_s > self._t:
-            k = (t_s - self._t) / (self.tau_s + t_s - self._t)
+            dt = t_s - self._t
+            k = dt / (self.tau_s + dt)
             ma, mb = self.mean
             self.mean = (ma + k * (ea - ma), mb + k * (eb - mb))
+            ga, gb = _beyond(self.mean[0], self.deadband_rad), _beyond(self.mean[1], self.deadband_rad)
+            self.rate = ((ga - self._gated[0]) / dt, (gb - self._gated[1]) / dt)
+            self._gated = (ga, gb)
         self._t = t_s
-        return _beyond(self.mean[0], self.deadband_rad), _beyond(self.mean[1], self.deadband_rad)
+        return self._gated
 
     def drift_m(self, l_m: float) -> float:
         """How far (m) the equilibrium holds a payload on ``l_m`` (m) of cable off the vertical below the airframe:
         l·sin|θ_eq| (the low-passed equilibrium, dead band not applied)."""
         return l_m * math.sin(min(math.hypot(*self.mean), 0.5 * math.pi))
 
+    def drift_ned_m(self, l_m: float) -> tuple[float, float]:
+        """Where (m, NED x y) the equilibrium holds a payload on ``l_m`` (m) of cable off the vertical below the
+        airframe: l·(sin α·cos β, −sin β) of the low-passed equilibrium (dead band not applied)."""
+        a, b = self.mean
+        return l_m * math.sin(a) * math.cos(b), -l_m * math.sin(b)
+
     def reset(self) -> None:
         """Forget the history (the swing input dropped out)."""
         self._acc.reset()
         self._t = None
         self.mean = (0.0, 0.0)
+        self.rate = self._gated = (0.0, 0.0)
 
 
 def feedforward_offsets(ctl, bias: SwingBias, t_s: float, swing, swing_acc, vel_ned_mps, swing_nom: tuple | None,
@@ -102,5 +120,6 @@ def feedforward_offsets(ctl, bias: SwingBias, t_s: float, swing, swing_acc, vel_
     if ba == 0.0 and bb == 0.0:
         ctl.ff_bias = (0.0, 0.0)
         return
-    k = trust * ctl.ff_sign * l_m * ff_cfg.k_angle
-    ctl.ff_bias = (k * ba, -k * bb)
+    k = trust * ctl.ff_sign * l_m
+    ra, rb = bias.rate
+    ctl.ff_bias = (k * (ff_cfg.k_angle * ba + ff_cfg.k_rate * ra), -k * (ff_cfg.k_angle * bb + ff_cfg.k_rate * rb))

@@ -343,6 +343,7 @@ class FlightCore(CoreOrders, HopMixin):
             cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
             swing_sigma_rad=swing_sigma_rad(est), v_cap_mps=self.cap.cap_mps(est.pos_ned_m, est.vel_ned_mps, r_max),
             drift_m=0.0 if swing is None else self.swing_bias.drift_m(self.params.l),
+            drift_ned_m=(0.0, 0.0) if swing is None else self.swing_bias.drift_ned_m(self.params.l),
             drag_c=0.0 if swing is None else self.drag_id.c, wind_mps=self.drag_id.wind_estimate, **legs_in,
         )
         out = self.planner.plan(inp, obs)

@@ -44,7 +44,7 @@ class PlanInput(NamedTuple):
 
     ``drift_m``: how far (m) the wind's drag holds the payload off the path planned for it, l·sin|θ_eq| with θ_eq
     the swing's slow equilibrium (:mod:`companion.control.swing_bias`: measured from forces, so a re-plan's swing
-    is not in it); 0 without a swing input.
+    is not in it); 0 without a swing input. ``drift_ned_m``: the same as a vector (m, NED x y), downwind.
 
     ``drag_c``: the payload's drag angle per (m/s)² of airspeed (rad), as declared or identified in flight
     (:mod:`companion.control.drag_id`; 0: none or not yet known); ``wind_mps``: the wind (m/s, NED x y) measured
@@ -73,6 +73,7 @@ class PlanInput(NamedTuple):
     leg_caps_mps: tuple[float, ...] = ()
     v_cap_mps: float = math.inf
     drift_m: float = 0.0
+    drift_ned_m: tuple[float, float] = (0.0, 0.0)
     drag_c: float = 0.0
     wind_mps: tuple[float, float] = (0.0, 0.0)
 

@@ -23,7 +23,9 @@ from companion.core.kernel_cache import use_kernel_cache
 @dataclass(frozen=True, slots=True)
 class Predicted:
     """Obstacles as arrays (N,): centre now (m), velocity (m/s), required airframe-centre and payload-point
-    distances now (m), growth (m per s of look-ahead); ``moving`` (N,) bool."""
+    distances now (m), growth (m per s of look-ahead); ``moving`` (N,) bool; ``payload_shift`` (m, x y): where the
+    wind holds the payload off the nominal swing the reference rows carry (the plan check adds it to each payload
+    point)."""
 
     cx: np.ndarray
     cy: np.ndarray
@@ -33,6 +35,7 @@ class Predicted:
     ring_payload: np.ndarray
     growth: np.ndarray
     moving: np.ndarray
+    payload_shift: tuple[float, float] = (0.0, 0.0)
 
     def __len__(self) -> int:
         return len(self.cx)
@@ -42,7 +45,7 @@ use_kernel_cache(Path(__file__))
 
 
 @njit(cache=True)
-def _clearance(ref, t_first, h, t_now, l, cx, cy, vx, vy, ring_a, ring_p, growth, first_hit, worst):
+def _clearance(ref, t_first, h, t_now, l, cx, cy, vx, vy, ring_a, ring_p, growth, sx, sy, first_hit, worst):
     # pragma: no cover - compiled
     n = ref.shape[0]
     for j in range(len(cx)):
@@ -53,8 +56,8 @@ def _clearance(ref, t_first, h, t_now, l, cx, cy, vx, vy, ring_a, ring_p, growth
         dt = max(t - t_now, 0.0)
         ax, ay = ref[i, 0], ref[i, 1]
         al, be = ref[i, 8], ref[i, 9]
-        px = ax + l * math.sin(al) * math.cos(be)
-        py = ay - l * math.sin(be)
+        px = ax + l * math.sin(al) * math.cos(be) + sx
+        py = ay - l * math.sin(be) + sy
         for j in range(len(cx)):
             ox = cx[j] + vx[j] * dt
             oy = cy[j] + vy[j] * dt
@@ -76,7 +79,8 @@ def clearance(ref_rows: np.ndarray, t_first_s: float, h_s: float, t_now_s: float
     worst = np.empty(len(obs))
     if len(obs) and len(ref_rows):
         _clearance(np.ascontiguousarray(ref_rows), float(t_first_s), float(h_s), float(t_now_s), float(cable_l_m),
-                   obs.cx, obs.cy, obs.vx, obs.vy, obs.ring_airframe, obs.ring_payload, obs.growth, first, worst)
+                   obs.cx, obs.cy, obs.vx, obs.vy, obs.ring_airframe, obs.ring_payload, obs.growth,
+                   float(obs.payload_shift[0]), float(obs.payload_shift[1]), first, worst)
     else:
         first[:] = np.inf
         worst[:] = np.inf

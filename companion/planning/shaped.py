@@ -9,7 +9,8 @@ ahead of now (so the reference being flown never jumps, see :mod:`companion.plan
    payload at the largest swing the plan allows — the nominal bound atan(a_max/g), plus the measured
    deviation from the nominal swing, plus ``swing_sigma_k`` standard deviations of the swing estimate's
    uncertainty (``PlanInput.swing_sigma_rad``, 0 for the cable sensor) — or the whole cable without swing
-   sensing. The margin is ``track_margin_m`` plus the recent peak tracking error.
+   sensing. The margin is ``track_margin_m`` plus the recent peak tracking error. In wind each disc is the one
+   around the trunk's and the trunk's moved upwind by the payload's drift (:mod:`~.shaped_obstacles`).
 2. **Routes.** The shortest route around the discs (:mod:`companion.planning.route`) and, to find faster
    ones through wider gaps, the routes around the discs inflated by k·``route_extra_m`` and those on the
    other side of the fastest one's apex (:mod:`companion.planning.candidates`); each is relaxed into a
@@ -166,12 +167,6 @@ class ShapedPlanner:
                           force_rep=_ZERO2, mode=self.mode, reference=ref, no_route=self.no_route)
 
     # ------------------------------------------------------------------------------------------------
-    def _discs(self, inp: PlanInput, obstacles: Sequence[Obstacle]
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[Obstacle], Predicted]:
-        """The obstacles as this plan check sees them (:func:`obstacle_rings`)."""
-        return obstacle_rings(inp, obstacles, self.envelope_m(inp), self.params.track_margin_m + self.err_peak_m,
-                              self.params.predict_growth_mps)
-
     def _rows(self, prof: Profile) -> np.ndarray:
         """Unshaped rows [p, v, a] (m, 6) of a profile, one per grid step from its start to its end."""
         h = self.params.shaped_step_s
@@ -203,7 +198,7 @@ class ShapedPlanner:
         if self._search_goal is not None and not np.array_equal(goal, self._search_goal):
             self.plan_reaches_goal = False  # a multi-leg mission's next stretch: the plan ends at the last one
         self._search_goal = goal
-        ring_now = self.envelope_m(inp) + self.err_peak_m
+        ring_now = self.envelope_m(inp) + self.err_peak_m + math.hypot(*r.pred.payload_shift)
         valid = cur_ok and self.plan_reaches_goal
         why = self._changed(t, obstacles, r.pred, ring_now) if valid else "invalid"
         cap, sp0 = inp.v_cap_mps, math.hypot(float(v0[0]), float(v0[1]))  # the cap inside the space seen free
@@ -249,6 +244,7 @@ class ShapedPlanner:
         """This replan's splice point, start state, goal, vias, obstacle rings and its plan check."""
         tl = self.tl
         assert tl is not None
+        p = self.params
         t = inp.t_s
         h = tl.h_s
         k_now = tl.index(t)
@@ -257,7 +253,8 @@ class ShapedPlanner:
         p0, v0 = u0[0:2], u0[2:4]
         goal = np.asarray(inp.goal_m, dtype=np.float64)
         vias, caps = remaining_vias(p0, inp.via_m, goal, inp.leg_caps_mps) if inp.via_m else ((), ())
-        c, ring, bare, contact, moving, pred = self._discs(inp, obstacles)
+        c, ring, bare, contact, moving, pred, route_c, route_contact = obstacle_rings(
+            inp, obstacles, self.envelope_m(inp), p.track_margin_m + self.err_peak_m, p.predict_growth_mps)
         l_m = inp.cable_l_m
 
         def check(ref: np.ndarray, base: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -265,7 +262,8 @@ class ShapedPlanner:
             first, worst = clearance(fut, tl.time_of(k_f), h, t, l_m, pred)
             return first, worst, k_f
 
-        return Replan(t, k_now, k_r, p0, v0, goal, vias, caps, c, ring, bare, contact, moving, pred, check)
+        return Replan(t, k_now, k_r, p0, v0, goal, vias, caps, c, ring, bare, contact, moving, pred, check, route_c,
+                      route_contact)
 
     def _route_exists(self, r: Replan, p: PlannerParams, cur_ok: bool) -> bool:
         """Whether a static route exists at all (the bare safety ring); none: brake, and ``no_route`` once it has
@@ -288,7 +286,7 @@ class ShapedPlanner:
         obstacles at their conflict times after the first."""
         tl = self.tl
         assert tl is not None
-        cc, rr, hh = r.c, r.ring, r.contact
+        cc, rr, hh = r.route_c, r.ring, r.route_contact
         dg = timing.drag_budget(inp.drag_c, inp.wind_mps, p.drag_swing_budget_rad, inp.g_mps2)
         chosen = None
         tried = 0

@@ -18,28 +18,55 @@ from companion.core.obstacles import Obstacle
 from companion.planning.base import PlanInput
 from companion.planning.clearance import Predicted
 
-#: the payload's static rings of the plan check grow by DRIFT_GUST x the wind's drift (PlanInput.drift_m) beyond
-#: DRIFT_SLACK_M (m; eq. 49's Table 2 forest: drift <= 0.017 m): see :func:`drift_margin_m`
-DRIFT_GUST, DRIFT_SLACK_M = 2.0, 0.05
+#: the wind's drift of the payload (PlanInput.drift_ned_m) beyond DRIFT_SLACK_M (m; eq. 49's Table 2 forest: drift
+#: <= 0.017 m) is budgeted DRIFT_SHIFT times downwind (:func:`route_shift_m`), and DRIFT_SPREAD times all round
+#: (:func:`drift_margin_m`: the wind turns)
+DRIFT_SHIFT, DRIFT_SPREAD, DRIFT_SLACK_M = 2.0, 0.5, 0.05
 
 #: (m) a moving trunk this far off its predicted track makes the route search run again
 OFF_TRACK_M = 0.05
 
 
 def drift_margin_m(inp: PlanInput) -> float:
-    """(m) what the wind adds to the payload's static rings of the plan check: 2 x its drift (from forces: a
-    re-plan's swing is not in it) beyond the ordinary. Measured in a gust: 1.6-1.9 x the drift off the planned
-    point, and growing; 1 and 1.5 left hits (issue 28, docs/measurements.md). The plan is replaced, or stops."""
-    return max(0.0, DRIFT_GUST * inp.drift_m - DRIFT_SLACK_M)
+    """(m) what the wind adds all round to the payload's static rings of the plan check, DRIFT_SPREAD x its drift
+    (from forces: a re-plan's swing is not in it) beyond the ordinary: the drift's direction turns with the gusts.
+    The downwind part is :func:`route_shift_m`."""
+    return max(0.0, DRIFT_SPREAD * inp.drift_m - DRIFT_SLACK_M)
+
+
+def route_shift_m(inp: PlanInput) -> tuple[float, float]:
+    """(m, NED x y) where the plan check and the route search expect the wind to hold the payload off the path
+    planned for it: DRIFT_SHIFT x the drift vector beyond DRIFT_SLACK_M. Measured in a gust: the payload 1.6-1.9 x
+    the drift off its planned point, and growing (issue 28, docs/measurements.md)."""
+    dx, dy = inp.drift_ned_m
+    d = (dx * dx + dy * dy) ** 0.5
+    if d <= DRIFT_SLACK_M:
+        return 0.0, 0.0
+    k = DRIFT_SHIFT * (d - DRIFT_SLACK_M) / d
+    return k * dx, k * dy
+
+
+class Rings(NamedTuple):
+    """The obstacles as one replan sees them (m): the static trunks' centres ``c`` with their bare safety rings and
+    contact radii (the airframe's: is there a route at all), the route search's discs (centres ``route_c``, radii
+    ``ring`` and ``route_contact``: around both the trunk's own ring and the payload's moved upwind by the wind's
+    drift, :func:`route_shift_m`), the moving obstacles, and every obstacle the payload can reach as
+    :class:`Predicted` for the time-aware plan check."""
+
+    c: np.ndarray
+    ring: np.ndarray
+    bare: np.ndarray
+    contact: np.ndarray
+    moving: list[Obstacle]
+    pred: Predicted
+    route_c: np.ndarray
+    route_contact: np.ndarray
 
 
 def obstacle_rings(inp: PlanInput, obstacles: Sequence[Obstacle], env_m: float, margin_m: float,
-                   growth_mps: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[Obstacle], Predicted]:
-    """Static discs (centres, route rings, bare safety rings, contact radii; m), the moving obstacles, and every
-    obstacle the payload can reach as :class:`Predicted` for the time-aware check. ``env_m``: the envelope
-    about the planned payload path; ``margin_m``: the tracking margin; ``growth_mps``: how fast a moving
-    trunk's rings grow with the look-ahead."""
+                   growth_mps: float) -> Rings:
+    """The :class:`Rings` of ``obstacles``. ``env_m``: the envelope about the planned payload path; ``margin_m``:
+    the tracking margin; ``growth_mps``: how fast a moving trunk's rings grow with the look-ahead."""
     r2 = inp.airframe_r_m
     reach_z = inp.z_ned_m + inp.cable_l_m
     rel = [o for o in obstacles if reach_z >= -o.height_m]
@@ -51,6 +78,12 @@ def obstacle_rings(inp: PlanInput, obstacles: Sequence[Obstacle], env_m: float, 
     ring = ro + sd + env_m + margin_m
     bare = ro + sd + r2 + 0.02
     contact = ro + r2
+    sx, sy = route_shift_m(inp)
+    route_c, route_ring, route_contact = c, ring, contact
+    if sx != 0.0 or sy != 0.0:
+        # the trunk's disc and the payload's, moved upwind by the shift: one disc around both
+        half = 0.5 * (sx * sx + sy * sy) ** 0.5
+        route_c, route_ring, route_contact = c - np.array([0.5 * sx, 0.5 * sy]), ring + half, contact + half
     allo = static + moving
     is_m = np.array([False] * len(static) + [True] * len(moving), dtype=np.bool_)
     r_all = np.array([o.radius_m + o.safe_distance_m for o in allo], dtype=np.float64)
@@ -62,9 +95,9 @@ def obstacle_rings(inp: PlanInput, obstacles: Sequence[Obstacle], env_m: float, 
         # ordinary); moving: plus the tracking margin, growing with the look-ahead
         ring_airframe=r_all + r2 + np.where(is_m, margin_m, -0.01),
         ring_payload=r_all + np.where(is_m, margin_m, -0.01 + drift_margin_m(inp)),
-        growth=np.where(is_m, growth_mps, 0.0), moving=is_m,
+        growth=np.where(is_m, growth_mps, 0.0), moving=is_m, payload_shift=(sx, sy),
     )
-    return c, ring, bare, contact, moving, pred
+    return Rings(c, route_ring, bare, contact, moving, pred, route_c, route_contact)
 
 
 def obstacle_signature(obstacles: Sequence[Obstacle]) -> tuple:
@@ -107,3 +140,5 @@ class Replan(NamedTuple):
     moving: list
     pred: Predicted
     check: Callable
+    route_c: np.ndarray
+    route_contact: np.ndarray
