@@ -236,3 +236,23 @@ def test_a_bend_into_the_crosswind_keeps_forest_14_within_the_bound():
     worst = float(np.nanmax(np.abs(log.arr("swing")[:, :2])))
     assert worst <= 0.25, f"max swing {worst:.3f} rad"
     assert "hold" in log.phase
+
+
+def test_the_gust_to_budget_is_the_wind_now_plus_two_deviations_of_its_turbulence():
+    # hovering with a declared drag in a crosswind of 5 m/s mean gusting ±2 m/s (a sine) across y
+    ident = DragIdentifier(c_declared=C_TRUE)
+    eq = np.zeros(2)
+    for k in range(500):  # the payload lying on the ground: no drag angle, no wind learnt
+        ident.update(k * 0.004, (0.0, 0.0), (0.0, 0.0, 0.0))
+    assert ident.gust_mps == 0.0
+    for k in range(int(60.0 / 0.004)):
+        t = k * 0.004
+        w = np.array([0.0, -5.0 - 2.0 * math.sin(1.0 * t)])
+        e = C_TRUE * float(np.hypot(*w)) * w
+        eq += 0.004 / 0.504 * (np.array([e[0], -e[1]]) - eq)
+        ident.update(2.0 + t, (float(eq[0]), float(eq[1])), (0.0, 0.0, 0.0))
+    # the estimate follows the wind through the equilibrium's 0.5 s low-pass (the sine's amplitude 2/√1.25 there);
+    # its standard deviation 1.26 m/s across, 0 along: 0.89 m/s per axis
+    sigma = math.sqrt(0.5 * (2.0 / math.sqrt(1.25)) ** 2 / 2.0)
+    assert ident.gust_mps - math.hypot(*ident.wind_estimate) == pytest.approx(2.0 * sigma, rel=0.1)
+    assert DragIdentifier().gust_mps == 0.0  # nothing known of the drag: no gust is budgeted

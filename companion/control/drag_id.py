@@ -37,6 +37,9 @@ LAG_S = 1.0  # (s) the interval of each difference: the wind's correlation time 
 SAMPLE_S = 0.1  # (s) one difference per this
 SXX_MIN = 10.0  # ((m/s)²) Σ|Δv|² before the estimate is given: ~0.4 s of 1.85 m/s² acceleration
 TAU_S = SWING_BIAS_TAU_S  # (s) the low-pass on v: the one on e, so their lags match
+GUST_TAU_S = 10.0  # (s) the wind's mean and spread are averaged over this: light turbulence's correlation time
+GUST_SIGMAS = 2.0  # a gust budgeted this many standard deviations above the wind now
+TRACK_MIN_RAD = 0.01  # (rad) a smaller drag angle is no wind to learn the turbulence from (a payload on the ground)
 #: (rad per (m/s)²) a smaller c is none: 0.03 rad of trailing at 5 m/s (the swing observer's error is <= 0.017 rad)
 C_MIN = 0.0012
 
@@ -60,6 +63,9 @@ class DragIdentifier:
         self._next_s = -math.inf
         self.sxy = self.sxx = 0.0
         self._u = (0.0, 0.0)
+        self._w_mean = (0.0, 0.0)  # (m/s) the wind's running mean and variance (m²/s², per axis)
+        self._w_var = (0.0, 0.0)
+        self._w_t: float | None = None
 
     @property
     def c(self) -> float:
@@ -81,6 +87,31 @@ class DragIdentifier:
         s = math.sqrt(c)
         return self._vf[0] + self._u[0] / s, self._vf[1] + self._u[1] / s
 
+    @property
+    def gust_mps(self) -> float:
+        """(m/s) the gust to budget: the wind's speed now plus GUST_SIGMAS standard deviations of its turbulence (per
+        axis) over the last ~GUST_TAU_S; 0 while c is unknown or before the payload hangs in any wind."""
+        if self.c <= 0.0 or self._w_t is None:
+            return 0.0
+        return math.hypot(*self.wind_estimate) + GUST_SIGMAS * math.sqrt(0.5 * (self._w_var[0] + self._w_var[1]))
+
+    def _track_wind(self, t_s: float, eq_rad: float) -> None:
+        """Fold the wind estimate at ``t_s`` (s) into its running mean and variance, once the payload hangs in a
+        wind (``eq_rad``, its drag angle, beyond TRACK_MIN_RAD: a payload on the ground has none)."""
+        if self.c <= 0.0 or eq_rad < TRACK_MIN_RAD:
+            return
+        wx, wy = self.wind_estimate
+        if self._w_t is None:
+            self._w_mean = (wx, wy)
+        elif t_s > self._w_t:
+            k = (t_s - self._w_t) / (GUST_TAU_S + t_s - self._w_t)
+            mx, my = self._w_mean
+            dx, dy = wx - mx, wy - my
+            self._w_mean = (mx + k * dx, my + k * dy)
+            vx, vy = self._w_var
+            self._w_var = (vx + k * (dx * dx - vx), vy + k * (dy * dy - vy))
+        self._w_t = t_s
+
     def update(self, t_s: float, eq_rad: tuple[float, float] | None, vel_ned_mps) -> None:
         """Feed the equilibrium (α_eq, β_eq) (rad, :attr:`SwingBias.mean`; None: no swing input, the differences'
         history is forgotten) and the airframe's velocity (m/s, NED) at ``t_s`` (s)."""
@@ -97,6 +128,7 @@ class DragIdentifier:
         ex, ey = float(eq_rad[0]), -float(eq_rad[1])
         r = math.sqrt(math.hypot(ex, ey))
         self._u = (ex / r, ey / r) if r > 0.0 else (0.0, 0.0)
+        self._track_wind(t_s, r * r)
         if t_s < self._next_s:
             return
         self._next_s = t_s + SAMPLE_S

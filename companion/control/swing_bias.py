@@ -25,8 +25,9 @@ that on, linearly between), so those flights are flown exactly as before (bit-id
 
 A building gust moves the equilibrium itself, and the payload rides it: its rate then reads as a swing to the
 feed-forward's rate term, which pushed the airframe downwind (1.9 /s × 2 m × 0.35 rad/s ≈ 1.3 m/s² in a moderate
-gust: 0.57 m off the plan past a trunk, 0.35 m with the rate taken off; docs/measurements.md). The equilibrium's rate (:attr:`SwingBias.rate`, of the part beyond the dead band)
-is taken off with it, so the feed-forward damps the swing about the moving equilibrium.
+gust: 0.57 m off the plan past a trunk, 0.35 m with the rate taken off; docs/measurements.md). The equilibrium's
+rate (:attr:`SwingBias.rate`, of the part beyond the dead band) is taken off with it, so the feed-forward damps the
+swing about the moving equilibrium.
 """
 
 from __future__ import annotations

@@ -9,6 +9,7 @@ the motion of its moving trunks, :func:`moved_off_prediction` tells when one lef
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -42,8 +43,11 @@ def route_shift_m(inp: PlanInput) -> tuple[float, float]:
     d = (dx * dx + dy * dy) ** 0.5
     if d <= DRIFT_SLACK_M:
         return 0.0, 0.0
-    k = DRIFT_SHIFT * (d - DRIFT_SLACK_M) / d
-    return k * dx, k * dy
+    budget = DRIFT_SHIFT * (d - DRIFT_SLACK_M)
+    if inp.gust_mps > 0.0 and inp.drag_c > 0.0:  # the drift in the gust the turbulence measured so far can bring
+        gust = inp.cable_l_m * math.sin(math.atan(inp.drag_c * inp.gust_mps * inp.gust_mps))
+        budget = max(budget, gust - DRIFT_SLACK_M)
+    return budget * dx / d, budget * dy / d
 
 
 class Rings(NamedTuple):
