@@ -134,8 +134,9 @@ def test_a_plan_is_re_timed_when_the_wind_it_was_timed_in_changed_by_more_than_2
 
 def test_a_declared_payload_drag_keeps_a_light_turbulence_flight_within_the_bound():
     """Forest 6, Table 1's payload (0.25 kg on 1 m), light turbulence: identified in flight, the drag is known only
-    after the speed-up it should have shaped (0.307 rad); declared as mass and cable are, it is budgeted from
-    take-off (0.167 rad) for 0.2 s more to the goal (2026-12-04)."""
+    after the speed-up it should have shaped (0.307 rad at the full acceleration on 2026-12-04; 0.211 rad at the
+    share an unknown drag in a wind gets since 2026-12-05); declared as mass and cable are, it is budgeted from
+    take-off (0.170 rad), at most 10 % slower to the goal."""
     base = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
     gains = load_gains(DEFAULT_GAINS)
     out = {}
@@ -146,7 +147,7 @@ def test_a_declared_payload_drag_keeps_a_light_turbulence_flight_within_the_boun
         arrived = np.hypot(*(log.arr("pos")[:, :2] - np.asarray(mis.goal_ned_m[:2])).T) < 0.1
         assert arrived.any() and "hold" in log.phase
         out[declared] = (float(np.nanmax(np.abs(log.arr("swing")[:, :2]))), float(log.arr("t")[np.argmax(arrived)]))
-    assert out[False][0] > 0.28 and out[True][0] < 0.2, out
+    assert out[True][0] < 0.2 and out[False][0] > out[True][0] + 0.03, out
     assert out[True][1] < 1.1 * out[False][1], out
 
 
@@ -256,3 +257,17 @@ def test_the_gust_to_budget_is_the_wind_now_plus_two_deviations_of_its_turbulenc
     sigma = math.sqrt(0.5 * (2.0 / math.sqrt(1.25)) ** 2 / 2.0)
     assert ident.gust_mps - math.hypot(*ident.wind_estimate) == pytest.approx(2.0 * sigma, rel=0.1)
     assert DragIdentifier().gust_mps == 0.0  # nothing known of the drag: no gust is budgeted
+
+
+@pytest.mark.parametrize("mass_kg, forest", [(0.1, 24), (0.5, 14)])
+def test_a_wind_whose_drag_is_not_yet_known_slows_the_speed_up(mass_kg, forest):
+    # the payload's drag left to the companion (identified after the first speed-up): in light turbulence the speed-up
+    # at the full acceleration swung 0.1 and 0.5 kg on 0.5 m to 0.31 and 0.29 rad before c was known. While a wind
+    # holds the payload out (a drift beyond 0.03 rad) and its drag is unknown, the plan speeds up at 0.7 of the bound
+    from companion.report.metrics import compute_metrics
+
+    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
+    mis = cell_mission(Cell(mass_kg, 0.5, "light"), forest, spec, declare_drag=False)
+    assert mis.payload.drag_n_per_mps2 == 0.0
+    rep = compute_metrics(fly_inprocess(mis), mis)
+    assert rep["max_swing_rad"] <= 0.25 and rep["collisions"] == 0 and rep["reached_goal"]

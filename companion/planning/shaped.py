@@ -210,6 +210,8 @@ class ShapedPlanner:
                 inp.drag_c > 0.0 and timing.wind_changed(inp.wind_mps, self.plan_wind))):
             why = "drag"  # timed for another payload drag or wind than measured now: re-timed, not optional
         p = p if cap >= p.shaped_v_max_mps else replace(p, shaped_v_max_mps=cap)
+        k_a = timing.unknown_drag_share(inp.drag_c, inp.drift_m, inp.cable_l_m)  # a wind, its drag not yet known
+        p = p if k_a == 1.0 else replace(p, shaped_a_max_mps2=k_a * p.shaped_a_max_mps2)
         if why is None:
             self.last = {"kept": True, "reason": "valid, nothing changed"}
             return

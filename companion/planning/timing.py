@@ -193,6 +193,18 @@ def drag_budget(c: float, wind: tuple[float, float], budget_rad: float, g: float
     return DragBudget(c, wind, budget_rad, g) if c > 0.0 else None
 
 
+#: while a wind holds the payload out by more than UNKNOWN_DRAG_RAD (its drift over the cable) and its drag is not yet
+#: known (identified after a speed-up, :mod:`companion.control.drag_id`), plans speed up at this share of the bound
+UNKNOWN_DRAG_RAD, UNKNOWN_DRAG_A_FACTOR = 0.03, 0.7
+
+
+def unknown_drag_share(drag_c: float, drift_m: float, cable_l_m: float) -> float:
+    """The share (0..1) of the acceleration bound a plan flies at: UNKNOWN_DRAG_A_FACTOR while the payload's drift
+    ``drift_m`` (m) on ``cable_l_m`` (m) shows a wind and its drag ``drag_c`` (rad per (m/s)², 0: unknown) is not
+    known, else 1 (measured: docs/measurements.md, 2026-12-05)."""
+    return UNKNOWN_DRAG_A_FACTOR if drag_c <= 0.0 and drift_m > UNKNOWN_DRAG_RAD * cable_l_m else 1.0
+
+
 def drag_changed(c_now: float, c_plan: float) -> bool:
     """Whether a plan timed with drag angle ``c_plan`` must be re-timed for the newest ``c_now`` (rad per (m/s)²).
     Only a new drag estimate re-times a plan: re-timing for each change of the measured wind (or for the drag
