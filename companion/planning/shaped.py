@@ -290,8 +290,7 @@ class ShapedPlanner:
         assert tl is not None
         cc, rr, hh = r.route_c, r.ring, r.route_contact
         dg = timing.drag_budget(inp.drag_c, inp.wind_mps, p.drag_swing_budget_rad, inp.g_mps2)
-        chosen = None
-        tried = 0
+        chosen, tried = None, 0
         for rnd in range(3):
             if rnd > 0:  # with capsules in the way: the three smallest plain inflations are enough
                 options = [(False, e) for walled, e in search_options(p) if not walled][:3]
@@ -299,9 +298,10 @@ class ShapedPlanner:
             if not cands and options is not None:
                 cands = timed_routes(r.p0, r.v0, r.goal, cc, rr, hh, p.shaped_a_max_mps2, p, None, r.vias, r.caps, dg)
             if not cands:
-                # only the bare ring lets a route through: fly it at half the acceleration (less lead, less swing)
-                cands = timed_routes(r.p0, r.v0, r.goal, cc, np.maximum(rr - (r.ring - r.bare).max(initial=0.0), 0.0)
-                                     if len(rr) else rr, hh, 0.5 * p.shaped_a_max_mps2, p, None, r.vias, r.caps, dg)
+                # only the bare ring (grown as the disc by the wind's shift) lets a route through: at half the accel.
+                gap = (r.ring - r.route_contact + r.contact - r.bare).max(initial=0.0)
+                cands = timed_routes(r.p0, r.v0, r.goal, cc, np.maximum(rr - gap, 0.0) if len(rr) else rr, hh,
+                                     0.5 * p.shaped_a_max_mps2, p, None, r.vias, r.caps, dg)
             conflicts: list[tuple[int, float]] = []
             for cand in cands:
                 if optional and cand.profile.a_peak_mps2 > OPTIONAL_A_FACTOR * p.shaped_a_max_mps2:
