@@ -198,9 +198,9 @@ class ShapedPlanner:
         if self._search_goal is not None and not np.array_equal(goal, self._search_goal):
             self.plan_reaches_goal = False  # a multi-leg mission's next stretch: the plan ends at the last one
         self._search_goal = goal
-        ring_now = self.envelope_m(inp) + self.err_peak_m + math.hypot(*r.pred.payload_shift)
+        ring_now = self.envelope_m(inp) + self.err_peak_m + math.hypot(*r.rings.pred.payload_shift)
         valid = cur_ok and self.plan_reaches_goal
-        why = self._changed(t, obstacles, r.pred, ring_now) if valid else "invalid"
+        why = self._changed(t, obstacles, r.rings.pred, ring_now) if valid else "invalid"
         cap, sp0 = inp.v_cap_mps, math.hypot(float(v0[0]), float(v0[1]))  # the cap inside the space seen free
         if cap < CAP_STOP_MPS and (sp0 > CAP_STOP_MPS or cap < 0.05):  # nothing seen free to go on in: stop
             self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
@@ -216,7 +216,7 @@ class ShapedPlanner:
             self.last = {"kept": True, "reason": "valid, nothing changed"}
             return
         self.searches += 1
-        self._search_t, self._search_sig, self._search_pred = t, obstacle_signature(obstacles), r.pred
+        self._search_t, self._search_sig, self._search_pred = t, obstacle_signature(obstacles), r.rings.pred
         self._search_ring_m, self._search_drag_c, self._search_wind = ring_now, inp.drag_c, tuple(inp.wind_mps)
         options = None
         if why == "refresh":
@@ -255,23 +255,22 @@ class ShapedPlanner:
         p0, v0 = u0[0:2], u0[2:4]
         goal = np.asarray(inp.goal_m, dtype=np.float64)
         vias, caps = remaining_vias(p0, inp.via_m, goal, inp.leg_caps_mps) if inp.via_m else ((), ())
-        c, ring, bare, contact, moving, pred, route_c, route_contact = obstacle_rings(
-            inp, obstacles, self.envelope_m(inp), p.track_margin_m + self.err_peak_m, p.predict_growth_mps)
+        rings = obstacle_rings(inp, obstacles, self.envelope_m(inp), p.track_margin_m + self.err_peak_m,
+                               p.predict_growth_mps)
         l_m = inp.cable_l_m
 
         def check(ref: np.ndarray, base: int) -> tuple[np.ndarray, np.ndarray, int]:
             fut, k_f = tl.future(k_now, ref, base)
-            first, worst = clearance(fut, tl.time_of(k_f), h, t, l_m, pred)
+            first, worst = clearance(fut, tl.time_of(k_f), h, t, l_m, rings.pred)
             return first, worst, k_f
 
-        return Replan(t, k_now, k_r, p0, v0, goal, vias, caps, c, ring, bare, contact, moving, pred, check, route_c,
-                      route_contact)
+        return Replan(t, k_now, k_r, p0, v0, goal, vias, caps, rings, check)
 
     def _route_exists(self, r: Replan, p: PlannerParams, cur_ok: bool) -> bool:
         """Whether a static route exists at all (the bare safety ring); none: brake, and ``no_route`` once it has
         lasted ``no_route_confirm_s``."""
-        found = (route_through(r.p0, r.vias, r.goal, r.c, r.bare, r.contact) if r.vias
-                 else find_route(r.p0, r.goal, r.c, r.bare, r.contact))
+        found = (route_through(r.p0, r.vias, r.goal, r.rings.c, r.rings.bare, r.rings.contact) if r.vias
+                 else find_route(r.p0, r.goal, r.rings.c, r.rings.bare, r.rings.contact))
         if found is None:
             if self.no_route_since_s is None:
                 self.no_route_since_s = r.t
@@ -288,7 +287,8 @@ class ShapedPlanner:
         obstacles at their conflict times after the first."""
         tl = self.tl
         assert tl is not None
-        cc, rr, hh = r.route_c, r.ring, r.route_contact
+        g = r.rings
+        cc, rr, hh = g.route_c, g.ring, g.route_contact
         dg = timing.drag_budget(inp.drag_c, inp.wind_mps, p.drag_swing_budget_rad, inp.g_mps2)
         chosen, tried = None, 0
         for rnd in range(3):
@@ -298,10 +298,10 @@ class ShapedPlanner:
             if not cands and options is not None:
                 cands = timed_routes(r.p0, r.v0, r.goal, cc, rr, hh, p.shaped_a_max_mps2, p, None, r.vias, r.caps, dg)
             if not cands:
-                # only the bare ring (grown as the disc by the wind's shift) lets a route through: at half the accel.
-                gap = (r.ring - r.route_contact + r.contact - r.bare).max(initial=0.0)
-                cands = timed_routes(r.p0, r.v0, r.goal, cc, np.maximum(rr - gap, 0.0) if len(rr) else rr, hh,
-                                     0.5 * p.shaped_a_max_mps2, p, None, r.vias, r.caps, dg)
+                # only the bare ring lets a route through: at half the acceleration (less lead, less swing)
+                bare = np.maximum(rr - (g.ring - g.route_bare).max(initial=0.0), 0.0) if len(rr) else rr
+                cands = timed_routes(r.p0, r.v0, r.goal, cc, bare, hh, 0.5 * p.shaped_a_max_mps2, p, None, r.vias,
+                                     r.caps, dg)
             conflicts: list[tuple[int, float]] = []
             for cand in cands:
                 if optional and cand.profile.a_peak_mps2 > OPTIONAL_A_FACTOR * p.shaped_a_max_mps2:
@@ -314,11 +314,11 @@ class ShapedPlanner:
                     chosen = (cand, rows, u, ref, base)
                     break
                 if not conflicts:
-                    conflicts = [(j, float(first[j])) for j in np.flatnonzero(np.isfinite(first)) if r.pred.moving[j]]
-            if chosen is not None or not conflicts or not r.moving:
+                    conflicts = [(j, float(first[j])) for j in np.flatnonzero(np.isfinite(first)) if g.pred.moving[j]]
+            if chosen is not None or not conflicts or not g.moving:
                 break
             # capsules around the moving obstacles' positions at the conflict times
-            cc, rr, hh = capsules(cc, rr, hh, conflicts, r.pred, r.t, self.envelope_m(inp),
+            cc, rr, hh = capsules(cc, rr, hh, conflicts, g.pred, r.t, self.envelope_m(inp),
                                   p.track_margin_m + self.err_peak_m, inp.airframe_r_m, p.predict_growth_mps)
         return chosen, cands, tried
 

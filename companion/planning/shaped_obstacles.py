@@ -53,8 +53,8 @@ def route_shift_m(inp: PlanInput) -> tuple[float, float]:
 class Rings(NamedTuple):
     """The obstacles as one replan sees them (m): the static trunks' centres ``c`` with their bare safety rings and
     contact radii (the airframe's: is there a route at all), the route search's discs (centres ``route_c``, radii
-    ``ring`` and ``route_contact``: around both the trunk's own ring and the payload's moved upwind by the wind's
-    drift, :func:`route_shift_m`), the moving obstacles, and every obstacle the payload can reach as
+    ``ring``, ``route_bare`` and ``route_contact``: each around both the trunk's own and the same moved upwind by the
+    payload's wind drift, :func:`route_shift_m`), the moving obstacles, and every obstacle the payload can reach as
     :class:`Predicted` for the time-aware plan check."""
 
     c: np.ndarray
@@ -64,6 +64,7 @@ class Rings(NamedTuple):
     moving: list[Obstacle]
     pred: Predicted
     route_c: np.ndarray
+    route_bare: np.ndarray
     route_contact: np.ndarray
 
 
@@ -83,11 +84,12 @@ def obstacle_rings(inp: PlanInput, obstacles: Sequence[Obstacle], env_m: float, 
     bare = ro + sd + r2 + 0.02
     contact = ro + r2
     sx, sy = route_shift_m(inp)
-    route_c, route_ring, route_contact = c, ring, contact
+    route_c, route_ring, route_bare, route_contact = c, ring, bare, contact
     if sx != 0.0 or sy != 0.0:
         # the trunk's disc and the payload's, moved upwind by the shift: one disc around both
         half = 0.5 * (sx * sx + sy * sy) ** 0.5
-        route_c, route_ring, route_contact = c - np.array([0.5 * sx, 0.5 * sy]), ring + half, contact + half
+        route_c = c - np.array([0.5 * sx, 0.5 * sy])
+        route_ring, route_bare, route_contact = ring + half, bare + half, contact + half
     allo = static + moving
     is_m = np.array([False] * len(static) + [True] * len(moving), dtype=np.bool_)
     r_all = np.array([o.radius_m + o.safe_distance_m for o in allo], dtype=np.float64)
@@ -101,7 +103,7 @@ def obstacle_rings(inp: PlanInput, obstacles: Sequence[Obstacle], env_m: float, 
         ring_payload=r_all + np.where(is_m, margin_m, -0.01 + drift_margin_m(inp)),
         growth=np.where(is_m, growth_mps, 0.0), moving=is_m, payload_shift=(sx, sy),
     )
-    return Rings(c, route_ring, bare, contact, moving, pred, route_c, route_contact)
+    return Rings(c, route_ring, bare, contact, moving, pred, route_c, route_bare, route_contact)
 
 
 def obstacle_signature(obstacles: Sequence[Obstacle]) -> tuple:
@@ -126,8 +128,8 @@ def moved_off_prediction(old: Predicted, pred: Predicted, dt_s: float) -> bool:
 
 class Replan(NamedTuple):
     """One replan's inputs: time (s), grid indices of now and of the splice, the unshaped state there (m, m/s), the
-    goal and remaining vias (m) with their speed caps, the obstacle rings (:func:`obstacle_rings`) and the plan
-    check ``check(shaped rows, base) -> (first conflict time per obstacle, worst clearance, last index)``."""
+    goal and remaining vias (m) with their speed caps, the obstacles (:func:`obstacle_rings`) and the plan check
+    ``check(shaped rows, base) -> (first conflict time per obstacle, worst clearance, last index)``."""
 
     t: float
     k_now: int
@@ -137,12 +139,5 @@ class Replan(NamedTuple):
     goal: np.ndarray
     vias: tuple
     caps: tuple
-    c: np.ndarray
-    ring: np.ndarray
-    bare: np.ndarray
-    contact: np.ndarray
-    moving: list
-    pred: Predicted
+    rings: Rings
     check: Callable
-    route_c: np.ndarray
-    route_contact: np.ndarray
