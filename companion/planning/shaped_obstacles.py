@@ -29,9 +29,10 @@ OFF_TRACK_M = 0.05
 
 
 def drift_margin_m(inp: PlanInput) -> float:
-    """(m) what the wind adds all round to the payload's static rings of the plan check, DRIFT_SPREAD x its drift
-    (from forces: a re-plan's swing is not in it) beyond the ordinary: the drift's direction turns with the gusts.
-    The downwind part is :func:`route_shift_m`."""
+    """(m) what the wind adds all round to the static rings of the plan check, DRIFT_SPREAD x the payload's drift
+    (from forces: a re-plan's swing is not in it) beyond the ordinary: the drift's direction turns with the gusts,
+    and the airframe gives way to the payload while it changes (the anti-swing feed-forward: 0.27 m off its plan
+    at a 0.5-1.3 m drift, issue 28). The payload's downwind part is :func:`route_shift_m`."""
     return max(0.0, DRIFT_SPREAD * inp.drift_m - DRIFT_SLACK_M)
 
 
@@ -90,6 +91,7 @@ def obstacle_rings(inp: PlanInput, obstacles: Sequence[Obstacle], env_m: float, 
         half = 0.5 * (sx * sx + sy * sy) ** 0.5
         route_c = c - np.array([0.5 * sx, 0.5 * sy])
         route_ring, route_bare, route_contact = ring + half, bare + half, contact + half
+    dm = drift_margin_m(inp)
     allo = static + moving
     is_m = np.array([False] * len(static) + [True] * len(moving), dtype=np.bool_)
     r_all = np.array([o.radius_m + o.safe_distance_m for o in allo], dtype=np.float64)
@@ -97,10 +99,11 @@ def obstacle_rings(inp: PlanInput, obstacles: Sequence[Obstacle], env_m: float, 
         cx=np.array([o.x_m for o in allo], dtype=np.float64), cy=np.array([o.y_m for o in allo], dtype=np.float64),
         vx=np.array([o.vx_mps for o in allo], dtype=np.float64),
         vy=np.array([o.vy_mps for o in allo], dtype=np.float64),
-        # static: the bare safety ring (the payload's plus what the wind's drag holds it off its path beyond the
-        # ordinary); moving: plus the tracking margin, growing with the look-ahead
-        ring_airframe=r_all + r2 + np.where(is_m, margin_m, -0.01),
-        ring_payload=r_all + np.where(is_m, margin_m, -0.01 + drift_margin_m(inp)),
+        # static: the bare safety ring plus what the wind's drag holds the payload off its path beyond the
+        # ordinary (the airframe gives way to it as it changes); moving: plus the tracking margin, growing with
+        # the look-ahead
+        ring_airframe=r_all + r2 + np.where(is_m, margin_m, -0.01 + dm),
+        ring_payload=r_all + np.where(is_m, margin_m, -0.01 + dm),
         growth=np.where(is_m, growth_mps, 0.0), moving=is_m, payload_shift=(sx, sy),
     )
     return Rings(c, route_ring, bare, contact, moving, pred, route_c, route_bare, route_contact)
