@@ -7,7 +7,9 @@ below the forest's 2 m), and the trunks stand :data:`TRUNK_ABOVE_M` above it, so
 the canopy* and no cell's result is a payload dragged over the ground.
 
 Per cell: the clean rate (goal reached, no collision), the ``no_route`` and refusal rates, collisions, max swing
-(median, worst), time over the physical bound (:mod:`lab.compare`) and ``diverged`` flights. Output in ``--out``:
+(median, worst), the flights over the cell's swing bound and in how many of them the wind alone hung the payload
+beyond it (its drag angle, :mod:`lab.wind_truth`: no controller meets the bound there), time over the physical
+bound (:mod:`lab.compare`) and ``diverged`` flights. Output in ``--out``:
 ``envelope.md`` (the table), ``envelope.json``, ``results.jsonl`` and ``envelope.png`` (heat maps).
 """
 
@@ -120,6 +122,7 @@ def _cell_summary(rs: list[dict[str, Any]], bound_rad: float) -> dict[str, Any]:
     cls = [r.get("class") for r in rs]
     swings = [r["max_swing_rad"] for r in rs if r.get("max_swing_rad") is not None]
     over = [r["time_over_bound"] for r in rs if r.get("time_over_bound") is not None]
+    drag = [r["wind_drag_angle_max_rad"] for r in rs if r.get("wind_drag_angle_max_rad") is not None]
     return {
         "n": n,
         "clean_rate": cls.count("success") / n if n else None,
@@ -133,6 +136,10 @@ def _cell_summary(rs: list[dict[str, Any]], bound_rad: float) -> dict[str, Any]:
         "max_swing_worst_rad": max(swings) if swings else None,
         "swing_bound_rad": bound_rad,
         "over_swing_bound": sum(1 for s in swings if s > bound_rad),
+        # flights over the bound in which the wind alone hung the payload beyond it (lab.wind_truth)
+        "over_swing_bound_wind": sum(1 for r in rs if (r.get("max_swing_rad") or 0.0) > bound_rad
+                                     and (r.get("wind_drag_angle_max_rad") or 0.0) > bound_rad),
+        "wind_drag_angle_worst_rad": max(drag) if drag else None,
         "time_over_bound_median": float(np.median(over)) if over else None,
     }
 
@@ -154,13 +161,15 @@ def _fmt(v: Any, digits: int = 2, pct: bool = False) -> str:
 def table_markdown(cells: list[Cell], per: dict[str, dict[str, Any]]) -> str:
     """The grid as a Markdown table, one row per cell."""
     rows = ["| mass kg | cable m | wind | clean | no_route | refused | collisions | diverged | max swing median / "
-            "worst rad (bound) | time over bound |", "|---|---|---|---|---|---|---|---|---|---|"]
+            "worst rad (bound) | over the bound (the wind alone beyond it) | the wind alone, worst rad | "
+            "time over bound |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for c in cells:
         s = per[c.key]
         rows.append(
             f"| {c.mass_kg:g} | {c.cable_m:g} | {c.wind} | {_fmt(s['clean_rate'], pct=True)} of {s['n']} | "
             f"{s['no_route']} | {s['refused']} | {s['collisions']} | {s['diverged']} | "
             f"{_fmt(s['max_swing_median_rad'])} / {_fmt(s['max_swing_worst_rad'])} ({s['swing_bound_rad']:g}) | "
+            f"{s['over_swing_bound']} ({s['over_swing_bound_wind']}) | {_fmt(s['wind_drag_angle_worst_rad'])} | "
             f"{_fmt(s['time_over_bound_median'])} |")
     return "\n".join(rows) + "\n"
 

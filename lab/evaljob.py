@@ -3,8 +3,9 @@
 * :func:`scenario_spec`: the forest of a scenario — ``static`` (as given), ``moving`` (plus crossing trunks),
   ``fenced`` (the goal ringed by trunks, no route exists).
 * :func:`run_eval_job`: fly a :class:`lab.runner.Job` (MAVLink lockstep through :func:`lab.runner.run_job`, or
-  in-process), then add the collisions with moving obstacles, the ``no_route`` class, and the physical bound of
-  :mod:`lab.compare`.
+  in-process), then add the collisions with moving obstacles, the ``no_route`` class, the physical bound of
+  :mod:`lab.compare`, and in a physical wind the largest angle the wind alone hung the payload at
+  (:mod:`lab.wind_truth`).
 
 Clearance and collisions are the flight report's own (:mod:`companion.report.scoring`, moving obstacles where they
 are at each logged time): ``evaluate`` scores no flight itself, so it cannot disagree with ``fly``.
@@ -26,6 +27,7 @@ from companion.report.scoring import is_moving
 from lab.compare import bound_time_s
 from lab.forests import ForestSpec
 from lab.runner import REPORT_KEYS, Job, classify, process_facts, run_job
+from lab.wind_truth import flight_drag_angle_max_rad
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +104,7 @@ def run_eval_job(job: Job) -> dict[str, Any]:
     out["bound_s"] = bound_time_s(d)
     t = out.get("time_to_goal_s")
     out["time_over_bound"] = None if t is None or out["bound_s"] <= 0.0 else t / out["bound_s"]
+    out["wind_drag_angle_max_rad"] = flight_drag_angle_max_rad(m, None if out.get("error") else out.get("run_dir"))
     if not job.keep_run_dir and out["class"] == "success" and out.get("run_dir"):
         import shutil
 
