@@ -25,6 +25,7 @@ from companion.flight.liftoff import (
     WAIT_BELOW_M,
     LiftOffGate,
     blocking_trunk,
+    equilibrium_offset_m,
     payload_reach_m,
 )
 from companion.report.metrics import compute_metrics
@@ -40,6 +41,7 @@ MT = 1.35  # the system's mass (kg): Table 1's airframe and 0.1 kg
 K_AIR = 0.5 * 1.225 * 0.04  # the bundled world's airframe drag coefficient (N per (m/s)²)
 C_PAY = 0.0034  # a 0.1 kg payload's drag angle per (m/s)² in the grid (rad)
 TRUNK = Obstacle(x_m=0.2, y_m=-1.81, radius_m=0.21)  # forest 27's trunk next to the take-off point
+TRUNK_HEIGHT_M = 7.0  # (m) the grid's trunks on a 3 m cable (lab.envelope: the altitude + 3 m)
 
 
 def _push_for(wind_mps: float) -> float:
@@ -94,6 +96,19 @@ def test_blocked_for_the_whole_wait_is_no_route():
         assert gate.timed_out(float(k)) == (k >= MAX_WAIT_S)
 
 
+def test_the_airframe_lifts_the_payload_from_upwind_at_its_drag_equilibrium_then_keeps_that_point():
+    west = (0.0, -_push_for(8.0))  # the wind blows west (−y): the lift point lies east of the payload
+    dx, dy = equilibrium_offset_m(west, MT, K_AIR, C_PAY, 3.0)
+    assert dx == pytest.approx(0.0, abs=1e-12) and dy == pytest.approx(3.0 * math.sin(math.atan(C_PAY * 64.0)))
+    assert equilibrium_offset_m((0.0, 0.0), MT, K_AIR, C_PAY, 3.0) == (0.0, 0.0)
+    gate = LiftOffGate(K_AIR, C_PAY, MT, 3.0, -3.0, origin_xy=(1.0, 2.0))
+    assert gate.lift_point(west) == pytest.approx((1.0, 2.0 + dy))  # the payload on the ground: follows the wind
+    gate.open = True
+    assert gate.lift_point((0.0, -_push_for(12.0))) == pytest.approx((1.0, 2.0 + dy))  # lifted: frozen
+    unarmed = LiftOffGate(0.0, C_PAY, MT, 3.0, -3.0, origin_xy=(1.0, 2.0))
+    assert unarmed.lift_point(west) == (1.0, 2.0)
+
+
 @pytest.mark.parametrize(("mass_kg", "cable_m"), [(0.1, 3.0), (0.1, 2.0)])
 def test_forest_27s_gust_at_the_lift_off_no_longer_blows_the_payload_into_the_trunk(mass_kg, cable_m):
     """The grid's moderate-turbulence flights of forest 27: lifted in a 12-13.6 m/s gust, the payload hit the trunk
@@ -113,13 +128,15 @@ def test_forest_27s_gust_at_the_lift_off_no_longer_blows_the_payload_into_the_tr
 
 def _steady_gale():
     """Forest 27 with 0.1 kg on 3 m in a steady 13 m/s wind from the east, towards the trunk 1.6 m west of the
-    take-off point (both drags declared)."""
+    take-off point (both drags declared), and a trunk 1.2 m east of it: the airframe can move only 0.5 m upwind
+    of the payload to lift it (without that trunk it lifts it from 1.7 m upwind, and the reach clears the trunk)."""
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
     mission = cell_mission(Cell(0.1, 3.0, "moderate"), 27, spec)
     steady = WindConfig("turbulence", 1.0, mean_speed_mps=13.0, direction_deg=90.0, intensity="none",
                         altitude_m=mission.wind.altitude_m, payload_drag_area_m2=mission.wind.payload_drag_area_m2)
     assert any(o.x_m == pytest.approx(TRUNK.x_m, abs=0.01) for o in mission.obstacles)
-    return replace(mission, wind=steady, timeout_s=60.0)
+    east = Obstacle(x_m=0.0, y_m=1.2, radius_m=0.2, height_m=TRUNK_HEIGHT_M, safe_distance_m=0.1)
+    return replace(mission, wind=steady, timeout_s=60.0, obstacles=(*mission.obstacles, east))
 
 
 def test_a_wind_that_never_lets_up_ends_the_flight_on_the_ground_with_no_route():
@@ -130,6 +147,7 @@ def test_a_wind_that_never_lets_up_ends_the_flight_on_the_ground_with_no_route()
     assert cores[0].result == "no_route" and cores[0].lift_gate.waited_s == pytest.approx(MAX_WAIT_S, abs=0.1)
     payload_z = np.asarray(flog.arr("payload_pos"))[:, 2]
     assert np.all(payload_z > -0.05)  # never lifted (NED: z 0 on the ground)
+    assert cores[0].lift_gate.lift_xy[1] == pytest.approx(0.5, abs=0.06)  # short of the east trunk's ring + margin
     assert compute_metrics(flog, mission)["collisions"] == 0
 
 
@@ -151,3 +169,25 @@ def test_over_mavlink_the_held_lift_off_is_reported_and_the_vehicle_holds(tmp_pa
     assert any(t["to"] == "hold" and "no_route" in t["reason"] for t in rep["transitions"])
     assert "lift-off            held 30.0 s for the wind: the payload would have swung" in r.stdout
     assert "into the trunk at (0.2, -1.8)" in (run / "summary.txt").read_text()
+
+
+def test_in_a_steady_wind_the_cable_lifts_the_payload_at_its_drag_equilibrium():
+    """0.1 kg on 2 m in a steady 6 m/s wind from the east, no trunks, both drags declared: the reference stands
+    upwind of the payload by l·sin θ_eq when the cable lifts it, the airframe behind it by the wind's standing error,
+    and the payload swings out to 1.5·θ_eq, not twice (before: the airframe 0.1 m downwind of it, 1.93·θ_eq)."""
+    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
+    mission = cell_mission(Cell(0.1, 2.0, "moderate"), 27, spec)
+    steady = WindConfig("turbulence", 1.0, mean_speed_mps=6.0, direction_deg=90.0, intensity="none",
+                        altitude_m=mission.wind.altitude_m, payload_drag_area_m2=mission.wind.payload_drag_area_m2)
+    k_a, k_p = map(float, steady.drag_coefficients())
+    mission = replace(mission, wind=steady, obstacles=(),
+                      payload=replace(mission.payload, drag_n_per_mps2=k_p, airframe_drag_n_per_mps2=k_a))
+    flog = fly_inprocess(mission)
+    theta_eq = math.atan(k_p * 36.0 / (0.1 * G))
+    pos, ref, pay = (np.asarray(flog.arr(k)) for k in ("pos", "ref_pos", "payload_pos"))
+    lift = int(np.flatnonzero(pay[:, 2] < -0.02)[0])
+    assert ref[lift, 1] - pay[lift, 1] == pytest.approx(2.0 * math.sin(theta_eq), abs=0.03)  # east of it, upwind
+    assert pos[lift, 1] - pay[lift, 1] > 0.1
+    cruise = int(np.flatnonzero(np.array(flog.phase) == "cruise")[0])
+    swing = np.nanmax(np.abs(np.asarray(flog.arr("swing"))[lift:cruise + 250, :2]))
+    assert swing < 1.6 * theta_eq

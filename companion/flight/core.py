@@ -263,7 +263,8 @@ class FlightCore(CoreOrders, HopMixin):
         self.t0_s = est.t_s
         self.yaw_rad = float(est.euler_rad[2])
         self._climb_z = climb_altitude_ned_m(z, float(self.mission.start_ned_m[2]), self.params.l)
-        self.lift_gate = lift_gate(self.mission, self.params, z, self._climb_z)
+        self.lift_gate = lift_gate(self.mission, self.params, z, self._climb_z,
+                                   (float(est.pos_ned_m[0]), float(est.pos_ned_m[1])))
         if abs(z - self._climb_z) < ARRIVE_VERT_M:
             self.phase = self._after_climb()
 
@@ -298,8 +299,12 @@ class FlightCore(CoreOrders, HopMixin):
         f_att, f_rep, plan_mode = _ZERO2, _ZERO2, "track"
         if self.phase == CorePhase.CLIMB:
             vdx = vdy = 0.0
-            vdz = self._vertical_speed(self.lift_gate.target_z(est.t_s, (float(pos[0]), float(pos[1])), ref.p[2],
-                                                               self.push.mean, obs, self._climb_z))
+            gate = self.lift_gate
+            if gate.armed:  # upwind of the payload, to lift it at its drag equilibrium (companion.flight.liftoff)
+                lx, ly = gate.lift_point(self.push.mean, obs, self._airframe_r)
+                vdx, vdy = self.cfg.planner.ka * (lx - ref.p[0]), self.cfg.planner.ka * (ly - ref.p[1])
+            vdz = self._vertical_speed(gate.target_z(est.t_s, (float(pos[0]), float(pos[1])), ref.p[2],
+                                                     self.push.mean, obs, self._climb_z))
         elif self.phase == CorePhase.CRUISE:
             vel = est.vel_ned_mps
             goal, z_goal, legs_in, cap = leg_plan(self.legs, self.mission, self._goal_xy, False)

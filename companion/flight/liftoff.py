@@ -19,6 +19,13 @@ which :class:`LiftOffGate` checks against every trunk's safety ring. While it is
 :data:`WAIT_BELOW_M` under the lift-off height (the payload still on the ground); it lifts off once the reach is
 clear, and after :data:`MAX_WAIT_S` blocked the flight says there is no route. The push is measured only where
 the force observer runs (controller ``smc_ff`` with a swing input); elsewhere the gate sees no wind and never holds.
+
+The same wind says where to lift from: during the climb the reference moves upwind of the payload lying on the
+ground by l·sin θ_eq (:func:`equilibrium_offset_m`, the measured wind, no gust; only as far as the way stays
+:data:`LIFT_MARGIN_M` clear of every trunk's ring, :func:`clear_offset_m`), so the cable lifts the payload near its
+drag equilibrium instead of releasing it at the vertical, whence it swung to twice θ_eq (0.1 kg on 2 m in a steady
+6 m/s wind: 1.93·θ_eq before, 1.48·θ_eq so; docs/measurements.md). The point is frozen once the payload is lifted.
+The climb does not wait for the airframe to get there: waiting, it met other gusts, and the swing was no smaller.
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ GUST_MPS = 2.0  # (m/s) the reach is judged in a wind this much stronger than me
 OVERSHOOT = 2.0  # the payload released into its drag equilibrium swings to this many times its angle
 MAX_WAIT_S = 30.0  # (s) blocked this long: no route
 PAYLOAD_R_M = 0.05  # (m) the payload's own radius beyond the point mass
+LIFT_MARGIN_M = 0.1  # (m) the way to the lift point keeps this much beyond a trunk's safety ring (tracking)
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +58,36 @@ def payload_reach_m(push_mps2: float, m_total_kg: float, k_airframe: float, c_pa
     wind = math.sqrt(max(push_mps2, 0.0) * m_total_kg / k_airframe) + GUST_MPS
     theta = math.atan(c_payload * wind * wind)
     return cable_m * math.sin(min(OVERSHOOT * theta, 0.5 * math.pi))
+
+
+def equilibrium_offset_m(push_mps2: tuple[float, float], m_total_kg: float, k_airframe: float, c_payload: float,
+                         cable_m: float) -> tuple[float, float]:
+    """(m, NED x y) where the airframe lifts the payload from, relative to where it lies: upwind by l·sin θ_eq in the
+    wind the push ``push_mps2`` (m/s², NED x y) measures; arguments as :func:`payload_reach_m`."""
+    h = math.hypot(*push_mps2)
+    if h < 1e-6:
+        return 0.0, 0.0
+    theta = math.atan(c_payload * h * m_total_kg / k_airframe)  # c·|w|² with |w|² = push·(M + m)/k_a
+    d = cable_m * math.sin(theta)
+    return -d * push_mps2[0] / h, -d * push_mps2[1] / h
+
+
+def clear_offset_m(origin_xy: tuple[float, float], offset_xy: tuple[float, float], obstacles: Sequence[Obstacle],
+                   radius_m: float, step_m: float = 0.05) -> tuple[float, float]:
+    """``offset_xy`` (m, NED x y) shortened to the part of the segment from ``origin_xy`` along it whose points all
+    stay outside every obstacle's safety ring plus ``radius_m`` (m: the airframe's), in steps of ``step_m``."""
+    d = math.hypot(*offset_xy)
+    if d < step_m:
+        return offset_xy
+    ux, uy = offset_xy[0] / d, offset_xy[1] / d
+    n = int(d / step_m)
+    for i in range(1, n + 2):
+        s = min(i * step_m, d)
+        x, y = origin_xy[0] + s * ux, origin_xy[1] + s * uy
+        if any(math.hypot(x - o.x_m, y - o.y_m) < o.radius_m + o.safe_distance_m + radius_m for o in obstacles):
+            s = (i - 1) * step_m
+            return s * ux, s * uy
+    return offset_xy
 
 
 def blocking_trunk(xy: tuple[float, float], unit: tuple[float, float], reach_m: float,
@@ -70,7 +108,7 @@ class LiftOffGate:
     ``c_payload`` (rad per (m/s)²) > 0 arm it; ``lift_z_ned_m`` where the cable lifts the payload (NED z, m)."""
 
     def __init__(self, k_airframe: float, c_payload: float, m_total_kg: float, cable_m: float,
-                 lift_z_ned_m: float) -> None:
+                 lift_z_ned_m: float, origin_xy: tuple[float, float] = (0.0, 0.0)) -> None:
         self.k_airframe, self.c_payload = k_airframe, c_payload
         self.m_total_kg, self.cable_m = m_total_kg, cable_m
         self.wait_z_ned_m = lift_z_ned_m + WAIT_BELOW_M
@@ -80,12 +118,26 @@ class LiftOffGate:
         self.waited_s = 0.0  # (s) blocked in all
         self.worst: dict[str, float] | None = None  # the largest reach judged blocked, for the report
         self._t_prev: float | None = None
+        #: (m, NED x y) where the payload lies (the airframe's start) and the point upwind of it to lift it from
+        self.origin_xy = origin_xy
+        self.lift_xy = origin_xy
+
+    def lift_point(self, push_mps2: tuple[float, float], obstacles: Sequence[Obstacle] = (),
+                   airframe_r_m: float = 0.0) -> tuple[float, float]:
+        """(m, NED x y) where the airframe heads during the climb: upwind of the payload by
+        :func:`equilibrium_offset_m` while the payload lies on the ground (the gate not yet open), as far as the
+        way there stays clear of ``obstacles`` for an airframe of ``airframe_r_m`` (m); then frozen."""
+        if self.armed and not self.open:
+            off = equilibrium_offset_m(push_mps2, self.m_total_kg, self.k_airframe, self.c_payload, self.cable_m)
+            dx, dy = clear_offset_m(self.origin_xy, off, obstacles, airframe_r_m + LIFT_MARGIN_M)
+            self.lift_xy = (self.origin_xy[0] + dx, self.origin_xy[1] + dy)
+        return self.lift_xy
 
     def target_z(self, t_s: float, xy: tuple[float, float], ref_z_ned_m: float, push_mps2: tuple[float, float],
                  obstacles: Sequence[Obstacle], climb_z_ned_m: float) -> float:
         """Where the climb heads this tick (NED z, m): ``climb_z_ned_m`` once open, else the wait height while the
-        payload's reach downwind of ``xy`` touches a trunk. Opens for good once the reference (``ref_z_ned_m``)
-        passes the wait height unblocked."""
+        payload's reach downwind of the airframe at ``xy`` (m) touches a trunk. Opens for good once the reference
+        (``ref_z_ned_m``) passes the wait height unblocked."""
         if self.open:
             return climb_z_ned_m
         dt = 0.0 if self._t_prev is None else t_s - self._t_prev
@@ -123,12 +175,14 @@ class LiftOffGate:
         return out
 
 
-def lift_gate(mission: Mission, params: VehicleParams, z0_ned_m: float, climb_z_ned_m: float) -> LiftOffGate:
-    """The gate of a flight that starts at ``z0_ned_m`` and climbs to ``climb_z_ned_m`` (NED z, m) with ``params``:
+def lift_gate(mission: Mission, params: VehicleParams, z0_ned_m: float, climb_z_ned_m: float,
+              origin_xy: tuple[float, float] = (0.0, 0.0)) -> LiftOffGate:
+    """The gate of a flight that starts at ``z0_ned_m`` and ``origin_xy`` (NED, m) and climbs to ``climb_z_ned_m``
+    (NED z, m) with ``params``:
     armed when the climb lifts the payload off the ground and ``mission``'s ``[payload]`` declares both drag
     coefficients, open otherwise."""
     pay = mission.payload
     lifts = z0_ned_m > -params.l and climb_z_ned_m < -params.l
     k_a = pay.airframe_drag_n_per_mps2 if lifts else 0.0
     return LiftOffGate(k_a, declared_drag_c(pay.drag_n_per_mps2, params.m, params.g), params.M + params.m, params.l,
-                       -params.l)
+                       -params.l, origin_xy)
