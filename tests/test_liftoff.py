@@ -79,7 +79,7 @@ def test_the_climb_waits_below_the_lift_off_while_blocked_and_lifts_once_clear()
     lull = (0.0, -_push_for(3.0))
     assert gate.target_z(1.5, (0.0, 0.0), -2.6, lull, [TRUNK], -3.3) == -3.3  # clear: climbs on, and stays open
     assert gate.open and gate.target_z(1.6, (0.0, 0.0), -2.7, gust, [TRUNK], -3.3) == -3.3
-    assert gate.facts() == {"armed": True, "waited_s": 1.0, "held_by": gate.worst}
+    assert gate.facts() == {"armed": True, "waited_s": 1.0, "held_by": gate.worst, "lean_m": 0.0}
 
 
 def test_a_gate_without_both_drags_declared_never_holds():
@@ -168,6 +168,8 @@ def test_over_mavlink_the_held_lift_off_is_reported_and_the_vehicle_holds(tmp_pa
     assert rep["collisions"] == 0 and rep["max_swing_rad"] == pytest.approx(0.0, abs=0.01)
     assert any(t["to"] == "hold" and "no_route" in t["reason"] for t in rep["transitions"])
     assert "lift-off            held 30.0 s for the wind: the payload would have swung" in r.stdout
+    assert lift["lean_m"] == pytest.approx(0.5, abs=0.06)  # as far as the trunk east of the take-off lets it
+    assert f"lift-off            leaned {lift['lean_m']:.2f} m upwind of the payload" in r.stdout
     assert "into the trunk at (0.2, -1.8)" in (run / "summary.txt").read_text()
 
 
@@ -182,8 +184,10 @@ def test_in_a_steady_wind_the_cable_lifts_the_payload_at_its_drag_equilibrium():
     k_a, k_p = map(float, steady.drag_coefficients())
     mission = replace(mission, wind=steady, obstacles=(),
                       payload=replace(mission.payload, drag_n_per_mps2=k_p, airframe_drag_n_per_mps2=k_a))
-    flog = fly_inprocess(mission)
+    cores = []
+    flog = fly_inprocess(mission, on_tick=lambda core, t: cores.append(core) if not cores else None)
     theta_eq = math.atan(k_p * 36.0 / (0.1 * G))
+    assert cores[0].lift_gate.facts()["lean_m"] == pytest.approx(2.0 * math.sin(theta_eq), abs=0.02)  # reported
     pos, ref, pay = (np.asarray(flog.arr(k)) for k in ("pos", "ref_pos", "payload_pos"))
     lift = int(np.flatnonzero(pay[:, 2] < -0.02)[0])
     assert ref[lift, 1] - pay[lift, 1] == pytest.approx(2.0 * math.sin(theta_eq), abs=0.03)  # east of it, upwind

@@ -164,8 +164,11 @@ class LiftOffGate:
 
     def facts(self) -> dict[str, Any]:
         """The report's ``lift_off``: armed (both drags declared), seconds blocked (from the first blocked tick,
-        climbing below the wait height included), the largest reach that blocked it."""
-        return {"armed": self.armed, "waited_s": round(self.waited_s, 3), "held_by": self.worst}
+        climbing below the wait height included), the largest reach that blocked it, and how far upwind of the
+        payload the climb leaned to lift it (m, :meth:`lift_point`)."""
+        lean = math.hypot(self.lift_xy[0] - self.origin_xy[0], self.lift_xy[1] - self.origin_xy[1])
+        return {"armed": self.armed, "waited_s": round(self.waited_s, 3), "held_by": self.worst,
+                "lean_m": round(lean, 3)}
 
     def timed_out(self, t_s: float) -> bool:
         """Blocked for :data:`MAX_WAIT_S` without a break (warned of once: the flight ends ``no_route``)."""

@@ -154,13 +154,20 @@ def summary_text(rep: dict[str, Any]) -> str:
 
 
 def lift_off_lines(lift: dict[str, Any] | None) -> list[str]:
-    """The summary's lift-off line when the wind held the payload on the ground (:mod:`companion.flight.liftoff`)."""
-    if not lift or not lift.get("waited_s"):
+    """The summary's lift-off lines when the wind held the payload on the ground, or the climb leaned upwind of it
+    to lift it at its drag angle (:mod:`companion.flight.liftoff`)."""
+    if not lift:
         return []
-    held = lift.get("held_by") or {}
-    return [f"  lift-off            held {_fmt(lift['waited_s'], ' s', 1)} for the wind: the payload would have swung "
-            f"{_fmt(held.get('reach_m'), ' m')} downwind, into the trunk at ({_fmt(held.get('trunk_x_m'), '', 1)}, "
-            f"{_fmt(held.get('trunk_y_m'), '', 1)})"]
+    out = []
+    if lift.get("waited_s"):
+        held = lift.get("held_by") or {}
+        out.append(f"  lift-off            held {_fmt(lift['waited_s'], ' s', 1)} for the wind: the payload would have "
+                   f"swung {_fmt(held.get('reach_m'), ' m')} downwind, into the trunk at "
+                   f"({_fmt(held.get('trunk_x_m'), '', 1)}, {_fmt(held.get('trunk_y_m'), '', 1)})")
+    if (lift.get("lean_m") or 0.0) >= 0.01:
+        out.append(f"  lift-off            leaned {_fmt(lift['lean_m'], ' m')} upwind of the payload, to lift it at "
+                   "its drag angle")
+    return out
 
 
 def payload_lines(pay: dict[str, Any] | None) -> list[str]:
