@@ -38,7 +38,9 @@ SAMPLE_S = 0.1  # (s) one difference per this
 SXX_MIN = 10.0  # ((m/s)²) Σ|Δv|² before the estimate is given: ~0.4 s of 1.85 m/s² acceleration
 TAU_S = SWING_BIAS_TAU_S  # (s) the low-pass on v: the one on e, so their lags match
 GUST_TAU_S = 10.0  # (s) the wind's mean and spread are averaged over this: light turbulence's correlation time
-GUST_SIGMAS = 2.0  # a gust budgeted this many standard deviations above the wind now
+#: a gust budgeted this many standard deviations above the wind now (2 let a gust from 4 to 14 m/s in 3 s outrun the
+#: plan: forest 84 in moderate turbulence, docs/measurements.md, 2026-12-05)
+GUST_SIGMAS = 3.0
 TRACK_MIN_RAD = 0.01  # (rad) a smaller drag angle is no wind to learn the turbulence from (a payload on the ground)
 #: (rad per (m/s)²) a smaller c is none: 0.03 rad of trailing at 5 m/s (the swing observer's error is <= 0.017 rad)
 C_MIN = 0.0012
