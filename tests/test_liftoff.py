@@ -126,17 +126,26 @@ def test_forest_27s_gust_at_the_lift_off_no_longer_blows_the_payload_into_the_tr
     assert 1.0 < waited[-1] < 10.0
 
 
+def _in_steady_wind(cable_m: float, mean_mps: float):
+    """Forest 27's grid flight of 0.1 kg on ``cable_m`` (m) in a steady ``mean_mps`` (m/s) wind from the east instead of
+    its turbulence; both drags declared (the world's own: the same areas)."""
+    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
+    mission = cell_mission(Cell(0.1, cable_m, "moderate"), 27, spec)
+    steady = WindConfig("turbulence", 1.0, mean_speed_mps=mean_mps, direction_deg=90.0, intensity="none",
+                        altitude_m=mission.wind.altitude_m, payload_drag_area_m2=mission.wind.payload_drag_area_m2)
+    k_a, k_p = map(float, steady.drag_coefficients())
+    assert (mission.payload.airframe_drag_n_per_mps2, mission.payload.drag_n_per_mps2) == (k_a, k_p)
+    return replace(mission, wind=steady)
+
+
 def _steady_gale():
     """Forest 27 with 0.1 kg on 3 m in a steady 13 m/s wind from the east, towards the trunk 1.6 m west of the
     take-off point (both drags declared), and a trunk 1.2 m east of it: the airframe can move only 0.5 m upwind
     of the payload to lift it (without that trunk it lifts it from 1.7 m upwind, and the reach clears the trunk)."""
-    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
-    mission = cell_mission(Cell(0.1, 3.0, "moderate"), 27, spec)
-    steady = WindConfig("turbulence", 1.0, mean_speed_mps=13.0, direction_deg=90.0, intensity="none",
-                        altitude_m=mission.wind.altitude_m, payload_drag_area_m2=mission.wind.payload_drag_area_m2)
+    mission = _in_steady_wind(3.0, 13.0)
     assert any(o.x_m == pytest.approx(TRUNK.x_m, abs=0.01) for o in mission.obstacles)
     east = Obstacle(x_m=0.0, y_m=1.2, radius_m=0.2, height_m=TRUNK_HEIGHT_M, safe_distance_m=0.1)
-    return replace(mission, wind=steady, timeout_s=60.0, obstacles=(*mission.obstacles, east))
+    return replace(mission, timeout_s=60.0, obstacles=(*mission.obstacles, east))
 
 
 def test_a_wind_that_never_lets_up_ends_the_flight_on_the_ground_with_no_route():
@@ -177,13 +186,8 @@ def test_in_a_steady_wind_the_cable_lifts_the_payload_at_its_drag_equilibrium():
     """0.1 kg on 2 m in a steady 6 m/s wind from the east, no trunks, both drags declared: the reference stands
     upwind of the payload by l·sin θ_eq when the cable lifts it, the airframe behind it by the wind's standing error,
     and the payload swings out to 1.5·θ_eq, not twice (before: the airframe 0.1 m downwind of it, 1.93·θ_eq)."""
-    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
-    mission = cell_mission(Cell(0.1, 2.0, "moderate"), 27, spec)
-    steady = WindConfig("turbulence", 1.0, mean_speed_mps=6.0, direction_deg=90.0, intensity="none",
-                        altitude_m=mission.wind.altitude_m, payload_drag_area_m2=mission.wind.payload_drag_area_m2)
-    k_a, k_p = map(float, steady.drag_coefficients())
-    mission = replace(mission, wind=steady, obstacles=(),
-                      payload=replace(mission.payload, drag_n_per_mps2=k_p, airframe_drag_n_per_mps2=k_a))
+    mission = replace(_in_steady_wind(2.0, 6.0), obstacles=())
+    k_p = mission.payload.drag_n_per_mps2
     cores = []
     flog = fly_inprocess(mission, on_tick=lambda core, t: cores.append(core) if not cores else None)
     theta_eq = math.atan(k_p * 36.0 / (0.1 * G))
