@@ -117,7 +117,7 @@ def test_a_trunk_downwind_of_the_path_needs_the_drift_and_one_upwind_does_not():
     trunk = Obstacle(0.0, 0.0, 0.2, height_m=10.0, safe_distance_m=0.1)
     inp = _inp(0.5)
     rings = obstacle_rings(inp, [trunk], 0.5, 0.1, 0.0)
-    c, ring, pred, rc = rings.c, rings.ring, rings.pred, rings.route_c
+    c, ring, pred, rc = rings.c, rings.route_ring, rings.pred, rings.route_c
     shift = DRIFT_SHIFT * (0.5 - DRIFT_SLACK_M)
     assert rc[0] == pytest.approx(c[0] + np.array([0.0, 0.5 * shift]))  # the disc moved upwind by half the shift
     assert ring[0] == pytest.approx(0.2 + 0.1 + 0.5 + 0.1 + 0.5 * shift)

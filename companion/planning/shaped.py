@@ -288,7 +288,7 @@ class ShapedPlanner:
         tl = self.tl
         assert tl is not None
         g = r.rings
-        cc, rr, hh = g.route_c, g.ring, g.route_contact
+        cc, rr, hh = g.route_c, g.route_ring, g.route_contact
         dg = timing.drag_budget(inp.drag_c, inp.wind_mps, p.drag_swing_budget_rad, inp.g_mps2)
         chosen, tried = None, 0
         for rnd in range(3):
@@ -299,7 +299,7 @@ class ShapedPlanner:
                 cands = timed_routes(r.p0, r.v0, r.goal, cc, rr, hh, p.shaped_a_max_mps2, p, None, r.vias, r.caps, dg)
             if not cands:
                 # only the bare ring lets a route through: at half the acceleration (less lead, less swing)
-                bare = np.maximum(rr - (g.ring - g.route_bare).max(initial=0.0), 0.0) if len(rr) else rr
+                bare = np.maximum(rr - (g.route_ring - g.route_bare).max(initial=0.0), 0.0) if len(rr) else rr
                 cands = timed_routes(r.p0, r.v0, r.goal, cc, bare, hh, 0.5 * p.shaped_a_max_mps2, p, None, r.vias,
                                      r.caps, dg)
             conflicts: list[tuple[int, float]] = []

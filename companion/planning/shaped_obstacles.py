@@ -54,12 +54,12 @@ def route_shift_m(inp: PlanInput) -> tuple[float, float]:
 class Rings(NamedTuple):
     """The obstacles as one replan sees them (m): the static trunks' centres ``c`` with their bare safety rings and
     contact radii (the airframe's: is there a route at all), the route search's discs (centres ``route_c``, radii
-    ``ring``, ``route_bare`` and ``route_contact``: each around both the trunk's own and the same moved upwind by the
-    payload's wind drift, :func:`route_shift_m`), the moving obstacles, and every obstacle the payload can reach as
-    :class:`Predicted` for the time-aware plan check."""
+    ``route_ring``, ``route_bare`` and ``route_contact``: each around both the trunk's own and the same moved upwind
+    by the payload's wind drift, :func:`route_shift_m`), the moving obstacles, and every obstacle the payload can
+    reach as :class:`Predicted` for the time-aware plan check."""
 
     c: np.ndarray
-    ring: np.ndarray
+    route_ring: np.ndarray
     bare: np.ndarray
     contact: np.ndarray
     moving: list[Obstacle]
