@@ -81,11 +81,6 @@ class SwingBias:
         self._t = t_s
         return self._gated
 
-    def drift_m(self, l_m: float) -> float:
-        """How far (m) the equilibrium holds a payload on ``l_m`` (m) of cable off the vertical below the airframe:
-        l·sin|θ_eq| (the low-passed equilibrium, dead band not applied)."""
-        return l_m * math.sin(min(math.hypot(*self.mean), 0.5 * math.pi))
-
     def drift_ned_m(self, l_m: float) -> tuple[float, float]:
         """Where (m, NED x y) the equilibrium holds a payload on ``l_m`` (m) of cable off the vertical below the
         airframe: l·(sin α·cos β, −sin β) of the low-passed equilibrium (dead band not applied)."""

@@ -347,7 +347,6 @@ class FlightCore(CoreOrders, HopMixin):
             ref_vel_mps=np.array(ref.v[:2]), goal_m=goal, r_max_m=r_max, swing=swing,
             cable_l_m=self.params.l, airframe_r_m=self._airframe_r, g_mps2=self.params.g, z_ned_m=z,
             swing_sigma_rad=swing_sigma_rad(est), v_cap_mps=self.cap.cap_mps(est.pos_ned_m, est.vel_ned_mps, r_max),
-            drift_m=0.0 if swing is None else self.swing_bias.drift_m(self.params.l),
             drift_ned_m=(0.0, 0.0) if swing is None else self.swing_bias.drift_ned_m(self.params.l),
             drag_c=0.0 if swing is None else self.drag_id.c, wind_mps=self.drag_id.wind_estimate,
             gust_mps=0.0 if swing is None else self.drag_id.gust_mps, **legs_in,

@@ -42,9 +42,9 @@ class PlanInput(NamedTuple):
     ``v_cap_mps``: the speed (m/s) the flight may keep inside the space its range sensor has seen free
     (:mod:`companion.planning.stop_cap`; inf without perception): the planners fly no faster.
 
-    ``drift_m``: how far (m) the wind's drag holds the payload off the path planned for it, l·sin|θ_eq| with θ_eq
-    the swing's slow equilibrium (:mod:`companion.control.swing_bias`: measured from forces, so a re-plan's swing
-    is not in it); 0 without a swing input. ``drift_ned_m``: the same as a vector (m, NED x y), downwind.
+    ``drift_ned_m``: where (m, NED x y, downwind) the wind's drag holds the payload off the path planned for it,
+    the horizontal cable offset at the swing's slow equilibrium θ_eq (:mod:`companion.control.swing_bias`: measured
+    from forces, so a re-plan's swing is not in it); 0 without a swing input. :attr:`drift_m` is its length.
 
     ``drag_c``: the payload's drag angle per (m/s)² of airspeed (rad), as declared or identified in flight
     (:mod:`companion.control.drag_id`; 0: none or not yet known); ``wind_mps``: the wind (m/s, NED x y) measured
@@ -73,11 +73,15 @@ class PlanInput(NamedTuple):
     via_m: tuple[np.ndarray, ...] = ()
     leg_caps_mps: tuple[float, ...] = ()
     v_cap_mps: float = math.inf
-    drift_m: float = 0.0
     drift_ned_m: tuple[float, float] = (0.0, 0.0)
     drag_c: float = 0.0
     wind_mps: tuple[float, float] = (0.0, 0.0)
     gust_mps: float = 0.0
+
+    @property
+    def drift_m(self) -> float:
+        """How far (m) the wind's drag holds the payload off its path: the length of ``drift_ned_m``."""
+        return math.hypot(*self.drift_ned_m)
 
 
 class ReferenceSample(NamedTuple):
