@@ -25,8 +25,10 @@ from companion.flight.liftoff import (
     WAIT_BELOW_M,
     LiftOffGate,
     blocking_trunk,
+    clear_offset_m,
     equilibrium_offset_m,
     payload_reach_m,
+    ring_entry_m,
 )
 from companion.report.metrics import compute_metrics
 from lab.envelope import Cell, cell_mission
@@ -64,6 +66,20 @@ def test_only_a_trunk_along_the_downwind_reach_blocks():
     assert blocking_trunk((0.0, 0.0), west, 1.2, [TRUNK]) is None  # the reach ends before its ring
     assert blocking_trunk((0.0, 0.0), (0.0, 1.0), 3.0, [TRUNK]) is None  # blown away from it
     assert blocking_trunk((0.0, 0.0), (1.0, 0.0), 3.0, [TRUNK]) is None  # 1.81 m to the side of the reach
+
+
+def test_the_way_to_the_lift_point_stops_exactly_where_it_enters_a_trunks_ring():
+    ring = TRUNK.radius_m + TRUNK.safe_distance_m + 0.3
+    east = math.sqrt(ring ** 2 - 0.2 ** 2)  # where the line x = 0 enters the ring grown by 0.3 m, south of its centre
+    entry = -TRUNK.y_m - east  # (m) from the origin along −y
+    assert ring_entry_m((0.0, 0.0), (0.0, -1.0), 3.0, TRUNK, 0.3) == pytest.approx(entry, abs=1e-12)
+    assert ring_entry_m((0.0, 0.0), (0.0, -1.0), entry - 1e-6, TRUNK, 0.3) is None  # ends just short of it
+    assert ring_entry_m((0.2, -1.81), (1.0, 0.0), 1.0, TRUNK, 0.0) == 0.0  # starts inside
+    assert ring_entry_m((0.0, 0.0), (0.0, 1.0), 3.0, TRUNK, 0.3) is None  # heads away
+    dx, dy = clear_offset_m((0.0, 0.0), (0.0, -2.0), [TRUNK], 0.3)
+    assert dx == pytest.approx(0.0, abs=1e-12) and dy == pytest.approx(-entry, abs=1e-12)
+    assert clear_offset_m((0.0, 0.0), (0.0, 0.4), [TRUNK], 0.3) == (0.0, 0.4)  # upwind of it: whole
+    assert clear_offset_m((0.0, 0.0), (0.0, 0.0), [TRUNK], 0.3) == (0.0, 0.0)
 
 
 def _gate() -> LiftOffGate:

@@ -50,12 +50,18 @@ LIFT_MARGIN_M = 0.1  # (m) the way to the lift point keeps this much beyond a tr
 log = logging.getLogger(__name__)
 
 
+def wind_sq_from_push(push_mps2: float, m_total_kg: float, k_airframe: float) -> float:
+    """|w|² ((m/s)²) of the wind whose drag k_a·|w|² on the airframe alone (``k_airframe``, N per (m/s)²) pushes the
+    system of ``m_total_kg`` (kg) at ``push_mps2`` (m/s²)."""
+    return max(push_mps2, 0.0) * m_total_kg / k_airframe
+
+
 def payload_reach_m(push_mps2: float, m_total_kg: float, k_airframe: float, c_payload: float, cable_m: float
                     ) -> float:
     """How far (m) downwind of the airframe the payload swings once lifted: ``push_mps2`` the measured push on the
     system (m/s²) of total mass ``m_total_kg``, ``k_airframe`` the airframe's drag coefficient (N per (m/s)²),
     ``c_payload`` the payload's drag angle per (m/s)² (k_p/(m·g), rad), ``cable_m`` (m)."""
-    wind = math.sqrt(max(push_mps2, 0.0) * m_total_kg / k_airframe) + GUST_MPS
+    wind = math.sqrt(wind_sq_from_push(push_mps2, m_total_kg, k_airframe)) + GUST_MPS
     theta = math.atan(c_payload * wind * wind)
     return cable_m * math.sin(min(OVERSHOOT * theta, 0.5 * math.pi))
 
@@ -67,40 +73,45 @@ def equilibrium_offset_m(push_mps2: tuple[float, float], m_total_kg: float, k_ai
     h = math.hypot(*push_mps2)
     if h < 1e-6:
         return 0.0, 0.0
-    theta = math.atan(c_payload * h * m_total_kg / k_airframe)  # c·|w|² with |w|² = push·(M + m)/k_a
+    theta = math.atan(c_payload * wind_sq_from_push(h, m_total_kg, k_airframe))
     d = cable_m * math.sin(theta)
     return -d * push_mps2[0] / h, -d * push_mps2[1] / h
 
 
+def ring_entry_m(xy: tuple[float, float], unit: tuple[float, float], length_m: float, o: Obstacle,
+                 radius_m: float) -> float | None:
+    """How far (m) along the segment from ``xy`` ``length_m`` along ``unit`` (m, NED x y) it enters ``o``'s safety
+    ring grown by ``radius_m`` (m): 0 when it starts inside, None when it stays outside."""
+    dx, dy = o.x_m - xy[0], o.y_m - xy[1]
+    r = o.radius_m + o.safe_distance_m + radius_m
+    c = dx * dx + dy * dy - r * r
+    if c < 0.0:
+        return 0.0
+    b = dx * unit[0] + dy * unit[1]  # along the segment to the ring's centre
+    disc = b * b - c
+    if b <= 0.0 or disc <= 0.0:
+        return None
+    s = b - math.sqrt(disc)
+    return s if s < length_m else None
+
+
 def clear_offset_m(origin_xy: tuple[float, float], offset_xy: tuple[float, float], obstacles: Sequence[Obstacle],
-                   radius_m: float, step_m: float = 0.05) -> tuple[float, float]:
-    """``offset_xy`` (m, NED x y) shortened to the part of the segment from ``origin_xy`` along it whose points all
-    stay outside every obstacle's safety ring plus ``radius_m`` (m: the airframe's), in steps of ``step_m``."""
+                   radius_m: float) -> tuple[float, float]:
+    """``offset_xy`` (m, NED x y) shortened to where the segment from ``origin_xy`` along it first enters an
+    obstacle's safety ring plus ``radius_m`` (m: the airframe's), whole when it enters none."""
     d = math.hypot(*offset_xy)
-    if d < step_m:
+    if d < 1e-9:
         return offset_xy
-    ux, uy = offset_xy[0] / d, offset_xy[1] / d
-    n = int(d / step_m)
-    for i in range(1, n + 2):
-        s = min(i * step_m, d)
-        x, y = origin_xy[0] + s * ux, origin_xy[1] + s * uy
-        if any(math.hypot(x - o.x_m, y - o.y_m) < o.radius_m + o.safe_distance_m + radius_m for o in obstacles):
-            s = (i - 1) * step_m
-            return s * ux, s * uy
-    return offset_xy
+    unit = (offset_xy[0] / d, offset_xy[1] / d)
+    s = min((e for o in obstacles if (e := ring_entry_m(origin_xy, unit, d, o, radius_m)) is not None), default=d)
+    return s * unit[0], s * unit[1]
 
 
 def blocking_trunk(xy: tuple[float, float], unit: tuple[float, float], reach_m: float,
                    obstacles: Sequence[Obstacle]) -> Obstacle | None:
     """The first obstacle whose safety ring (plus the payload's radius) the segment from ``xy`` ``reach_m`` along
     ``unit`` (m, NED x y) touches, None when none does."""
-    x0, y0 = xy
-    ux, uy = unit
-    for o in obstacles:
-        s = min(max((o.x_m - x0) * ux + (o.y_m - y0) * uy, 0.0), reach_m)
-        if math.hypot(x0 + s * ux - o.x_m, y0 + s * uy - o.y_m) < o.radius_m + o.safe_distance_m + PAYLOAD_R_M:
-            return o
-    return None
+    return next((o for o in obstacles if ring_entry_m(xy, unit, reach_m, o, PAYLOAD_R_M) is not None), None)
 
 
 class LiftOffGate:
