@@ -271,3 +271,20 @@ def test_a_wind_whose_drag_is_not_yet_known_slows_the_speed_up(mass_kg, forest):
     assert mis.payload.drag_n_per_mps2 == 0.0
     rep = compute_metrics(fly_inprocess(mis), mis)
     assert rep["max_swing_rad"] <= 0.25 and rep["collisions"] == 0 and rep["reached_goal"]
+
+
+@pytest.mark.parametrize("mass_kg, cable_m, forest", [(0.8, 0.5, 8), (0.25, 0.5, 8), (0.5, 1.0, 8)])
+def test_a_trailing_that_shows_up_during_the_speed_up_re_times_the_plan(mass_kg, cable_m, forest):
+    # the payload's drag left to the companion, light turbulence, a wind too weak at the hover to show (drift under
+    # 0.03 rad): the plan sped up at the full bound to 5 m/s, where the trailing it had not budgeted added 0.08 rad and
+    # the payload swung to 0.27-0.30 rad before c was known. The trailing's drift passing 0.03 rad now re-times it at
+    # 0.7 of the bound, as a plan made with it would have been
+    from companion.report.metrics import compute_metrics
+
+    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
+    mis = cell_mission(Cell(mass_kg, cable_m, "light"), forest, spec, declare_drag=False)
+    shares = []
+    flog = fly_inprocess(mis, on_tick=lambda core, t: shares.append(core.planner.plan_k_a))
+    rep = compute_metrics(flog, mis)
+    assert rep["max_swing_rad"] <= 0.25 and rep["collisions"] == 0 and rep["reached_goal"]
+    assert shares[0] == 1.0 and min(shares) == pytest.approx(0.7)  # timed at the full bound first, then re-timed
