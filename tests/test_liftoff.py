@@ -129,7 +129,7 @@ def test_the_airframe_lifts_the_payload_from_upwind_at_its_drag_equilibrium_then
 def test_forest_27s_gust_at_the_lift_off_no_longer_blows_the_payload_into_the_trunk(mass_kg, cable_m):
     """The grid's moderate-turbulence flights of forest 27: lifted in a 12-13.6 m/s gust, the payload hit the trunk
     1.6 m from the take-off point. With the airframe's drag undeclared (the gate disarmed) they still do (clearance
-    -0.14 and -0.05 m); declared, the climb waits a few seconds and the flight is clean."""
+    -0.14 and -0.05 m); declared, the climb waits (2.8 and 0.9 s) and the flight is clean."""
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
     mission = cell_mission(Cell(mass_kg, cable_m, "moderate"), 27, spec)
     assert mission.payload.airframe_drag_n_per_mps2 > 0.0
@@ -139,7 +139,7 @@ def test_forest_27s_gust_at_the_lift_off_no_longer_blows_the_payload_into_the_tr
     flog = fly_inprocess(mission, on_tick=lambda core, t: waited.append(core.lift_gate.waited_s))
     rep = compute_metrics(flog, mission)
     assert rep["collisions"] == 0 and rep["min_clearance_m"] > 0.3 and rep["reached_goal"]
-    assert 1.0 < waited[-1] < 10.0
+    assert 0.5 < waited[-1] < 10.0
 
 
 def _in_steady_wind(cable_m: float, mean_mps: float):
@@ -200,18 +200,21 @@ def test_over_mavlink_the_held_lift_off_is_reported_and_the_vehicle_holds(tmp_pa
 
 def test_in_a_steady_wind_the_cable_lifts_the_payload_at_its_drag_equilibrium():
     """0.1 kg on 2 m in a steady 6 m/s wind from the east, no trunks, both drags declared: the reference stands
-    upwind of the payload by l·sin θ_eq when the cable lifts it, the airframe behind it by the wind's standing error,
-    and the payload swings out to 1.5·θ_eq, not twice (before: the airframe 0.1 m downwind of it, 1.93·θ_eq)."""
+    upwind of the payload by l·sin θ_eq when the cable lifts it, the airframe there too (the airframe's declared drag
+    lets the controller take the wind's push off: 0.13 m short of it before), and the payload swings out to 1.3·θ_eq,
+    not twice (1.48·θ_eq with the airframe short of the point; 1.93·θ_eq lifted from above the payload)."""
     mission = replace(_in_steady_wind(2.0, 6.0), obstacles=())
     k_p = mission.payload.drag_n_per_mps2
     cores = []
     flog = fly_inprocess(mission, on_tick=lambda core, t: cores.append(core) if not cores else None)
     theta_eq = math.atan(k_p * 36.0 / (0.1 * G))
-    assert cores[0].lift_gate.facts()["lean_m"] == pytest.approx(2.0 * math.sin(theta_eq), abs=0.02)  # reported
+    # reported; the push is read while the airframe moves upwind to the point (~0.25 m/s), 4 % over the wind's
+    lean = cores[0].lift_gate.facts()["lean_m"]
+    assert lean == pytest.approx(2.0 * math.sin(theta_eq), abs=0.03)
     pos, ref, pay = (np.asarray(flog.arr(k)) for k in ("pos", "ref_pos", "payload_pos"))
     lift = int(np.flatnonzero(pay[:, 2] < -0.02)[0])
     assert ref[lift, 1] - pay[lift, 1] == pytest.approx(2.0 * math.sin(theta_eq), abs=0.03)  # east of it, upwind
-    assert pos[lift, 1] - pay[lift, 1] > 0.1
+    assert pos[lift, 1] - pay[lift, 1] == pytest.approx(2.0 * math.sin(theta_eq), abs=0.03)
     cruise = int(np.flatnonzero(np.array(flog.phase) == "cruise")[0])
     swing = np.nanmax(np.abs(np.asarray(flog.arr("swing"))[lift:cruise + 250, :2]))
-    assert swing < 1.6 * theta_eq
+    assert swing < 1.4 * theta_eq

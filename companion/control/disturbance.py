@@ -25,7 +25,10 @@ Eq. 49 (the paper's experiment) pushes the airframe by up to 0.59 N per axis (0.
 the estimate over the lockstep Table 2 forest peaks at 0.50 m/s² (its flight logs, ``shaped``; ``safe`` 0.39). A
 push inside :data:`DEADBAND_MPS2` is left to the position loop as before, so those flights are flown exactly as
 before (bit-identical logs); beyond it the push is taken off the command, in full from twice the band on
-(:func:`companion.control.swing_bias._beyond`, continuous).
+(:func:`companion.control.swing_bias._beyond`, continuous). A mission that declares the airframe's drag says the
+wind drags it: the band is then :data:`DEADBAND_DRAG_MPS2`, above the observer's own residual in calm air (at most
+0.06 m/s² on the envelope grid's payloads), and the airframe no longer trails its reference, nor the goal, by
+push/(c·k) in a light wind (docs/measurements.md, 2026-12-05).
 """
 
 from __future__ import annotations
@@ -39,6 +42,8 @@ from companion.core.floats import floats
 TAU_S = 0.3  # (s) the low-pass on d: a gust's push builds over a second and more (Dryden, 6 m/s mean)
 #: (m/s²) a push up to this is left to the position loop: above eq. 49's 0.56 m/s² peak on Table 1's vehicle
 DEADBAND_MPS2 = 0.7
+#: (m/s²) the band with the airframe's drag declared: above the observer's calm-air residual (see module docstring)
+DEADBAND_DRAG_MPS2 = 0.1
 
 
 def thrust_horizontal(thrust_n: float, phi: float, theta: float, psi: float) -> tuple[float, float]:
