@@ -28,7 +28,9 @@ before (bit-identical logs); beyond it the push is taken off the command, in ful
 (:func:`companion.control.swing_bias._beyond`, continuous). A mission that declares the airframe's drag says the
 wind drags it: the band is then :data:`DEADBAND_DRAG_MPS2`, above the observer's own residual in calm air (at most
 0.06 m/s² on the envelope grid's payloads), and the airframe no longer trails its reference, nor the goal, by
-push/(c·k) in a light wind (docs/measurements.md, 2026-12-05).
+push/(c·k) in a light wind (docs/measurements.md, 2026-12-05). A payload drag declared or identified in flight
+says so too: the band then comes down to it at :data:`BAND_RAMP_MPS3` (:meth:`ForceObserver.lower_band`; at once,
+the command stepped by the push mid speed-up and swung light payloads over the bound).
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ TAU_S = 0.3  # (s) the low-pass on d: a gust's push builds over a second and mor
 DEADBAND_MPS2 = 0.7
 #: (m/s²) the band with the airframe's drag declared: above the observer's calm-air residual (see module docstring)
 DEADBAND_DRAG_MPS2 = 0.1
+BAND_RAMP_MPS3 = 0.2  # (m/s² per s) how fast the band comes down once the payload's drag is known
 
 
 def thrust_horizontal(thrust_n: float, phi: float, theta: float, psi: float) -> tuple[float, float]:
@@ -97,6 +100,12 @@ class ForceObserver:
         if b == 0.0:
             return 0.0, 0.0
         return mx * b / h, my * b / h
+
+    def lower_band(self, dt_s: float) -> None:
+        """The payload's drag is known (the wind drags): bring the band ``dt_s`` (s) of :data:`BAND_RAMP_MPS3` closer
+        to :data:`DEADBAND_DRAG_MPS2`."""
+        if self.deadband > DEADBAND_DRAG_MPS2:
+            self.deadband = max(DEADBAND_DRAG_MPS2, self.deadband - BAND_RAMP_MPS3 * max(dt_s, 0.0))
 
     def reset(self) -> None:
         """Forget the history (the swing input dropped out, or the flight is not under way)."""

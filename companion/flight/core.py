@@ -238,6 +238,8 @@ class FlightCore(CoreOrders, HopMixin):
             push_offset(self.controller, self.push, est.t_s, est.vel_ned_mps, est.euler_rad, self._thrust_prev,
                         None if ctl_swing is None else swing, swing_acc_raw, trust)
             self.drag_id.update(est.t_s, None if ctl_swing is None else self.swing_bias.mean, est.vel_ned_mps)
+            if self.drag_id.c > 0.0:  # a payload drag, declared or identified: the wind drags, its push is taken off
+                self.push.lower_band(dt)
         ctl = self.controller.update(
             est.pos_ned_m, est.vel_ned_mps, ref.p, ref.v, ref.a if acc_ctl is None else acc_ctl, ctl_swing,
             swing_acc if ctl_swing is not None else (0.0, 0.0), max(dt, 1e-4),
