@@ -168,7 +168,7 @@ def _reference_speeds(wind_after, t_switch=1.0, t_end=4.0, dt=0.004):
         r = pl.plan(inp, []).reference
         pos, vel = np.array(r.pos_m), np.array(r.vel_mps)
         speeds.append(float(np.hypot(*vel)))
-    return np.array(speeds), pl.plan_wind
+    return np.array(speeds), pl.plan_timed.wind
 
 
 def test_the_plan_is_re_timed_for_a_headwind_that_rose_by_more_than_the_gust_margin():
@@ -284,7 +284,7 @@ def test_a_trailing_that_shows_up_during_the_speed_up_re_times_the_plan(mass_kg,
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
     mis = cell_mission(Cell(mass_kg, cable_m, "light"), forest, spec, declare_drag=False)
     shares = []
-    flog = fly_inprocess(mis, on_tick=lambda core, t: shares.append(core.planner.plan_k_a))
+    flog = fly_inprocess(mis, on_tick=lambda core, t: shares.append(core.planner.plan_timed.k_a))
     rep = compute_metrics(flog, mis)
     assert rep["max_swing_rad"] <= 0.25 and rep["collisions"] == 0 and rep["reached_goal"]
     assert shares[0] == 1.0 and min(shares) == pytest.approx(0.7)  # timed at the full bound first, then re-timed

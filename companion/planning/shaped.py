@@ -100,9 +100,7 @@ class ShapedPlanner:
         self._search_ring_m = 0.0
         self._search_goal: np.ndarray | None = None  # the goal of the last replan (a new one: search again)
         self.plan_option: tuple[bool, float] = (False, 0.0)
-        self.plan_drag_c = self._search_drag_c = 0.0  # the payload drag (PlanInput.drag_c) the plan was timed with
-        self.plan_k_a = self._search_k_a = 1.0  # the share of the acceleration bound it was timed with
-        self.plan_wind = self._search_wind = (0.0, 0.0)  # the wind (PlanInput.wind_mps) the plan was timed with
+        self.plan_timed = self._search_timed = timing.TimedFor()  # the drag, wind and share the plan was timed for
         self.plan_profile: Profile | None = None  # the unshaped plan being flown, from absolute row plan_k0
         self.plan_k0 = 0
         self.stop_requested = False
@@ -206,8 +204,8 @@ class ShapedPlanner:
             return
         why = "cap" if why is None and sp0 > cap + CAP_SLACK_MPS else why  # too fast for it: re-timed, not optional
         k_a = timing.unknown_drag_share(inp.drag_c, inp.drift_m, inp.cable_l_m)  # a wind, its drag not yet known
-        if why is None and (timing.drag_changed(inp.drag_c, self.plan_drag_c) or k_a < self.plan_k_a or (
-                inp.drag_c > 0.0 and timing.wind_changed(inp.wind_mps, self.plan_wind))):
+        timed = timing.TimedFor(inp.drag_c, tuple(inp.wind_mps), k_a)
+        if why is None and self.plan_timed.outdated(timed):
             why = "drag"  # timed for another payload drag or wind than measured now: re-timed, not optional
         p = p if cap >= p.shaped_v_max_mps else replace(p, shaped_v_max_mps=cap)
         p = p if k_a == 1.0 else replace(p, shaped_a_max_mps2=k_a * p.shaped_a_max_mps2)
@@ -216,8 +214,7 @@ class ShapedPlanner:
             return
         self.searches += 1
         self._search_t, self._search_sig, self._search_pred = t, obstacle_signature(obstacles), r.rings.pred
-        self._search_ring_m, self._search_drag_c, self._search_wind = ring_now, inp.drag_c, tuple(inp.wind_mps)
-        self._search_k_a = k_a
+        self._search_ring_m, self._search_timed = ring_now, timed
         options = None
         if why == "refresh":
             # nothing changed and the plan is good: re-time its own route and try one other option in turn
@@ -334,8 +331,7 @@ class ShapedPlanner:
             self.plan_end_k = k_r + len(rows) - 1
             self.plan_profile, self.plan_k0 = cand.profile, k_r
             self.plan_reaches_goal = cand.reaches_goal
-            self.plan_option, self.plan_drag_c, self.plan_wind, self.plan_k_a = (
-                (cand.walled, cand.extra_m), self._search_drag_c, self._search_wind, self._search_k_a)
+            self.plan_option, self.plan_timed = (cand.walled, cand.extra_m), self._search_timed
             self.splices += 1
             self.last.update({"spliced": True, "duration_s": cand.duration_s, "extra_m": cand.extra_m})
         else:

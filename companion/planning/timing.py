@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -219,6 +220,22 @@ WIND_RETIME_MPS = DRAG_GUST_MPS
 def wind_changed(w_now: tuple[float, float], w_plan: tuple[float, float]) -> bool:
     """Whether a plan timed in wind ``w_plan`` must be re-timed for the newest estimate ``w_now`` (m/s, NED x y)."""
     return math.hypot(w_now[0] - w_plan[0], w_now[1] - w_plan[1]) > WIND_RETIME_MPS
+
+
+class TimedFor(NamedTuple):
+    """What a plan is timed for: the payload's drag angle ``drag_c`` (rad per (m/s)², 0: unknown), the ``wind``
+    (m/s, NED x y) measured with it, and the share ``k_a`` of the acceleration bound (:func:`unknown_drag_share`)."""
+
+    drag_c: float = 0.0
+    wind: tuple[float, float] = (0.0, 0.0)
+    k_a: float = 1.0
+
+    def outdated(self, now: TimedFor) -> bool:
+        """Whether a plan timed for this must be re-timed for ``now``: another drag (:func:`drag_changed`), a lower
+        share (the drift showed a wind only after the plan was made), or a drag known and the wind moved
+        (:func:`wind_changed`)."""
+        return (drag_changed(now.drag_c, self.drag_c) or now.k_a < self.k_a
+                or (now.drag_c > 0.0 and wind_changed(now.wind, self.wind)))
 
 
 @dataclass(frozen=True, slots=True)
