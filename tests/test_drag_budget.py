@@ -168,7 +168,7 @@ def _reference_speeds(wind_after, t_switch=1.0, t_end=4.0, dt=0.004):
         r = pl.plan(inp, []).reference
         pos, vel = np.array(r.pos_m), np.array(r.vel_mps)
         speeds.append(float(np.hypot(*vel)))
-    return np.array(speeds), pl.plan_timed.wind
+    return np.array(speeds), pl.plan_timed.wind_mps
 
 
 def test_the_plan_is_re_timed_for_a_headwind_that_rose_by_more_than_the_gust_margin():

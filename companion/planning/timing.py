@@ -223,11 +223,12 @@ def wind_changed(w_now: tuple[float, float], w_plan: tuple[float, float]) -> boo
 
 
 class TimedFor(NamedTuple):
-    """What a plan is timed for: the payload's drag angle ``drag_c`` (rad per (m/s)², 0: unknown), the ``wind``
-    (m/s, NED x y) measured with it, and the share ``k_a`` of the acceleration bound (:func:`unknown_drag_share`)."""
+    """What a plan is timed for: the payload's drag angle ``drag_c`` (rad per (m/s)², 0: unknown), the wind
+    ``wind_mps`` (m/s, NED x y) the companion measured with it, and the share ``k_a`` of the acceleration bound
+    (:func:`unknown_drag_share`)."""
 
     drag_c: float = 0.0
-    wind: tuple[float, float] = (0.0, 0.0)
+    wind_mps: tuple[float, float] = (0.0, 0.0)
     k_a: float = 1.0
 
     def outdated(self, now: TimedFor) -> bool:
@@ -235,7 +236,7 @@ class TimedFor(NamedTuple):
         share (the drift showed a wind only after the plan was made), or a drag known and the wind moved
         (:func:`wind_changed`)."""
         return (drag_changed(now.drag_c, self.drag_c) or now.k_a < self.k_a
-                or (now.drag_c > 0.0 and wind_changed(now.wind, self.wind)))
+                or (now.drag_c > 0.0 and wind_changed(now.wind_mps, self.wind_mps)))
 
 
 @dataclass(frozen=True, slots=True)
