@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from companion.control.drag_id import C_MIN, DragIdentifier, declared_drag_c
+from companion.control.swing_bias import TAU_S
 from companion.launch.fly import DEFAULT_GAINS, load_gains
 from companion.planning.timing import DRAG_GUST_MPS, DragBudget, sample_motion, speed_profile, wind_changed
 from lab.envelope import Cell, cell_mission
@@ -22,7 +23,7 @@ C_TRUE = 0.0034  # rad per (m/s)²: the grid's 0.1 kg payload (0.0054 m² of dra
 def _feed(ident: DragIdentifier, c: float, wind, t_end: float = 10.0, dt: float = 0.004) -> None:
     """A 20 m straight flight along x (accelerate at 1.85 m/s² to 5 m/s, cruise, brake) in ``wind`` (m/s, or a
     function of time), the swing equilibrium e = c·|w − v|·(w − v) as the swing observer gives it, (α, −β), lagged
-    by its 0.5 s low-pass."""
+    by its low-pass (:data:`companion.control.swing_bias.TAU_S`)."""
     eq = np.zeros(2)
     for k in range(int(t_end / dt)):
         t = k * dt
@@ -30,7 +31,7 @@ def _feed(ident: DragIdentifier, c: float, wind, t_end: float = 10.0, dt: float 
         w = np.asarray(wind(t) if callable(wind) else wind, dtype=float)
         a = w - np.array([v, 0.0])
         e = c * float(np.hypot(*a)) * a
-        eq += dt / (0.5 + dt) * (np.array([e[0], -e[1]]) - eq)
+        eq += dt / (TAU_S + dt) * (np.array([e[0], -e[1]]) - eq)
         ident.update(t, (float(eq[0]), float(eq[1])), (v, 0.0, 0.0))
 
 

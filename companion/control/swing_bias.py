@@ -18,9 +18,12 @@ the payload read l_e·α̈ = −g·α − a_x + F_x/m and l_e·β̈ = −g·β +
 is where the payload would hang, measured each tick from the swing, its filtered α̈, β̈ (the feed-forward's own)
 and the airframe's acceleration (the same filtered derivative of its velocity), then low-passed over
 :data:`TAU_S`. The pendulum's own motion cancels in it (that is what the model says), so no filter at the
-pendulum frequency is needed and a gust's drag is followed within a second. In calm air and in eq. 49 (whose forces
-act on the airframe only) the residual is the model's error: at most 0.017 rad over the lockstep Table 2 forest,
-computed from its flight logs; an equilibrium inside :data:`DEADBAND_RAD` is taken as none (and fully from twice
+pendulum frequency is needed and a gust's drag is followed within half a second. What the low-pass trails a
+building gust by, rate·τ, the angle term takes for a swing and pulls the airframe downwind with, l·k_angle·rate·τ
+(1.35 m/s² for 3 m of cable in a 0.25 rad/s gust at τ = 0.5 s), so τ is short: 0.25 s (docs/measurements.md,
+2026-12-05). In calm air and in eq. 49 (whose forces act on the airframe only) the residual is the model's error:
+at most 0.017 rad over the lockstep Table 2 forest, computed from its flight logs (0.010-0.014 rad low-passed at
+0.25 s, in-process); an equilibrium inside :data:`DEADBAND_RAD` is taken as none (and fully from twice
 that on, linearly between), so those flights are flown exactly as before (bit-identical logs).
 
 A building gust moves the equilibrium itself, and the payload rides it: its rate then reads as a swing to the
@@ -37,7 +40,7 @@ import math
 from companion.control.params import FeedForwardGains
 from companion.control.position import SwingAccelEstimator, feedforward_xyz
 
-TAU_S = 0.5  # (s) the observer's low-pass: a gust's drag comes and goes over seconds
+TAU_S = 0.25  # (s) the observer's low-pass: short, for what it trails a gust by (module docstring)
 DEADBAND_RAD = 0.03  # (rad) an equilibrium inside this is the model's own error, not a wind (see module docstring)
 
 
