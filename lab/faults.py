@@ -55,10 +55,9 @@ def vehicle_killed(workdir: Path, *, realtime: bool = False, after_s: float = 0.
         fly.kill_all()
     rep = read_report(run_dir)
     done = done_wall(rep)
-    said = [line for _, line in fly.lines if "watchdog ticks since the vehicle's last datagram" in line]
     return {"exit_code": code, "outcome": rep["outcome"], "final_phase": rep["final_phase"],
             "detect_s": None if done is None else done - t_kill, "exit_s": t_exit - t_kill,
-            "detail": rep.get("outcome_detail"), "lockstep_listened": said[-1] if said else None}
+            "detail": rep.get("outcome_detail"), "watchdog_since_rx": rep["loop"].get("watchdog_steps_since_rx")}
 
 
 def _mutations(rng: random.Random) -> list[bytes]:

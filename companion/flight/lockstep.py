@@ -34,7 +34,7 @@ class LockstepRunner(Runner):
         self.clock: LockstepClock = pilot.clock
         self.link.on_datagram_done = self._on_datagram_done
         self._done = False
-        self._watchdog_since_rx = 0  # watchdog ticks since the vehicle's last datagram: our loop kept listening
+        self.stats.watchdog_since_rx = 0
         if self.setup.rt_priority > 0:  # lockstep runs flat out: SCHED_FIFO would starve every other thread
             log.info("lockstep: --rt-priority ignored (no deadlines to meet)")
             self.stats.scheduling = "SCHED_OTHER (lockstep: --rt-priority ignored)"
@@ -56,13 +56,13 @@ class LockstepRunner(Runner):
                     self._connected_hook()
                 if not self._done and now - self._last_tick_wall > WATCHDOG_S:
                     self.stats.watchdog_steps += 1
-                    self._watchdog_since_rx += 1
+                    self.stats.watchdog_since_rx += 1
                     self.clock.last_rx_wall_s = self.link.last_rx_wall
                     self._tick(watchdog=True)
                     self.gc_pacer.step()
             if self.pilot.outcome == "link_lost":  # which process went quiet: the vehicle, or this one
                 log.warning("lockstep: %d watchdog ticks since the vehicle's last datagram (about one per %.1f s "
-                            "while this loop listens)", self._watchdog_since_rx, WATCHDOG_S)
+                            "while this loop listens)", self.stats.watchdog_since_rx, WATCHDOG_S)
         finally:
             self.link.close()
             self.gc_pacer.stop()
@@ -76,7 +76,7 @@ class LockstepRunner(Runner):
     def _on_datagram_done(self) -> None:
         """Answer a new marker right after its datagram (the telemetry of that step folded in)."""
         self.clock.last_rx_wall_s = self.link.last_rx_wall
-        self._watchdog_since_rx = 0
+        self.stats.watchdog_since_rx = 0
         if not self._marker_pending or self._done:
             return
         self._marker_pending = False

@@ -21,6 +21,10 @@ class LoopStats:
     scheduling: str = "SCHED_OTHER"  # what the control thread ran as
     ingest_errors: int = 0
     watchdog_steps: int = 0
+    #: lockstep only (None in real time, where the watchdog ticks whenever the wall-clock ticks stop): watchdog ticks
+    #: since the vehicle's last datagram, about one per 0.1 s while the loop listens, so a vehicle gone quiet shows
+    #: many before a ``link_lost`` and a stall of the companion's own about none
+    watchdog_since_rx: int | None = None
     tick_s: list[float] = field(default_factory=list)
     tick_cpu_s: list[float] = field(default_factory=list)  # the same ticks in this thread's CPU time
     send_s: list[float] = field(default_factory=list)
@@ -64,6 +68,7 @@ class LoopStats:
             "scheduling": self.scheduling,
             "ingest_errors": self.ingest_errors,
             "watchdog_steps": self.watchdog_steps,
+            "watchdog_steps_since_rx": self.watchdog_since_rx,
             "jitter_ms_p99": float(np.percentile(np.abs(j), 99) * 1e3),
             "jitter_ms_max": float(np.abs(j).max() * 1e3),  # the longest the loop kept a tick waiting (a stall)
             "realtime_factor": self.realtime_factor(),
