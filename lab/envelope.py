@@ -7,10 +7,11 @@ below the forest's 2 m), and the trunks stand :data:`TRUNK_ABOVE_M` above it, so
 the canopy* and no cell's result is a payload dragged over the ground.
 
 Per cell: the clean rate (goal reached, no collision), the ``no_route`` and refusal rates, collisions, max swing
-(median, worst), the flights over the cell's swing bound and in how many of them the wind alone hung the payload
-beyond it (its drag angle, :mod:`lab.wind_truth`: no controller meets the bound there), time over the physical
-bound (:mod:`lab.compare`) and ``diverged`` flights. Output in ``--out``:
-``envelope.md`` (the table), ``envelope.json``, ``results.jsonl`` and ``envelope.png`` (heat maps).
+(median, worst), the flights over the cell's swing bound, in how many of them the wind alone hung the payload
+beyond it (its drag angle, :mod:`lab.wind_truth`: no controller meets the bound there) and in how many the payload
+under an airframe held still in the same wind would have swung beyond it too (:func:`lab.wind_truth.held_swing_rad`:
+the others the controller lost), time over the physical bound (:mod:`lab.compare`) and ``diverged`` flights.
+Output in ``--out``: ``envelope.md`` (the table), ``envelope.json``, ``results.jsonl`` and ``envelope.png`` (heat maps).
 """
 
 from __future__ import annotations
@@ -123,6 +124,7 @@ def _cell_summary(rs: list[dict[str, Any]], bound_rad: float) -> dict[str, Any]:
     swings = [r["max_swing_rad"] for r in rs if r.get("max_swing_rad") is not None]
     over = [r["time_over_bound"] for r in rs if r.get("time_over_bound") is not None]
     drag = [r["wind_drag_angle_max_rad"] for r in rs if r.get("wind_drag_angle_max_rad") is not None]
+    held = [r["held_swing_max_rad"] for r in rs if r.get("held_swing_max_rad") is not None]
     return {
         "n": n,
         "clean_rate": cls.count("success") / n if n else None,
@@ -140,6 +142,10 @@ def _cell_summary(rs: list[dict[str, Any]], bound_rad: float) -> dict[str, Any]:
         "over_swing_bound_wind": sum(1 for r in rs if (r.get("max_swing_rad") or 0.0) > bound_rad
                                      and (r.get("wind_drag_angle_max_rad") or 0.0) > bound_rad),
         "wind_drag_angle_worst_rad": max(drag) if drag else None,
+        # flights over the bound in which the payload under a still airframe would have swung beyond it too
+        "over_swing_bound_held": sum(1 for r in rs if (r.get("max_swing_rad") or 0.0) > bound_rad
+                                     and (r.get("held_swing_max_rad") or 0.0) > bound_rad),
+        "held_swing_worst_rad": max(held) if held else None,
         "time_over_bound_median": float(np.median(over)) if over else None,
     }
 
@@ -161,15 +167,16 @@ def _fmt(v: Any, digits: int = 2, pct: bool = False) -> str:
 def table_markdown(cells: list[Cell], per: dict[str, dict[str, Any]]) -> str:
     """The grid as a Markdown table, one row per cell."""
     rows = ["| mass kg | cable m | wind | clean | no_route | refused | collisions | diverged | max swing median / "
-            "worst rad (bound) | over the bound (the wind alone beyond it) | the wind alone, worst rad | "
-            "time over bound |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+            "worst rad (bound) | over the bound (the wind alone beyond it / held still beyond it) | the wind alone, "
+            "worst rad | held still, worst rad | time over bound |", "|" + "---|" * 13]
     for c in cells:
         s = per[c.key]
         rows.append(
             f"| {c.mass_kg:g} | {c.cable_m:g} | {c.wind} | {_fmt(s['clean_rate'], pct=True)} of {s['n']} | "
             f"{s['no_route']} | {s['refused']} | {s['collisions']} | {s['diverged']} | "
             f"{_fmt(s['max_swing_median_rad'])} / {_fmt(s['max_swing_worst_rad'])} ({s['swing_bound_rad']:g}) | "
-            f"{s['over_swing_bound']} ({s['over_swing_bound_wind']}) | {_fmt(s['wind_drag_angle_worst_rad'])} | "
+            f"{s['over_swing_bound']} ({s['over_swing_bound_wind']} / {s['over_swing_bound_held']}) | "
+            f"{_fmt(s['wind_drag_angle_worst_rad'])} | {_fmt(s['held_swing_worst_rad'])} | "
             f"{_fmt(s['time_over_bound_median'])} |")
     return "\n".join(rows) + "\n"
 

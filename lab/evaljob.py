@@ -27,7 +27,7 @@ from companion.report.scoring import is_moving
 from lab.compare import bound_time_s
 from lab.forests import ForestSpec
 from lab.runner import REPORT_KEYS, Job, classify, process_facts, run_job
-from lab.wind_truth import flight_drag_angle_max_rad
+from lab.wind_truth import flight_wind_truth
 
 log = logging.getLogger(__name__)
 
@@ -104,7 +104,9 @@ def run_eval_job(job: Job) -> dict[str, Any]:
     out["bound_s"] = bound_time_s(d)
     t = out.get("time_to_goal_s")
     out["time_over_bound"] = None if t is None or out["bound_s"] <= 0.0 else t / out["bound_s"]
-    out["wind_drag_angle_max_rad"] = flight_drag_angle_max_rad(m, None if out.get("error") else out.get("run_dir"))
+    truth = flight_wind_truth(m, None if out.get("error") else out.get("run_dir"))
+    out["wind_drag_angle_max_rad"] = None if truth is None else truth.drag_angle_max_rad
+    out["held_swing_max_rad"] = None if truth is None else truth.held_swing_max_rad
     if not job.keep_run_dir and out["class"] == "success" and out.get("run_dir"):
         import shutil
 

@@ -168,8 +168,9 @@ def plot_success_vs_density(summary: Mapping[str, Any], path: Path) -> Path:
 
 def plot_envelope(summary: Mapping[str, Any], path: Path) -> Path:
     """Heat maps of ``evaluate --envelope``: per wind (columns), payload mass × cable length of the clean rate,
-    the worst max swing (rad), the largest angle the wind alone hung the payload at (rad, :mod:`lab.wind_truth`;
-    empty without a physical wind) and the median time over the physical bound (rows)."""
+    the worst max swing (rad), the largest angle the wind alone hung the payload at and the largest swing of the
+    payload under an airframe held still in the same wind (rad, :mod:`lab.wind_truth`; empty without a physical
+    wind) and the median time over the physical bound (rows)."""
     cells = summary["cells"]
     winds = list(dict.fromkeys(c["wind"] for c in cells))
     masses = sorted({c["mass_kg"] for c in cells})
@@ -177,6 +178,7 @@ def plot_envelope(summary: Mapping[str, Any], path: Path) -> Path:
     rows = (("clean_rate", "clean rate", "RdYlGn", (0.0, 1.0)),
             ("max_swing_worst_rad", "worst max swing (rad)", "magma_r", (0.0, 0.5)),
             ("wind_drag_angle_worst_rad", "the wind alone: drag angle (rad)", "magma_r", (0.0, 0.5)),
+            ("held_swing_worst_rad", "held still: worst swing (rad)", "magma_r", (0.0, 0.5)),
             ("time_over_bound_median", "time / bound (median)", "viridis_r", (1.0, 3.0)))
     fig, axes = plt.subplots(len(rows), len(winds), figsize=(3.2 * len(winds), 2.8 * len(rows)), squeeze=False)
     for j, w in enumerate(winds):

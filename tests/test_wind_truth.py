@@ -1,5 +1,6 @@
 """The evaluator's truth about a physical wind (lab.wind_truth): the angle the wind alone hangs a still payload at,
-and the envelope's count of flights over their swing bound where no controller could have met it."""
+the swing of a payload hung from a pivot held still in the same wind, and the envelope's counts of flights over
+their swing bound where the wind alone, or the held payload, was beyond it too."""
 
 from __future__ import annotations
 
@@ -8,11 +9,12 @@ import math
 
 import numpy as np
 import pytest
+from scipy.integrate import solve_ivp
 
 from companion.core.wind import WindConfig
 from lab.envelope import Cell, _cell_summary, cell_mission, envelope
 from lab.forests import ForestSpec
-from lab.wind_truth import drag_angle_rad, flight_drag_angle_max_rad
+from lab.wind_truth import drag_angle_rad, flight_wind_truth, held_swing_rad
 
 
 def _steady(mean_mps: float, **kw) -> WindConfig:
@@ -39,19 +41,60 @@ def test_a_gust_counts_in_full_only_once_the_pendulum_had_time_to_swing_to_it():
     assert long_cable[1] == pytest.approx(peak, rel=1e-9) and short_cable[1] == pytest.approx(peak, rel=1e-9)
 
 
+def test_a_payload_held_still_in_a_steady_wind_stays_at_its_drag_angle():
+    cfg = _steady(6.0)
+    k = float(cfg.drag_coefficients()[1])
+    assert held_swing_rad(cfg, 0.1, 2.0, 1.0, 10.0) == pytest.approx(math.atan(k * 36.0 / (0.1 * 9.81)), abs=1e-9)
+
+
+def _planar_held_swing(cfg: WindConfig, m: float, l: float, t_from: float, t_to: float) -> float:
+    """The same held pendulum in a wind along x, written apart in its angle α (x = l·sin α, z = l·cos α) and
+    integrated by scipy: l·α̈ = −g·sin α + (F_x·cos α − F_z·sin α)/m, F = k·|w − v|·(w − v)."""
+    k, g = float(cfg.drag_coefficients()[1]), 9.81
+    from companion.core.turbulence import WindField
+
+    field = WindField(cfg)
+    w0 = field.velocity(0.0)
+    assert abs(w0[1]) < 1e-12 and abs(w0[2]) < 1e-12  # a wind along x only
+
+    def f(t, y):
+        al, dal = y
+        v = l * dal * np.array([math.cos(al), -math.sin(al)])  # payload velocity (x, z)
+        a = np.array([field.velocity(t)[0], 0.0]) - v
+        fx, fz = k * math.hypot(*a) * a
+        return [dal, (-g * math.sin(al) + (fx * math.cos(al) - fz * math.sin(al)) / m) / l]
+
+    al0 = math.atan(k * w0[0] * abs(w0[0]) / (m * g))
+    ts = np.arange(t_from, t_to, 0.001)
+    sol = solve_ivp(f, (0.0, t_to), [al0, 0.0], t_eval=ts, rtol=1e-9, atol=1e-11, max_step=0.002)
+    return float(np.abs(sol.y[0]).max())
+
+
+def test_a_gust_faster_than_the_pendulum_swings_the_held_payload_past_its_new_drag_angle():
+    # a wind along x (from the south) of 3 m/s stepping to 9 m/s over 1 m (0.33 s) at 2 s; 0.1 kg on 2 m (half
+    # period 1.4 s): the held payload swings past the new equilibrium, where the quasi-static angle only reaches it
+    gust = WindConfig("turbulence", 1.0, mean_speed_mps=3.0, direction_deg=180.0, intensity="none",
+                      gust_amplitude_mps=6.0, gust_length_m=1.0, gust_start_s=2.0)
+    held = held_swing_rad(gust, 0.1, 2.0, 0.0, 8.0)
+    assert held == pytest.approx(_planar_held_swing(gust, 0.1, 2.0, 0.0, 8.0), rel=2e-3)
+    static = float(drag_angle_rad(gust, 0.1, 2.0, np.arange(0.0, 8.0, 0.01)).max())
+    assert held > static + 0.1, (held, static)
+
+
 def test_only_a_physical_wind_and_a_logged_flight_have_one(tmp_path):
     base = ForestSpec(density_per_100m2=4.0)
-    assert flight_drag_angle_max_rad(cell_mission(Cell(0.1, 1.0, "paper"), 1, base), tmp_path) is None
-    assert flight_drag_angle_max_rad(cell_mission(Cell(0.1, 1.0, "light"), 1, base), tmp_path) is None  # no log
-    assert flight_drag_angle_max_rad(cell_mission(Cell(0.1, 1.0, "light"), 1, base), None) is None
+    assert flight_wind_truth(cell_mission(Cell(0.1, 1.0, "paper"), 1, base), tmp_path) is None
+    assert flight_wind_truth(cell_mission(Cell(0.1, 1.0, "light"), 1, base), tmp_path) is None  # no log
+    assert flight_wind_truth(cell_mission(Cell(0.1, 1.0, "light"), 1, base), None) is None
 
 
-def test_the_cell_counts_flights_over_the_bound_where_the_wind_alone_was_beyond_it():
-    rs = [{"class": "success", "max_swing_rad": s, "wind_drag_angle_max_rad": d}
-          for s, d in ((0.40, 0.38), (0.40, 0.20), (0.30, 0.50), (0.20, None))]
+def test_the_cell_counts_flights_over_the_bound_where_the_wind_alone_or_the_held_payload_was_beyond_it():
+    rs = [{"class": "success", "max_swing_rad": s, "wind_drag_angle_max_rad": d, "held_swing_max_rad": h}
+          for s, d, h in ((0.40, 0.38, 0.45), (0.40, 0.20, 0.37), (0.40, 0.20, 0.30), (0.30, 0.50, 0.6),
+                          (0.20, None, None))]
     out = _cell_summary(rs, 0.35)
-    assert (out["over_swing_bound"], out["over_swing_bound_wind"]) == (2, 1)
-    assert out["wind_drag_angle_worst_rad"] == 0.50
+    assert (out["over_swing_bound"], out["over_swing_bound_wind"], out["over_swing_bound_held"]) == (3, 1, 2)
+    assert out["wind_drag_angle_worst_rad"] == 0.50 and out["held_swing_worst_rad"] == 0.6
 
 
 def test_the_grid_reports_the_wind_s_own_angle_from_the_flight_s_log(tmp_path):
@@ -65,4 +108,11 @@ def test_the_grid_reports_the_wind_s_own_angle_from_the_flight_s_log(tmp_path):
     expect = drag_angle_rad(mis.wind, 0.1, 1.0, np.arange(0.0, t_end, 0.004)).max()
     assert 0.1 < r["wind_drag_angle_max_rad"] == pytest.approx(expect, abs=0.01)
     assert summary["cells"][0]["wind_drag_angle_worst_rad"] == r["wind_drag_angle_max_rad"]
-    assert "| 0.1 | 1 | moderate |" in (tmp_path / "envelope.md").read_text()
+    # the held payload over the span in which the flown one hung (the cable sensor reads 0 before the lift-off,
+    # which comes within the first 4 s): between its largest swing from t = 0 and from 4 s on
+    held = r["held_swing_max_rad"]
+    assert held_swing_rad(mis.wind, 0.1, 1.0, 4.0, t_end) <= held <= held_swing_rad(mis.wind, 0.1, 1.0, 0.0, t_end)
+    assert held > 0.1
+    assert summary["cells"][0]["held_swing_worst_rad"] == r["held_swing_max_rad"]
+    text = (tmp_path / "envelope.md").read_text()
+    assert "| 0.1 | 1 | moderate |" in text and "held still, worst rad" in text
