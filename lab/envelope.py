@@ -8,9 +8,10 @@ the canopy* and no cell's result is a payload dragged over the ground.
 
 Per cell: the clean rate (goal reached, no collision), the ``no_route`` and refusal rates, collisions, max swing
 (median, worst), the flights over the cell's swing bound, in how many of them the wind alone hung the payload
-beyond it (its drag angle, :mod:`lab.wind_truth`: no controller meets the bound there) and in how many the payload
-under an airframe held still in the same wind would have swung beyond it too (:func:`lab.wind_truth.held_swing_rad`:
-the others the controller lost), time over the physical bound (:mod:`lab.compare`) and ``diverged`` flights.
+beyond it (its drag angle, :mod:`companion.report.wind_truth`: no controller meets the bound there) and in how
+many the payload under an airframe held still in the same wind would have swung beyond it too
+(:func:`~companion.report.wind_truth.held_swing_rad`: the others the controller lost), time over the physical bound
+(:mod:`lab.compare`) and ``diverged`` flights.
 Output in ``--out``: ``envelope.md`` (the table), ``envelope.json``, ``results.jsonl`` and ``envelope.png`` (heat maps).
 """
 
@@ -138,7 +139,7 @@ def _cell_summary(rs: list[dict[str, Any]], bound_rad: float) -> dict[str, Any]:
         "max_swing_worst_rad": max(swings) if swings else None,
         "swing_bound_rad": bound_rad,
         "over_swing_bound": sum(1 for s in swings if s > bound_rad),
-        # flights over the bound in which the wind alone hung the payload beyond it (lab.wind_truth)
+        # flights over the bound in which the wind alone hung the payload beyond it (companion.report.wind_truth)
         "over_swing_bound_wind": sum(1 for r in rs if (r.get("max_swing_rad") or 0.0) > bound_rad
                                      and (r.get("wind_drag_angle_max_rad") or 0.0) > bound_rad),
         "wind_drag_angle_worst_rad": max(drag) if drag else None,

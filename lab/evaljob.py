@@ -5,7 +5,7 @@
 * :func:`run_eval_job`: fly a :class:`lab.runner.Job` (MAVLink lockstep through :func:`lab.runner.run_job`, or
   in-process), then add the collisions with moving obstacles, the ``no_route`` class, the physical bound of
   :mod:`lab.compare`, and in a physical wind the largest angle the wind alone hung the payload at
-  (:mod:`lab.wind_truth`).
+  (:mod:`companion.report.wind_truth`).
 
 Clearance and collisions are the flight report's own (:mod:`companion.report.scoring`, moving obstacles where they
 are at each logged time): ``evaluate`` scores no flight itself, so it cannot disagree with ``fly``.
@@ -24,10 +24,10 @@ import numpy as np
 
 from companion.core.mission import mission_to_toml
 from companion.report.scoring import is_moving
+from companion.report.wind_truth import flight_wind_truth
 from lab.compare import bound_time_s
 from lab.forests import ForestSpec
 from lab.runner import REPORT_KEYS, Job, classify, process_facts, run_job
-from lab.wind_truth import flight_wind_truth
 
 log = logging.getLogger(__name__)
 

@@ -148,7 +148,7 @@ def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
                         "planner of --planners, default shaped); writes envelope.md/.json/.png (lab/envelope.py): "
                         "per cell the clean rate, collisions, max swing, the flights over the swing bound and in how "
                         "many the wind's drag alone hung the payload beyond it, or a payload under an airframe held "
-                        "still in the same wind swung beyond it too (lab/wind_truth.py)")
+                        "still in the same wind swung beyond it too (companion/report/wind_truth.py)")
     p.add_argument("--perception", action="store_true",
                    help="fly each forest blind (LiDAR only, the vehicle in a world of its trunks) and mapped; report "
                         "clean rates, time blind/mapped, the map's precision/recall and centre error "

@@ -169,8 +169,8 @@ def plot_success_vs_density(summary: Mapping[str, Any], path: Path) -> Path:
 def plot_envelope(summary: Mapping[str, Any], path: Path) -> Path:
     """Heat maps of ``evaluate --envelope``: per wind (columns), payload mass × cable length of the clean rate,
     the worst max swing (rad), the largest angle the wind alone hung the payload at and the largest swing of the
-    payload under an airframe held still in the same wind (rad, :mod:`lab.wind_truth`; empty without a physical
-    wind) and the median time over the physical bound (rows)."""
+    payload under an airframe held still in the same wind (rad, :mod:`companion.report.wind_truth`; empty without a
+    physical wind) and the median time over the physical bound (rows)."""
     cells = summary["cells"]
     winds = list(dict.fromkeys(c["wind"] for c in cells))
     masses = sorted({c["mass_kg"] for c in cells})

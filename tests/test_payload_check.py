@@ -10,11 +10,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
 
+from companion.core.mission import load_mission
 from companion.core.payload_check import HOVER_FRACTION_LIMIT, thrust_margin
 from companion.core.vehicle_params import VehicleParams
+from companion.report.wind_truth import held_swing_rad
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 
 pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)
@@ -117,6 +120,20 @@ def test_lockstep_flight_in_light_turbulence_completes_the_same_twice(tmp_path):
     assert "intensity" in (run / "wind.toml").read_text()  # the vehicle got the whole [wind] table
     assert rep["payload_declared"]["mass_kg"] == 0.25 and rep["payload_true"]["mass_kg"] == 0.3
     assert rep["wind"]["intensity"] == "light" and math.isfinite(rep["max_swing_rad"])
+    # what the vehicle's wind alone did, for the payload it carried (0.3 kg, not the declared 0.25 kg): the payload
+    # held still over the span in which the flown one hung (the vehicle's times, from the first swing reading)
+    truth = rep["wind_truth"]
+    assert (truth["payload_kg"], truth["cable_m"]) == (0.3, 1.0)
+    flown = load_mission(tmp_path / "mission.toml").wind
+    with np.load(run / "flight_log.npz") as z:
+        t, sw = z["t_s"], z["swing"]
+    hung = np.flatnonzero(np.nan_to_num(np.abs(sw[:, :2])).max(axis=1) > 0.0)
+    assert 0 < hung[0] < len(t) - 1  # the payload lay on the ground first, then hung
+    held = held_swing_rad(flown, 0.3, 1.0, float(t[hung[0]]), float(t[-1]))
+    assert truth["held_swing_max_rad"] == pytest.approx(held, rel=1e-9)
+    assert held != pytest.approx(held_swing_rad(flown, 0.25, 1.0, float(t[hung[0]]), float(t[-1])), rel=1e-3)
+    assert 0.0 < truth["drag_angle_max_rad"] < held  # a gust swings the held payload past its drag angle
+    assert "the wind alone      held still" in (run / "summary.txt").read_text()
     again = tmp_path / "again"
     _fly(_mission(tmp_path, wind=wind), again, "--planner", "shaped", "--true-payload-mass-kg", "0.3")
     assert (again / "flight_log.npz").read_bytes() == (run / "flight_log.npz").read_bytes()  # seeded: same bits

@@ -1,6 +1,6 @@
-"""The evaluator's truth about a physical wind (lab.wind_truth): the angle the wind alone hangs a still payload at,
-the swing of a payload hung from a pivot held still in the same wind, and the envelope's counts of flights over
-their swing bound where the wind alone, or the held payload, was beyond it too."""
+"""The simulator's truth about a physical wind (companion.report.wind_truth): the angle the wind alone hangs a still
+payload at, the swing of a payload hung from a pivot held still in the same wind, and the envelope's counts of
+flights over their swing bound where the wind alone, or the held payload, was beyond it too."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from companion.core.wind import WindConfig
+from companion.report.wind_truth import drag_angle_rad, flight_wind_truth, held_swing_rad
 from lab.envelope import Cell, _cell_summary, cell_mission, envelope
 from lab.forests import ForestSpec
-from lab.wind_truth import drag_angle_rad, flight_wind_truth, held_swing_rad
 
 
 def _steady(mean_mps: float, **kw) -> WindConfig:

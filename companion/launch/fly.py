@@ -31,6 +31,7 @@ from companion.launch.narrate import Narrator
 from companion.launch.spec import DEFAULT_GAINS_NAME, FlySpec
 from companion.proclife import signals_handled
 from companion.report.run_folder import write_run
+from companion.report.wind_truth import wind_truth_facts
 
 log = logging.getLogger(__name__)
 
@@ -288,6 +289,8 @@ def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path
     flog = runner.pilot.record.log
     flog.wall_time_s = wall
     seen = runner.obstacles_seen
+    if spec.sitl and mission.wind.is_physical:  # what the bundled vehicle's wind alone did, reckoned afterwards
+        extra["wind_truth"] = wind_truth_facts(mission, _true_payload(spec.sitl_args), flog.arr("t"), flog.arr("swing"))
     if spec.world is not None:  # the trunks that really stood there: the truth, whatever the flight knew of them
         flog.obstacles = tuple(spec.world.trunks)
         extra["obstacle_truth"] = f"world:{spec.world.name}"

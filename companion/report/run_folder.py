@@ -142,6 +142,11 @@ def summary_text(rep: dict[str, Any]) -> str:
         f"  sim time            {_fmt(rep.get('sim_time_s'), ' s')}   wall time {_fmt(rep.get('wall_time_s'), ' s')}",
     ]
     lines += waypoint_lines(rep) + payload_lines(rep.get("payload")) + lift_off_lines(rep.get("lift_off"))
+    truth = rep.get("wind_truth")
+    if truth:  # a flight against the bundled vehicle in a physical wind (companion.report.wind_truth)
+        lines.append(f"  the wind alone      held still {_fmt(truth.get('held_swing_max_rad'), ' rad', 3)}, drag angle "
+                     f"{_fmt(truth.get('drag_angle_max_rad'), ' rad', 3)} (the same payload under an airframe that "
+                     "never moves)")
     if loop:
         lines.append(
             f"  loop                {loop.get('ticks')} ticks, tick p50 {_fmt(loop.get('tick_ms_p50'), ' ms', 3)}, "

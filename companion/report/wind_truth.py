@@ -1,5 +1,6 @@
-"""What the wind alone does to the payload: the evaluator's truth about a physical wind (the companion is never told
-the wind, :mod:`companion.core.turbulence`).
+"""What the wind alone does to the payload: the simulator's truth about a physical wind, for ``evaluate`` and for
+the report of a flight against the bundled vehicle (computed after the flight from the wind the vehicle flew; the
+flight itself is never told the wind, :mod:`companion.core.turbulence`).
 
 A payload of mass m held still in the wind w hangs where its drag F = k·|w|·w (k = ½·ρ·C_d·A) and its weight
 balance: at the *drag angle* atan(|F_h| / (m·g + F_z)) off the vertical (NED, F_z > 0 down). No controller that
@@ -131,8 +132,25 @@ class FlightWindTruth(NamedTuple):
     held_swing_max_rad: float | None
 
 
+def wind_truth(wind: WindConfig, payload_kg: float, cable_m: float, g: float, t_s: np.ndarray, swing: np.ndarray
+               ) -> FlightWindTruth | None:
+    """:class:`FlightWindTruth` of a flight logged at the vehicle's times ``t_s`` (s, (n,)) with the swing readings
+    ``swing`` (rad, (n, ≥ 2): α, β; 0 or NaN while the payload lay on the ground), for a payload of ``payload_kg`` on
+    ``cable_m`` in the physical wind ``wind``; None without a physical wind or a logged tick."""
+    t = np.asarray(t_s, dtype=np.float64)
+    if not wind.is_physical or t.size == 0:
+        return None
+    t_end = float(t.max())
+    table = WindField(wind).cover(t_end + HELD_DT_S)
+    drag = float(drag_angle_rad(wind, payload_kg, cable_m, t, g, table).max())
+    hung = np.flatnonzero(np.nan_to_num(np.abs(np.asarray(swing)[:, :2])).max(axis=1) > 0.0)
+    held = None if hung.size == 0 else held_swing_rad(wind, payload_kg, cable_m, float(t[hung[0]]), t_end, g,
+                                                       table=table)
+    return FlightWindTruth(drag, held)
+
+
 def flight_wind_truth(mission: Mission, run_dir: Path | str | None) -> FlightWindTruth | None:
-    """:class:`FlightWindTruth` of the flight logged in ``run_dir``'s ``flight_log.npz`` (its vehicle times), for
+    """:func:`wind_truth` of the flight logged in ``run_dir``'s ``flight_log.npz`` (its vehicle times), for
     ``mission``'s payload in its wind; None without a physical wind or a log."""
     if not mission.wind.is_physical or run_dir is None:
         return None
@@ -141,13 +159,19 @@ def flight_wind_truth(mission: Mission, run_dir: Path | str | None) -> FlightWin
         return None
     with np.load(path, allow_pickle=False) as z:
         t, sw = z["t_s"], z["swing"]
-    if t.size == 0:
-        return None
     v = mission.vehicle
-    t_end = float(t.max())
-    table = WindField(mission.wind).cover(t_end + HELD_DT_S)
-    drag = float(drag_angle_rad(mission.wind, v.m, v.l, t, v.g, table).max())
-    hung = np.flatnonzero(np.nan_to_num(np.abs(sw[:, :2])).max(axis=1) > 0.0)
-    held = None if hung.size == 0 else held_swing_rad(mission.wind, v.m, v.l, float(t[hung[0]]), t_end, v.g,
-                                                       table=table)
-    return FlightWindTruth(drag, held)
+    return wind_truth(mission.wind, v.m, v.l, v.g, t, sw)
+
+
+def wind_truth_facts(mission: Mission, true_payload: dict[str, float], t_s: np.ndarray, swing: np.ndarray
+                     ) -> dict[str, float | None] | None:
+    """The report's ``wind_truth`` of a flight against the bundled vehicle: :func:`wind_truth` (rad) of the payload
+    the vehicle carried (``true_payload``: its ``mass_kg`` and ``cable_length_m`` flags, else the mission's) in the
+    mission's wind, with that payload; None without a physical wind."""
+    v = mission.vehicle
+    m, l_m = true_payload.get("mass_kg", v.m), true_payload.get("cable_length_m", v.l)
+    truth = wind_truth(mission.wind, m, l_m, v.g, t_s, swing)
+    if truth is None:
+        return None
+    return {"drag_angle_max_rad": truth.drag_angle_max_rad, "held_swing_max_rad": truth.held_swing_max_rad,
+            "payload_kg": m, "cable_m": l_m}
