@@ -54,7 +54,11 @@ def test_unanswered_marker_is_sent_again_and_one_answer_steps_once(lockstep_vehi
         assert len(waited) >= 2 and set(waited) == {t0}  # the same marker again, time stands still
         c.send_attitude_target(thrust=0.0)  # one answer ...
         after = _markers(_collect(c, 0.7))
-        assert after[0] == t0 + 4 and set(after) == {t0 + 4}  # ... one control period, then the marker again
+        # a re-send of the old marker (every 0.2 s) may have been on its way, or waiting in our socket after the last
+        # poll, when the answer left: seen once on a loaded machine (2026-12-05)
+        while after and after[0] == t0:
+            after.pop(0)
+        assert after and set(after) == {t0 + 4}  # ... one control period, then the marker again
 
 
 def test_vehicle_whose_client_died_heartbeats_to_its_port_on_the_wall_clock(lockstep_vehicle):
