@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -17,6 +18,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 from companion.core.mission import load_mission
 from companion.core.payload_check import HOVER_FRACTION_LIMIT, thrust_margin
 from companion.core.vehicle_params import VehicleParams
+from companion.report.journal import rebuild_run
 from companion.report.wind_truth import held_swing_rad
 from sim_bridge.mavclient import MavClient, spawn_vehicle, stop_vehicle
 
@@ -134,6 +136,10 @@ def test_lockstep_flight_in_light_turbulence_completes_the_same_twice(tmp_path):
     assert held != pytest.approx(held_swing_rad(flown, 0.25, 1.0, float(t[hung[0]]), float(t[-1])), rel=1e-3)
     assert 0.0 < truth["drag_angle_max_rad"] < held  # a gust swings the held payload past its drag angle
     assert "the wind alone      held still" in (run / "summary.txt").read_text()
+    copy = tmp_path / "rebuilt"  # `slungpilot report RUN_DIR` (after a kill -9) reckons it from the journal alike
+    shutil.copytree(run, copy)
+    rebuilt = rebuild_run(copy, plots=False)
+    assert rebuilt["rebuilt_from_journal"] and rebuilt["wind_truth"] == pytest.approx(truth, rel=1e-6)
     again = tmp_path / "again"
     _fly(_mission(tmp_path, wind=wind), again, "--planner", "shaped", "--true-payload-mass-kg", "0.3")
     assert (again / "flight_log.npz").read_bytes() == (run / "flight_log.npz").read_bytes()  # seeded: same bits

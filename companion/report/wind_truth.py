@@ -163,13 +163,16 @@ def flight_wind_truth(mission: Mission, run_dir: Path | str | None) -> FlightWin
     return wind_truth(mission.wind, v.m, v.l, v.g, t, sw)
 
 
-def wind_truth_facts(mission: Mission, true_payload: dict[str, float], t_s: np.ndarray, swing: np.ndarray
-                     ) -> dict[str, float | None] | None:
-    """The report's ``wind_truth`` of a flight against the bundled vehicle: :func:`wind_truth` (rad) of the payload
-    the vehicle carried (``true_payload``: its ``mass_kg`` and ``cable_length_m`` flags, else the mission's) in the
-    mission's wind, with that payload; None without a physical wind."""
-    v = mission.vehicle
-    m, l_m = true_payload.get("mass_kg", v.m), true_payload.get("cable_length_m", v.l)
+def report_wind_truth(mission: Mission, facts: dict, t_s: np.ndarray, swing: np.ndarray
+                      ) -> dict[str, float | None] | None:
+    """The report's ``wind_truth`` of a flight against a bundled vehicle that ``fly --sitl`` started itself (its
+    run ``facts`` say ``sitl``; that vehicle flew the mission's wind): :func:`wind_truth` (rad) of the payload it
+    carried (``payload_true``: its mass and cable flags, else the mission's), with that payload; None otherwise or
+    without a physical wind."""
+    if not facts.get("sitl") or not mission.wind.is_physical:
+        return None
+    v, true = mission.vehicle, facts.get("payload_true") or {}
+    m, l_m = true.get("mass_kg", v.m), true.get("cable_length_m", v.l)
     truth = wind_truth(mission.wind, m, l_m, v.g, t_s, swing)
     if truth is None:
         return None
