@@ -59,12 +59,15 @@ def thrust_horizontal(thrust_n: float, phi: float, theta: float, psi: float) -> 
 class ForceObserver:
     """The horizontal acceleration (m/s², NED x y) the wind gives the airframe and payload together; see module
     docstring. ``m_total_kg`` M + m, ``m_payload_kg``, ``l_m`` the cable (m), ``rate_filter_s`` the time constant of
-    the filtered derivatives (the feed-forward's)."""
+    the filtered derivatives (the feed-forward's). The band a push is left to the position loop within is the
+    observer's to decide: :data:`DEADBAND_DRAG_MPS2` from the start when the mission declares the airframe's drag
+    (``airframe_drag_declared``), else :data:`DEADBAND_MPS2` until :meth:`lower_band` brings it down."""
 
     def __init__(self, m_total_kg: float, m_payload_kg: float, l_m: float, rate_filter_s: float,
-                 tau_s: float = TAU_S, deadband_mps2: float = DEADBAND_MPS2) -> None:
+                 tau_s: float = TAU_S, airframe_drag_declared: bool = False) -> None:
         self.mt, self.m, self.l_m = m_total_kg, m_payload_kg, l_m
-        self.rate_filter_s, self.tau_s, self.deadband = rate_filter_s, tau_s, deadband_mps2
+        self.rate_filter_s, self.tau_s = rate_filter_s, tau_s
+        self.deadband = DEADBAND_DRAG_MPS2 if airframe_drag_declared else DEADBAND_MPS2  # (m/s²)
         self._acc = SwingAccelEstimator(rate_filter_s)
         self._force = (0.0, 0.0)  # (m/s²) (F_h + f_h)/(M + m) through the derivative's filter
         self.mean = (0.0, 0.0)  # (m/s²) the low-passed d

@@ -21,7 +21,7 @@ import numpy as np
 
 from companion.control import make_position_controller
 from companion.control.adapt import adapt_to_payload
-from companion.control.disturbance import DEADBAND_DRAG_MPS2, DEADBAND_MPS2, ForceObserver
+from companion.control.disturbance import ForceObserver
 from companion.control.drag_id import DragIdentifier, declared_drag_c
 from companion.control.swing_bias import SwingBias
 from companion.core.envelope import full_cable_r_max_m
@@ -129,9 +129,8 @@ class HopMixin:
         self._full_cable_r_max = full_cable_r_max_m(params)
         self.swing_bias = SwingBias(params.g / pendulum_omega_rad_s(params, "held") ** 2, params.g,
                                     self.cfg.feedforward.rate_filter_s)
-        band = DEADBAND_DRAG_MPS2 if self.mission.payload.airframe_drag_n_per_mps2 > 0.0 else DEADBAND_MPS2
         self.push = ForceObserver(params.M + params.m, params.m, params.l, self.cfg.feedforward.rate_filter_s,
-                                  deadband_mps2=band)
+                                  airframe_drag_declared=self.mission.payload.airframe_drag_n_per_mps2 > 0.0)
         self.drag_id = DragIdentifier(c_declared=declared_drag_c(self.mission.payload.drag_n_per_mps2, params.m,
                                                                  params.g))
         self._airframe_r = params.r_uav + params.L_uav
