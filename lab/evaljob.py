@@ -24,7 +24,6 @@ import numpy as np
 
 from companion.core.mission import mission_to_toml
 from companion.report.scoring import is_moving
-from companion.report.wind_truth import flight_wind_truth
 from lab.compare import bound_time_s
 from lab.forests import ForestSpec
 from lab.runner import REPORT_KEYS, Job, classify, process_facts, run_job
@@ -47,17 +46,19 @@ def scenario_spec(spec: ForestSpec, scenario: str, movers: int = 2) -> ForestSpe
 
 
 def _report_facts(run_dir: str | None, moving: bool) -> dict[str, Any]:
-    """``collisions_moving`` from the run folder's ``report.json`` (0 when there is none: the flight failed before
-    its report). Warns when the report had no mission clock zero to place ``moving`` obstacles by (it then scored
-    them at their file positions, :mod:`companion.report.scoring`)."""
+    """``collisions_moving`` and what the wind alone did (``wind_drag_angle_max_rad``, ``held_swing_max_rad``: the
+    report's ``wind_truth``, :mod:`companion.report.wind_truth`) from the run folder's ``report.json`` (0 and None
+    when there is none: the flight failed before its report). Warns when the report had no mission clock zero to
+    place ``moving`` obstacles by (it then scored them at their file positions, :mod:`companion.report.scoring`)."""
     path = Path(run_dir) / "report.json" if run_dir else None
-    if path is None or not path.exists():
-        return {"collisions_moving": 0}
-    rep = json.loads(path.read_text())
-    if moving and rep.get("obstacle_clock_t0_s") is None:
+    rep = json.loads(path.read_text()) if path is not None and path.exists() else {}
+    if rep and moving and rep.get("obstacle_clock_t0_s") is None:
         log.warning("%s: no mission clock zero in the flight log; moving obstacles scored at their file positions",
                     path)
-    return {"collisions_moving": int(rep.get("collisions_moving") or 0)}
+    truth = rep.get("wind_truth") or {}
+    return {"collisions_moving": int(rep.get("collisions_moving") or 0),
+            "wind_drag_angle_max_rad": truth.get("drag_angle_max_rad"),
+            "held_swing_max_rad": truth.get("held_swing_max_rad")}
 
 
 def _fly_inprocess(job: Job) -> dict[str, Any]:
@@ -70,7 +71,7 @@ def _fly_inprocess(job: Job) -> dict[str, Any]:
     gains = load_gains(job.gains or DEFAULT_GAINS)
     flog = fly_inprocess(job.mission, gains=gains)
     outcome = "no_route" if "no_route" in flog.phase else "completed"
-    extra = {"outcome": outcome, "wall_time_s": flog.wall_time_s, "mode": "inprocess",
+    extra = {"outcome": outcome, "wall_time_s": flog.wall_time_s, "mode": "inprocess", "simulated": True,
              "wind": {"model": job.mission.wind.model, "scale": job.mission.wind.scale},
              "vehicle": job.mission.vehicle.as_dict(), "run_dir": str(job.run_dir)}
     return write_run(flog, job.mission, extra, job.run_dir, plots=job.plots)
@@ -104,9 +105,6 @@ def run_eval_job(job: Job) -> dict[str, Any]:
     out["bound_s"] = bound_time_s(d)
     t = out.get("time_to_goal_s")
     out["time_over_bound"] = None if t is None or out["bound_s"] <= 0.0 else t / out["bound_s"]
-    truth = flight_wind_truth(m, None if out.get("error") else out.get("run_dir"))
-    out["wind_drag_angle_max_rad"] = None if truth is None else truth.drag_angle_max_rad
-    out["held_swing_max_rad"] = None if truth is None else truth.held_swing_max_rad
     if not job.keep_run_dir and out["class"] == "success" and out.get("run_dir"):
         import shutil
 

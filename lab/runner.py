@@ -120,7 +120,7 @@ def _fly_inprocess(job: Job) -> dict[str, Any]:
 
     gains = load_gains(job.gains or DEFAULT_GAINS)
     flog = fly_inprocess(job.mission, gains=gains)
-    extra = {"outcome": "completed", "wall_time_s": flog.wall_time_s, "mode": "inprocess",
+    extra = {"outcome": "completed", "wall_time_s": flog.wall_time_s, "mode": "inprocess", "simulated": True,
              "wind": {"model": job.mission.wind.model, "scale": job.mission.wind.scale},
              "vehicle": job.mission.vehicle.as_dict(), "run_dir": str(job.run_dir)}
     return write_run(flog, job.mission, extra, job.run_dir, plots=job.plots)

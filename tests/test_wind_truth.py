@@ -12,7 +12,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from companion.core.wind import WindConfig
-from companion.report.wind_truth import drag_angle_rad, flight_wind_truth, held_swing_rad
+from companion.report.wind_truth import drag_angle_rad, held_swing_rad, report_wind_truth
 from lab.envelope import Cell, _cell_summary, cell_mission, envelope
 from lab.forests import ForestSpec
 
@@ -81,11 +81,16 @@ def test_a_gust_faster_than_the_pendulum_swings_the_held_payload_past_its_new_dr
     assert held > static + 0.1, (held, static)
 
 
-def test_only_a_physical_wind_and_a_logged_flight_have_one(tmp_path):
+def test_only_a_simulated_vehicle_in_a_physical_wind_and_a_logged_flight_have_one():
     base = ForestSpec(density_per_100m2=4.0)
-    assert flight_wind_truth(cell_mission(Cell(0.1, 1.0, "paper"), 1, base), tmp_path) is None
-    assert flight_wind_truth(cell_mission(Cell(0.1, 1.0, "light"), 1, base), tmp_path) is None  # no log
-    assert flight_wind_truth(cell_mission(Cell(0.1, 1.0, "light"), 1, base), None) is None
+    light, paper = cell_mission(Cell(0.1, 1.0, "light"), 1, base), cell_mission(Cell(0.1, 1.0, "paper"), 1, base)
+    t, hung = np.arange(0.0, 5.0, 0.004), np.full((1250, 4), 0.1)
+    assert report_wind_truth(paper, {"simulated": True}, t, hung) is None  # eq. 49 drags nothing
+    assert report_wind_truth(light, {}, t, hung) is None  # a real vehicle: its wind is not the mission's
+    assert report_wind_truth(light, {"simulated": True}, t[:0], hung[:0]) is None  # nothing logged
+    truth = report_wind_truth(light, {"simulated": True, "payload_true": {"mass_kg": 0.3}}, t, hung)
+    assert truth is not None and (truth["payload_kg"], truth["cable_m"]) == (0.3, 1.0)
+    assert truth["held_swing_max_rad"] == pytest.approx(held_swing_rad(light.wind, 0.3, 1.0, 0.0, t[-1]), rel=1e-12)
 
 
 def test_the_cell_counts_flights_over_the_bound_where_the_wind_alone_or_the_held_payload_was_beyond_it():

@@ -31,7 +31,6 @@ from companion.launch.narrate import Narrator
 from companion.launch.spec import DEFAULT_GAINS_NAME, FlySpec
 from companion.proclife import signals_handled
 from companion.report.run_folder import write_run
-from companion.report.wind_truth import report_wind_truth
 
 log = logging.getLogger(__name__)
 
@@ -289,8 +288,6 @@ def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path
     flog = runner.pilot.record.log
     flog.wall_time_s = wall
     seen = runner.obstacles_seen
-    if (truth := report_wind_truth(mission, extra, flog.arr("t"), flog.arr("swing"))) is not None:
-        extra["wind_truth"] = truth  # what the wind alone did (a vehicle fly --sitl started, in a physical wind)
     if spec.world is not None:  # the trunks that really stood there: the truth, whatever the flight knew of them
         flog.obstacles = tuple(spec.world.trunks)
         extra["obstacle_truth"] = f"world:{spec.world.name}"
@@ -328,7 +325,7 @@ def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any],
         "profile": profile.name,
         "hover_thrust_norm": profile.hover_thrust_norm,
         "lockstep": s.lockstep,
-        "sitl": spec.sitl,  # the bundled vehicle was started by this flight, with the mission's world and wind
+        "simulated": spec.sitl,  # the bundled vehicle was started by this flight, in the mission's world and wind
         "connect": s.connect,
         "run_dir": str(run_dir),
         "tlog": str(run_dir / "flight.tlog"),

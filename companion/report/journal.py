@@ -166,7 +166,6 @@ def rebuild_run(run_dir: Path, *, plots: bool = True) -> dict[str, Any]:
     the journal kept it) scores them at their file positions, as its report did then.
     """
     from companion.report.run_folder import write_run
-    from companion.report.wind_truth import report_wind_truth
 
     mission = load_mission(run_dir / MISSION)
     extra: dict[str, Any] = {}
@@ -186,6 +185,4 @@ def rebuild_run(run_dir: Path, *, plots: bool = True) -> dict[str, Any]:
                      obstacle_clock_t0_s=float(clock) if isinstance(clock, int | float) else None)
     rows = read_journal(run_dir, flog)
     extra["journal_rows"] = rows
-    if (truth := report_wind_truth(mission, extra, flog.arr("t"), flog.arr("swing"))) is not None:
-        extra["wind_truth"] = truth
     return write_run(flog, mission, extra, run_dir, plots=plots)

@@ -13,6 +13,7 @@ import numpy as np
 
 from companion.core.mission import Mission
 from companion.report.metrics import FlightLog, compute_metrics, estimation_error, waypoint_lines
+from companion.report.wind_truth import report_wind_truth
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +71,8 @@ def build_report(flog: FlightLog, mission: Mission, extra: dict[str, Any]) -> di
     swing_modes = [m for m in flog.envelope_mode if m]
     rep["envelope_modes"] = {m: swing_modes.count(m) for m in sorted(set(swing_modes))}
     rep.update(extra)
+    if len(flog) and (truth := report_wind_truth(mission, extra, flog.arr("t"), flog.arr("swing"))) is not None:
+        rep["wind_truth"] = truth  # a simulated vehicle in a physical wind: what that wind alone did
     # One meaning for ``reached_goal``: the flight's outcome is ``completed`` (goal reached and held). Being near
     # the goal at some moment is ``goal_visited``; a failed flight never claims the goal.
     rep["goal_visited"] = bool(rep.get("reached_goal"))

@@ -1,5 +1,5 @@
 """What the wind alone does to the payload: the simulator's truth about a physical wind, for ``evaluate`` and for
-the report of a flight against the bundled vehicle (computed after the flight from the wind the vehicle flew; the
+the report of a flight against a simulated vehicle (computed after the flight from the wind the vehicle flew; the
 flight itself is never told the wind, :mod:`companion.core.turbulence`).
 
 A payload of mass m held still in the wind w hangs where its drag F = k·|w|·w (k = ½·ρ·C_d·A) and its weight
@@ -149,27 +149,13 @@ def wind_truth(wind: WindConfig, payload_kg: float, cable_m: float, g: float, t_
     return FlightWindTruth(drag, held)
 
 
-def flight_wind_truth(mission: Mission, run_dir: Path | str | None) -> FlightWindTruth | None:
-    """:func:`wind_truth` of the flight logged in ``run_dir``'s ``flight_log.npz`` (its vehicle times), for
-    ``mission``'s payload in its wind; None without a physical wind or a log."""
-    if not mission.wind.is_physical or run_dir is None:
-        return None
-    path = Path(run_dir) / "flight_log.npz"
-    if not path.exists():
-        return None
-    with np.load(path, allow_pickle=False) as z:
-        t, sw = z["t_s"], z["swing"]
-    v = mission.vehicle
-    return wind_truth(mission.wind, v.m, v.l, v.g, t, sw)
-
-
 def report_wind_truth(mission: Mission, facts: dict, t_s: np.ndarray, swing: np.ndarray
                       ) -> dict[str, float | None] | None:
-    """The report's ``wind_truth`` of a flight against a bundled vehicle that ``fly --sitl`` started itself (its
-    run ``facts`` say ``sitl``; that vehicle flew the mission's wind): :func:`wind_truth` (rad) of the payload it
-    carried (``payload_true``: its mass and cable flags, else the mission's), with that payload; None otherwise or
-    without a physical wind."""
-    if not facts.get("sitl") or not mission.wind.is_physical:
+    """The report's ``wind_truth`` of a flight whose vehicle was simulated for it in the mission's world and wind (its
+    run ``facts`` say ``simulated``: ``fly --sitl``, ``lab``'s in-process flights): :func:`wind_truth` (rad) of the
+    payload it carried (``payload_true``: the bundled vehicle's mass and cable flags, else the mission's), with that
+    payload; None otherwise or without a physical wind."""
+    if not facts.get("simulated") or not mission.wind.is_physical:
         return None
     v, true = mission.vehicle, facts.get("payload_true") or {}
     m, l_m = true.get("mass_kg", v.m), true.get("cable_length_m", v.l)
