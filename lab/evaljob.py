@@ -2,10 +2,10 @@
 
 * :func:`scenario_spec`: the forest of a scenario — ``static`` (as given), ``moving`` (plus crossing trunks),
   ``fenced`` (the goal ringed by trunks, no route exists).
-* :func:`run_eval_job`: fly a :class:`lab.runner.Job` (MAVLink lockstep through :func:`lab.runner.run_job`, or
+* :func:`run_eval_job`: fly a :class:`lab.runner.Job` through :func:`lab.runner.run_job` (MAVLink lockstep or
   in-process), then add the collisions with moving obstacles, the ``no_route`` class, the physical bound of
-  :mod:`lab.compare`, and in a physical wind the largest angle the wind alone hung the payload at
-  (:mod:`companion.report.wind_truth`).
+  :mod:`lab.compare`, and in a physical wind what the wind alone did to the payload (the report's ``wind_truth``,
+  :mod:`companion.report.wind_truth`).
 
 Clearance and collisions are the flight report's own (:mod:`companion.report.scoring`, moving obstacles where they
 are at each logged time): ``evaluate`` scores no flight itself, so it cannot disagree with ``fly``.
@@ -15,18 +15,16 @@ from __future__ import annotations
 
 import json
 import logging
-import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from companion.core.mission import mission_to_toml
 from companion.report.scoring import is_moving
 from lab.compare import bound_time_s
 from lab.forests import ForestSpec
-from lab.runner import REPORT_KEYS, Job, classify, process_facts, run_job
+from lab.runner import Job, classify, run_job
 
 log = logging.getLogger(__name__)
 
@@ -61,41 +59,11 @@ def _report_facts(run_dir: str | None, moving: bool) -> dict[str, Any]:
             "held_swing_max_rad": truth.get("held_swing_max_rad")}
 
 
-def _fly_inprocess(job: Job) -> dict[str, Any]:
-    """The in-process flight of :func:`lab.runner.run_job`, plus the flight's ``no_route`` outcome (from the
-    flight core's phases, which the report does not keep)."""
-    from companion.launch.fly import DEFAULT_GAINS, load_gains
-    from companion.report.run_folder import write_run
-    from lab.inprocess import fly_inprocess
-
-    gains = load_gains(job.gains or DEFAULT_GAINS)
-    flog = fly_inprocess(job.mission, gains=gains)
-    outcome = "no_route" if "no_route" in flog.phase else "completed"
-    extra = {"outcome": outcome, "wall_time_s": flog.wall_time_s, "mode": "inprocess", "simulated": True,
-             "wind": {"model": job.mission.wind.model, "scale": job.mission.wind.scale},
-             "vehicle": job.mission.vehicle.as_dict(), "run_dir": str(job.run_dir)}
-    return write_run(flog, job.mission, extra, job.run_dir, plots=job.plots)
-
-
 def run_eval_job(job: Job) -> dict[str, Any]:
     """Fly ``job`` (:func:`lab.runner.run_job`'s result keys) and add what the evaluator classifies by beyond
     :func:`lab.runner.classify`: the report's collisions with moving obstacles, the ``no_route`` class, the
     physical bound. Successful runs' folders are removed afterwards unless kept."""
-    if job.mode == "inprocess":
-        job.run_dir.mkdir(parents=True, exist_ok=True)
-        mission_file = job.run_dir / "mission.toml"
-        mission_file.write_text(mission_to_toml(job.mission))
-        wall0 = time.perf_counter()
-        try:
-            rep = _fly_inprocess(job)
-        except Exception as exc:  # a worker must report, not die
-            log.exception("job %s failed", job.key)
-            rep = {"error": f"{type(exc).__name__}: {exc}"}
-        out = {k: rep.get(k) for k in REPORT_KEYS}
-        out.update(error=rep.get("error"), key=job.key, mode=job.mode, job_wall_s=time.perf_counter() - wall0,
-                   run_dir=str(job.run_dir), mission_file=str(mission_file), **process_facts())
-    else:
-        out = run_job(replace(job, keep_run_dir=True))
+    out = run_job(replace(job, keep_run_dir=True))
     m = job.mission
     out.update(_report_facts(None if out.get("error") else out.get("run_dir"), any(map(is_moving, m.obstacles))))
     out["class"] = classify(out)
