@@ -78,6 +78,16 @@ def test_evaluate_inprocess_tiny(tmp_path):
     assert seeds == {(p, k) for p in ("safe", "improved") for k in (10, 11)}
 
 
+def test_a_fenced_goal_flown_in_process_is_classed_no_route(tmp_path):
+    # the shaped planner proves there is no route and holds: the flight core's phases say so, and the in-process
+    # report's outcome carries it (lab.runner), as the MAVLink flight's does
+    out = tmp_path / "ev"
+    evaluate(["shaped"], [3.0], 1, spec=ForestSpec(length_m=12.0), mode="inprocess", workers=1, out=out,
+             progress=False, scenarios=("fenced",))
+    (r,) = map(json.loads, (out / "results.jsonl").read_text().splitlines())
+    assert (r["class"], r["outcome"], r["collisions"]) == ("no_route", "no_route", 0)
+
+
 @pytest.mark.slow
 def test_evaluate_mavlink_two_missions_in_workers(tmp_path):
     out = tmp_path / "evm"
