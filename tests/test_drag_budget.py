@@ -12,7 +12,17 @@ import pytest
 from companion.control.drag_id import C_MIN, DragIdentifier, declared_drag_c
 from companion.control.swing_bias import TAU_S
 from companion.launch.fly import DEFAULT_GAINS, load_gains
-from companion.planning.timing import DRAG_GUST_MPS, DragBudget, sample_motion, speed_profile, wind_changed
+from companion.planning.timing import (
+    DRAG_GUST_MPS,
+    PROVISIONAL_AIRSPEED_MPS,
+    PROVISIONAL_C_MAX,
+    DragBudget,
+    budgeted_drag,
+    provisional_drag,
+    sample_motion,
+    speed_profile,
+    wind_changed,
+)
 from lab.envelope import Cell, cell_mission
 from lab.forests import ForestSpec
 from lab.inprocess import fly_inprocess
@@ -133,11 +143,11 @@ def test_a_plan_is_re_timed_when_the_wind_it_was_timed_in_changed_by_more_than_2
     assert wind_changed((-1.8, -6.7), (0.2, -6.0))
 
 
-def test_a_declared_payload_drag_keeps_a_light_turbulence_flight_within_the_bound():
+def test_a_declared_payload_drag_flies_a_light_turbulence_flight_within_the_bound_sooner():
     """Forest 6, Table 1's payload (0.25 kg on 1 m), light turbulence: identified in flight, the drag is known only
-    after the speed-up it should have shaped (0.307 rad at the full acceleration on 2026-12-04; 0.211 rad at the
-    share an unknown drag in a wind gets since 2026-12-05); declared as mass and cable are, it is budgeted from
-    take-off (0.170 rad), at most 10 % slower to the goal."""
+    after the speed-up it should have shaped (0.307 rad at the full acceleration on 2026-12-04; 0.211 rad at 0.7 of
+    it; since 2026-12-05, twentieth sitting, 0.173 rad with a provisional drag budgeted, in 11.56 s); declared as mass
+    and cable are, it is budgeted from take-off: as calm (0.171 rad) and 10 % faster (10.41 s)."""
     base = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
     gains = load_gains(DEFAULT_GAINS)
     out = {}
@@ -148,8 +158,8 @@ def test_a_declared_payload_drag_keeps_a_light_turbulence_flight_within_the_boun
         arrived = np.hypot(*(log.arr("pos")[:, :2] - np.asarray(mis.goal_ned_m[:2])).T) < 0.1
         assert arrived.any() and "hold" in log.phase
         out[declared] = (float(np.nanmax(np.abs(log.arr("swing")[:, :2]))), float(log.arr("t")[np.argmax(arrived)]))
-    assert out[True][0] < 0.2 and out[False][0] > out[True][0] + 0.03, out
-    assert out[True][1] < 1.1 * out[False][1], out
+    assert out[True][0] < 0.2 and out[False][0] < 0.2, out
+    assert out[True][1] < 0.95 * out[False][1], out
 
 
 def _reference_speeds(wind_after, t_switch=1.0, t_end=4.0, dt=0.004):
@@ -260,11 +270,13 @@ def test_the_gust_to_budget_is_the_wind_now_plus_three_deviations_of_its_turbule
     assert DragIdentifier().gust_mps == 0.0  # nothing known of the drag: no gust is budgeted
 
 
-@pytest.mark.parametrize("mass_kg, forest", [(0.1, 24), (0.5, 14)])
+@pytest.mark.parametrize("mass_kg, forest", [(0.1, 24), (0.5, 14), (0.1, 55)])
 def test_a_wind_whose_drag_is_not_yet_known_slows_the_speed_up(mass_kg, forest):
     # the payload's drag left to the companion (identified after the first speed-up): in light turbulence the speed-up
     # at the full acceleration swung 0.1 and 0.5 kg on 0.5 m to 0.31 and 0.29 rad before c was known. While a wind
-    # holds the payload out (a drift beyond 0.03 rad) and its drag is unknown, the plan speeds up at 0.7 of the bound
+    # holds the payload out (a drift beyond 0.03 rad) and its drag is unknown, the plan budgets a provisional one.
+    # Forest 55: a 5-6 m/s crosswind hung the payload out by 0.2 rad, and the speed-up at 0.7 of the bound with the
+    # trailing it grew swung it to 0.326 rad (0.204 with the provisional drag)
     from companion.report.metrics import compute_metrics
 
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
@@ -278,14 +290,33 @@ def test_a_wind_whose_drag_is_not_yet_known_slows_the_speed_up(mass_kg, forest):
 def test_a_trailing_that_shows_up_during_the_speed_up_re_times_the_plan(mass_kg, cable_m, forest):
     # the payload's drag left to the companion, light turbulence, a wind too weak at the hover to show (drift under
     # 0.03 rad): the plan sped up at the full bound to 5 m/s, where the trailing it had not budgeted added 0.08 rad and
-    # the payload swung to 0.27-0.30 rad before c was known. The trailing's drift passing 0.03 rad now re-times it at
-    # 0.7 of the bound, as a plan made with it would have been
+    # the payload swung to 0.27-0.30 rad before c was known. The trailing's drift passing 0.03 rad now re-times it
+    # with a provisional drag, as a plan made with it would have been
     from companion.report.metrics import compute_metrics
 
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
     mis = cell_mission(Cell(mass_kg, cable_m, "light"), forest, spec, declare_drag=False)
-    shares = []
-    flog = fly_inprocess(mis, on_tick=lambda core, t: shares.append(core.planner.plan_timed.k_a))
+    timed = []
+    flog = fly_inprocess(mis, on_tick=lambda core, t: timed.append((core.planner.plan_timed.drag_c, core.drag_id.c)))
     rep = compute_metrics(flog, mis)
     assert rep["max_swing_rad"] <= 0.25 and rep["collisions"] == 0 and rep["reached_goal"]
-    assert shares[0] == 1.0 and min(shares) == pytest.approx(0.7)  # timed at the full bound first, then re-timed
+    assert timed[0] == (0.0, 0.0)  # timed with no drag first
+    assert any(c_plan > 0.0 and c_id == 0.0 for c_plan, c_id in timed)  # then re-timed before c was identified
+
+
+def test_a_drag_not_yet_known_is_budgeted_at_an_airspeed_that_makes_its_trailing_grow_fast():
+    # 0.04 rad of drift on 1 m, flying (1, 0) m/s: taken at 3 m/s of airspeed along the drift (its drag angle at
+    # that airspeed is the one measured), the wind blowing 3 m/s past the vehicle toward the drift
+    tan_th = math.tan(math.asin(0.04))
+    c, wind = provisional_drag((0.0, 0.04), 1.0, (1.0, 0.0))
+    assert PROVISIONAL_AIRSPEED_MPS == 3.0
+    assert c == pytest.approx(tan_th / 9.0) and wind == pytest.approx((1.0, 3.0))
+    # a drift that would make c more than PROVISIONAL_C_MAX at 3 m/s (0.4 rad: c 0.049) is taken at a higher airspeed
+    c, wind = provisional_drag((-0.4, 0.0), 1.0, (0.0, 0.0))
+    a = math.sqrt(math.tan(math.asin(0.4)) / PROVISIONAL_C_MAX)
+    assert c == pytest.approx(PROVISIONAL_C_MAX) and wind == pytest.approx((-a, 0.0))
+    assert c * a * a == pytest.approx(math.tan(math.asin(0.4)))  # the drag angle measured, at either airspeed
+    # a drag declared or identified is budgeted as it is, with its wind; a drift under 0.03 rad is no wind
+    assert budgeted_drag(C_TRUE, (2.0, -1.0), (0.0, 0.1), 1.0, (1.0, 0.0)) == (C_TRUE, (2.0, -1.0))
+    assert budgeted_drag(0.0, (0.0, 0.0), (0.0, 0.029), 1.0, (1.0, 0.0)) == (0.0, (0.0, 0.0))
+    assert budgeted_drag(0.0, (0.0, 0.0), (0.0, 0.1), 1.0, (1.0, 0.0)) == provisional_drag((0.0, 0.1), 1.0, (1.0, 0.0))

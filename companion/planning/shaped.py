@@ -203,12 +203,11 @@ class ShapedPlanner:
             self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
             return
         why = "cap" if why is None and sp0 > cap + CAP_SLACK_MPS else why  # too fast for it: re-timed, not optional
-        k_a = timing.unknown_drag_share(inp.drag_c, inp.drift_m, inp.cable_l_m)  # a wind, its drag not yet known
-        timed = timing.TimedFor(inp.drag_c, tuple(inp.wind_mps), k_a)
+        timed = timing.TimedFor(*timing.budgeted_drag(inp.drag_c, inp.wind_mps, inp.drift_ned_m, inp.cable_l_m,
+                                                      inp.vel_mps))
         if why is None and self.plan_timed.outdated(timed):
             why = "drag"  # timed for another payload drag or wind than measured now: re-timed, not optional
         p = p if cap >= p.shaped_v_max_mps else replace(p, shaped_v_max_mps=cap)
-        p = p if k_a == 1.0 else replace(p, shaped_a_max_mps2=k_a * p.shaped_a_max_mps2)
         if why is None:
             self.last = {"kept": True, "reason": "valid, nothing changed"}
             return
@@ -227,7 +226,7 @@ class ShapedPlanner:
         self.no_route_since_s = None
         optional = cur_ok and self.plan_reaches_goal and why not in ("cap", "drag")  # a new one must be better
         # a re-timing for the drag may be slower, never harder braking (a plan that swings more than the drag saves)
-        chosen, cands, tried = self._candidates(inp, r, p, options, optional or why == "drag")
+        chosen, cands, tried = self._candidates(inp, r, p, options, optional or why == "drag", timed)
         self.last = {"candidates": tried, "cur_ok": cur_ok, "remaining_s": remaining,
                      "durations": [round(cd.duration_s, 3) for cd in cands]}
         if chosen is not None:
@@ -278,15 +277,16 @@ class ShapedPlanner:
             return False
         return True
 
-    def _candidates(self, inp: PlanInput, r: Replan, p: PlannerParams, options, optional: bool):
+    def _candidates(self, inp: PlanInput, r: Replan, p: PlannerParams, options, optional: bool,
+                    timed: timing.TimedFor):
         """(the first timed route whose plan clears every obstacle as (candidate, rows, unshaped, shaped, base) or
         None, the last round's candidates, how many were checked); up to three rounds, capsules around moving
-        obstacles at their conflict times after the first."""
+        obstacles at their conflict times after the first; timed for the drag and wind ``timed``."""
         tl = self.tl
         assert tl is not None
         g = r.rings
         cc, rr, hh = g.route_c, g.route_ring, g.route_contact
-        dg = timing.drag_budget(inp.drag_c, inp.wind_mps, p.drag_swing_budget_rad, inp.g_mps2)
+        dg = timing.drag_budget(timed.drag_c, timed.wind_mps, p.drag_swing_budget_rad, inp.g_mps2)
         chosen, tried = None, 0
         for rnd in range(3):
             if rnd > 0:  # with capsules in the way: the three smallest plain inflations are enough

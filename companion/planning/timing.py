@@ -194,16 +194,40 @@ def drag_budget(c: float, wind: tuple[float, float], budget_rad: float, g: float
     return DragBudget(c, wind, budget_rad, g) if c > 0.0 else None
 
 
-#: while a wind holds the payload out by more than UNKNOWN_DRAG_RAD (its drift over the cable) and its drag is not yet
-#: known (identified after a speed-up, :mod:`companion.control.drag_id`), plans speed up at this share of the bound
-UNKNOWN_DRAG_RAD, UNKNOWN_DRAG_A_FACTOR = 0.03, 0.7
+#: a payload the wind holds out by more than this drag angle (its drift over the cable, rad) shows a wind; while its
+#: drag is not yet known (identified after a speed-up, :mod:`companion.control.drag_id`), the timing budgets a
+#: provisional one (:func:`provisional_drag`)
+UNKNOWN_DRAG_RAD = 0.03
+#: (m/s) the airspeed a payload of unknown drag is taken to hang at in the wind that holds it out...
+PROVISIONAL_AIRSPEED_MPS = 3.0
+#: (rad per (m/s)²) ...unless that makes its drag angle per (m/s)² more than this (1.5x the bundled world's 0.1 kg
+#: payload, 0.0034): then the airspeed that gives this one (measured: docs/measurements.md, 2026-12-05)
+PROVISIONAL_C_MAX = 0.005
 
 
-def unknown_drag_share(drag_c: float, drift_m: float, cable_l_m: float) -> float:
-    """The share (0..1) of the acceleration bound a plan flies at: UNKNOWN_DRAG_A_FACTOR while the payload's drift
-    ``drift_m`` (m) on ``cable_l_m`` (m) shows a wind and its drag ``drag_c`` (rad per (m/s)², 0: unknown) is not
-    known, else 1 (measured: docs/measurements.md, 2026-12-05)."""
-    return UNKNOWN_DRAG_A_FACTOR if drag_c <= 0.0 and drift_m > UNKNOWN_DRAG_RAD * cable_l_m else 1.0
+def provisional_drag(drift_ned_m: tuple[float, float], cable_l_m: float,
+                     vel_mps: tuple[float, float]) -> tuple[float, tuple[float, float]]:
+    """(c, wind) for the timing to budget while the payload's drag is not yet known: the drag angle θ of its
+    drift ``drift_ned_m`` (m, NED x y, downwind) on ``cable_l_m`` (m), taken at an airspeed A along the drift,
+    A = max(PROVISIONAL_AIRSPEED_MPS, √(tan θ / PROVISIONAL_C_MAX)): c = tan θ / A² (rad per (m/s)²) and the wind
+    (m/s, NED x y) blows A past the vehicle's velocity ``vel_mps``. The trailing then grows by 2·tan θ / A per m/s
+    of speed into the wind: the smaller the airspeed assumed, the faster (c is the payload's, A the weather's)."""
+    d = math.hypot(*drift_ned_m)
+    tan_th = math.tan(math.asin(min(d / cable_l_m, 1.0)))
+    a = max(PROVISIONAL_AIRSPEED_MPS, math.sqrt(tan_th / PROVISIONAL_C_MAX))
+    return tan_th / (a * a), (float(vel_mps[0]) + a * drift_ned_m[0] / d, float(vel_mps[1]) + a * drift_ned_m[1] / d)
+
+
+def budgeted_drag(drag_c: float, wind_mps: tuple[float, float], drift_ned_m: tuple[float, float], cable_l_m: float,
+                  vel_mps: tuple[float, float]) -> tuple[float, tuple[float, float]]:
+    """(c, wind) the timing budgets: the payload's drag angle per (m/s)² ``drag_c`` (rad, declared or identified; 0:
+    not known) with the wind ``wind_mps`` (m/s) measured with it; while it is not known and the drift shows a wind
+    (UNKNOWN_DRAG_RAD), :func:`provisional_drag`; else none (0, (0, 0))."""
+    if drag_c > 0.0:
+        return drag_c, (float(wind_mps[0]), float(wind_mps[1]))
+    if math.hypot(*drift_ned_m) > UNKNOWN_DRAG_RAD * cable_l_m:
+        return provisional_drag(drift_ned_m, cable_l_m, vel_mps)
+    return 0.0, (0.0, 0.0)
 
 
 def drag_changed(c_now: float, c_plan: float) -> bool:
@@ -223,19 +247,16 @@ def wind_changed(w_now: tuple[float, float], w_plan: tuple[float, float]) -> boo
 
 
 class TimedFor(NamedTuple):
-    """What a plan is timed for: the payload's drag angle ``drag_c`` (rad per (m/s)², 0: unknown), the wind
-    ``wind_mps`` (m/s, NED x y) the companion measured with it, and the share ``k_a`` of the acceleration bound
-    (:func:`unknown_drag_share`)."""
+    """What a plan is timed for: the payload's drag angle ``drag_c`` (rad per (m/s)², 0: none) and the wind
+    ``wind_mps`` (m/s, NED x y) with it, as :func:`budgeted_drag` gives them."""
 
     drag_c: float = 0.0
     wind_mps: tuple[float, float] = (0.0, 0.0)
-    k_a: float = 1.0
 
     def outdated(self, now: TimedFor) -> bool:
-        """Whether a plan timed for this must be re-timed for ``now``: another drag (:func:`drag_changed`), a lower
-        share (the drift showed a wind only after the plan was made), or a drag known and the wind moved
-        (:func:`wind_changed`)."""
-        return (drag_changed(now.drag_c, self.drag_c) or now.k_a < self.k_a
+        """Whether a plan timed for this must be re-timed for ``now``: another drag (:func:`drag_changed`; a drift
+        that shows a wind only after the plan was made is one), or a drag and the wind moved (:func:`wind_changed`)."""
+        return (drag_changed(now.drag_c, self.drag_c)
                 or (now.drag_c > 0.0 and wind_changed(now.wind_mps, self.wind_mps)))
 
 
