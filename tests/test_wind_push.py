@@ -98,12 +98,13 @@ def test_the_payload_rings_grow_by_the_drift_beyond_the_ordinary():
     assert route_shift_m(_inp(0.017)) == (0.0, 0.0)
     sx, sy = route_shift_m(_inp(0.5))  # the wind blows toward −y (west): the shift points there
     assert sx == pytest.approx(0.0, abs=1e-12) and sy == pytest.approx(-DRIFT_SHIFT * (0.5 - DRIFT_SLACK_M))
-    # with the drag known, a gust the turbulence can bring budgets its own drift where that is the larger
+    # a gust the turbulence can bring budgets its own drift where that is the larger
     c = 0.0034  # rad per (m/s)²: the grid's 0.1 kg payload; on 3 m of cable
-    assert route_shift_m(_inp(0.5)._replace(drag_c=c, gust_mps=5.0)) == pytest.approx((sx, sy))
+    assert route_shift_m(_inp(0.5)._replace(gust_drag_tan=c * 5.0**2)) == pytest.approx((sx, sy))
     gust_drift = 3.0 * math.sin(math.atan(c * 10.0**2))  # 0.97 m in a 10 m/s gust
     assert gust_drift > DRIFT_SHIFT * (0.5 - DRIFT_SLACK_M) + DRIFT_SLACK_M
-    assert route_shift_m(_inp(0.5)._replace(drag_c=c, gust_mps=10.0))[1] == pytest.approx(-(gust_drift - DRIFT_SLACK_M))
+    shift = route_shift_m(_inp(0.5)._replace(gust_drag_tan=c * 10.0**2))
+    assert shift[1] == pytest.approx(-(gust_drift - DRIFT_SLACK_M))
 
 
 def _rows_along_y(y_m: float) -> np.ndarray:

@@ -23,7 +23,10 @@ A payload whose drag the mission declares (``[payload] drag_n_per_mps2`` = k, as
 c = k/(m·g) from take-off (``c_declared``): no speed-up is waited for, and the wind follows from the equilibrium at
 once, the hover before the cruise included. In turbulence one speed-up cannot separate c from the wind's own change
 (light turbulence, forest 8: the wind along the path changed by 3.5 m/s while the vehicle sped up by 5, and c came
-out at 0.35x the truth, after the speed-up it should have shaped; docs/measurements.md, 2026-12-04).
+out at 0.35x the truth, after the speed-up it should have shaped; docs/measurements.md, 2026-12-04). In moderate
+turbulence it mostly cannot at all: the wind's changes swamp the vehicle's, and the regression's slope stays at or
+below zero for whole flights. Until c is known, the gust the planner budgets the payload's drift for is taken from
+the spread of u itself (:attr:`DragIdentifier.gust_drag_tan`): u = √c·(w − v) needs no c to be measured.
 """
 
 from __future__ import annotations
@@ -52,6 +55,35 @@ def declared_drag_c(drag_n_per_mps2: float, payload_kg: float, g_mps2: float) ->
     return drag_n_per_mps2 / (payload_kg * g_mps2) if drag_n_per_mps2 > 0.0 else 0.0
 
 
+class RunningSpread:
+    """A 2-vector's running mean and variance per axis, averaged over ~``tau_s`` (s) of the times it is folded in
+    (an exponential moving average; the first value starts the mean)."""
+
+    def __init__(self, tau_s: float) -> None:
+        self.tau_s = tau_s
+        self.mean = (0.0, 0.0)
+        self.var = (0.0, 0.0)
+        self.t_s: float | None = None
+
+    def fold(self, t_s: float, x: tuple[float, float]) -> None:
+        """Fold ``x`` in at ``t_s`` (s)."""
+        if self.t_s is None:
+            self.mean = x
+        elif t_s > self.t_s:
+            k = (t_s - self.t_s) / (self.tau_s + t_s - self.t_s)
+            mx, my = self.mean
+            dx, dy = x[0] - mx, x[1] - my
+            self.mean = (mx + k * dx, my + k * dy)
+            vx, vy = self.var
+            self.var = (vx + k * (dx * dx - vx), vy + k * (dy * dy - vy))
+        self.t_s = t_s
+
+    @property
+    def sigma(self) -> float:
+        """The standard deviation per axis, √(mean of the two variances)."""
+        return math.sqrt(0.5 * (self.var[0] + self.var[1]))
+
+
 class DragIdentifier:
     """c (rad per (m/s)²) and the wind (m/s, NED x y) from the swing's wind equilibrium; see module docstring.
     ``c_declared`` (> 0): the payload's declared c (:func:`declared_drag_c`), used instead of the regression's."""
@@ -65,9 +97,8 @@ class DragIdentifier:
         self._next_s = -math.inf
         self.sxy = self.sxx = 0.0
         self._u = (0.0, 0.0)
-        self._w_mean = (0.0, 0.0)  # (m/s) the wind's running mean and variance (m²/s², per axis)
-        self._w_var = (0.0, 0.0)
-        self._w_t: float | None = None
+        self._w = RunningSpread(GUST_TAU_S)  # the wind estimate's (m/s), while c is known
+        self._u_spread = RunningSpread(GUST_TAU_S)  # u's (rad^½): the gust without c
 
     @property
     def c(self) -> float:
@@ -93,26 +124,33 @@ class DragIdentifier:
     def gust_mps(self) -> float:
         """(m/s) the gust to budget: the wind's speed now plus GUST_SIGMAS standard deviations of its turbulence (per
         axis) over the last ~GUST_TAU_S; 0 while c is unknown or before the payload hangs in any wind."""
-        if self.c <= 0.0 or self._w_t is None:
+        if self.c <= 0.0 or self._w.t_s is None:
             return 0.0
-        return math.hypot(*self.wind_estimate) + GUST_SIGMAS * math.sqrt(0.5 * (self._w_var[0] + self._w_var[1]))
+        return math.hypot(*self.wind_estimate) + GUST_SIGMAS * self._w.sigma
 
-    def _track_wind(self, t_s: float, eq_rad: float) -> None:
-        """Fold the wind estimate at ``t_s`` (s) into its running mean and variance, once the payload hangs in a
-        wind (``eq_rad``, its drag angle, beyond TRACK_MIN_RAD: a payload on the ground has none)."""
-        if self.c <= 0.0 or eq_rad < TRACK_MIN_RAD:
+    @property
+    def gust_drag_tan(self) -> float:
+        """The tangent of the payload's drag angle in the gust to budget: c·gust² once c is known
+        (:attr:`gust_mps`); before, (|u| + GUST_SIGMAS·σ_u)², u = √c·(w − v) the root of the drag angle now and σ_u
+        its spread per axis over the last ~GUST_TAU_S (the vehicle's own speed changes count in it too: the careful
+        side); 0 before the payload hangs in any wind."""
+        c = self.c
+        if c > 0.0:
+            g = self.gust_mps
+            return c * g * g
+        if self._u_spread.t_s is None:
+            return 0.0
+        r = math.hypot(*self._u) + GUST_SIGMAS * self._u_spread.sigma
+        return r * r
+
+    def _track(self, t_s: float, eq_rad: float) -> None:
+        """Fold u, and the wind estimate while c is known, into their spreads at ``t_s`` (s), once the payload hangs
+        in a wind (``eq_rad``, its drag angle, beyond TRACK_MIN_RAD: a payload on the ground has none)."""
+        if eq_rad < TRACK_MIN_RAD:
             return
-        wx, wy = self.wind_estimate
-        if self._w_t is None:
-            self._w_mean = (wx, wy)
-        elif t_s > self._w_t:
-            k = (t_s - self._w_t) / (GUST_TAU_S + t_s - self._w_t)
-            mx, my = self._w_mean
-            dx, dy = wx - mx, wy - my
-            self._w_mean = (mx + k * dx, my + k * dy)
-            vx, vy = self._w_var
-            self._w_var = (vx + k * (dx * dx - vx), vy + k * (dy * dy - vy))
-        self._w_t = t_s
+        self._u_spread.fold(t_s, self._u)
+        if self.c > 0.0:
+            self._w.fold(t_s, self.wind_estimate)
 
     def update(self, t_s: float, eq_rad: tuple[float, float] | None, vel_ned_mps) -> None:
         """Feed the equilibrium (α_eq, β_eq) (rad, :attr:`SwingBias.mean`; None: no swing input, the differences'
@@ -130,7 +168,7 @@ class DragIdentifier:
         ex, ey = float(eq_rad[0]), -float(eq_rad[1])
         r = math.sqrt(math.hypot(ex, ey))
         self._u = (ex / r, ey / r) if r > 0.0 else (0.0, 0.0)
-        self._track_wind(t_s, r * r)
+        self._track(t_s, r * r)
         if t_s < self._next_s:
             return
         self._next_s = t_s + SAMPLE_S

@@ -351,7 +351,7 @@ class FlightCore(CoreOrders, HopMixin):
             swing_sigma_rad=swing_sigma_rad(est), v_cap_mps=self.cap.cap_mps(est.pos_ned_m, est.vel_ned_mps, r_max),
             drift_ned_m=(0.0, 0.0) if swing is None else self.swing_bias.drift_ned_m(self.params.l),
             drag_c=0.0 if swing is None else self.drag_id.c, wind_mps=self.drag_id.wind_estimate,
-            gust_mps=0.0 if swing is None else self.drag_id.gust_mps, **legs_in,
+            gust_drag_tan=0.0 if swing is None else self.drag_id.gust_drag_tan, **legs_in,
         )
         out = self.planner.plan(inp, obs)
         if out.no_route and not self.no_route:

@@ -49,8 +49,8 @@ class PlanInput(NamedTuple):
     ``drag_c``: the payload's drag angle per (m/s)² of airspeed (rad), as declared or identified in flight
     (:mod:`companion.control.drag_id`; 0: none or not yet known); ``wind_mps``: the wind (m/s, NED x y) measured
     with it. The shaped planner's timing budgets the trailing they give
-    (:class:`~companion.planning.timing.DragBudget`). ``gust_mps``: the wind speed (m/s) of a gust to budget the
-    payload's drift for (:attr:`~companion.control.drag_id.DragIdentifier.gust_mps`, 0: none).
+    (:class:`~companion.planning.timing.DragBudget`). ``gust_drag_tan``: the tangent of the payload's drag angle
+    in a gust to budget its drift for (:attr:`~companion.control.drag_id.DragIdentifier.gust_drag_tan`, 0: none).
 
     This and the outputs below are named tuples: immutable, and built every control tick at a fifth of a frozen
     dataclass's cost.
@@ -76,7 +76,7 @@ class PlanInput(NamedTuple):
     drift_ned_m: tuple[float, float] = (0.0, 0.0)
     drag_c: float = 0.0
     wind_mps: tuple[float, float] = (0.0, 0.0)
-    gust_mps: float = 0.0
+    gust_drag_tan: float = 0.0
 
     @property
     def drift_m(self) -> float:

@@ -45,8 +45,8 @@ def route_shift_m(inp: PlanInput) -> tuple[float, float]:
     if d <= DRIFT_SLACK_M:
         return 0.0, 0.0
     budget = DRIFT_SHIFT * (d - DRIFT_SLACK_M)
-    if inp.gust_mps > 0.0 and inp.drag_c > 0.0:  # the drift in the gust the turbulence measured so far can bring
-        gust = inp.cable_l_m * math.sin(math.atan(inp.drag_c * inp.gust_mps * inp.gust_mps))
+    if inp.gust_drag_tan > 0.0:  # the drift in the gust the turbulence measured so far can bring
+        gust = inp.cable_l_m * math.sin(math.atan(inp.gust_drag_tan))
         budget = max(budget, gust - DRIFT_SLACK_M)
     return budget * dx / d, budget * dy / d
 
