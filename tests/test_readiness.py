@@ -93,6 +93,9 @@ def test_the_bundled_vehicle_reporting_arming_check_0_flies_the_forest(tmp_path)
     assert out.returncode == 0 and rep["outcome"] == "completed", (rep["outcome"], rep.get("outcome_detail"),
                                                                     out.stderr[-2000:])
     assert rep["collisions"] == 0
+    # a bundled vehicle this flight did not start flies the wind it was started with: the report does not claim the
+    # mission's (it did, by the profile's name, until 2026-12-05)
+    assert rep["simulated"] is False and "wind" not in rep
 
 
 def test_last_words_are_whole_when_the_autopilot_chunks_them():

@@ -346,7 +346,7 @@ def run_options(run: Runner, spec: FlySpec, run_dir: Path, zt_holder: list[Any],
         out["payload"]["true"] = true_payload
     for line in out["payload"].get("mismatch", []) if final else []:
         log.warning("the payload is not what the mission declares: %s", line)
-    if profile.name == "bundled":  # the mission's wind is the bundled vehicle's simulation; a real one has its own
+    if spec.sitl:  # the vehicle this flight started flies the mission's wind; any other, its own
         out["wind"] = dataclasses.asdict(m.wind) if m.wind.is_physical else {"model": m.wind.model,
                                                                              "scale": m.wind.scale}
     if zt_holder:
