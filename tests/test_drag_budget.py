@@ -316,6 +316,9 @@ def test_a_drag_not_yet_known_is_budgeted_at_an_airspeed_that_makes_its_trailing
     a = math.sqrt(math.tan(math.asin(0.4)) / PROVISIONAL_C_MAX)
     assert c == pytest.approx(PROVISIONAL_C_MAX) and wind == pytest.approx((-a, 0.0))
     assert c * a * a == pytest.approx(math.tan(math.asin(0.4)))  # the drag angle measured, at either airspeed
+    # the payload blown out level (a drift of the whole cable) gives a finite wind
+    c, wind = provisional_drag((0.0, -1.0), 1.0, (0.0, 0.0))
+    assert c == pytest.approx(PROVISIONAL_C_MAX) and -100.0 < wind[1] < -30.0 and wind[0] == 0.0
     # a drag declared or identified is budgeted as it is, with its wind; a drift under 0.03 rad is no wind
     assert budgeted_drag(C_TRUE, (2.0, -1.0), (0.0, 0.1), 1.0, (1.0, 0.0)) == (C_TRUE, (2.0, -1.0))
     assert budgeted_drag(0.0, (0.0, 0.0), (0.0, 0.029), 1.0, (1.0, 0.0)) == (0.0, (0.0, 0.0))

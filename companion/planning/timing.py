@@ -203,6 +203,7 @@ PROVISIONAL_AIRSPEED_MPS = 3.0
 #: (rad per (m/s)²) ...unless that makes its drag angle per (m/s)² more than this (1.5x the bundled world's 0.1 kg
 #: payload, 0.0034): then the airspeed that gives this one (measured: docs/measurements.md, 2026-12-05)
 PROVISIONAL_C_MAX = 0.005
+MAX_DRIFT_SIN = 0.99  # a drift of the whole cable (sin 1) is read as this: tan θ stays finite (7.0)
 
 
 def provisional_drag(drift_ned_m: tuple[float, float], cable_l_m: float,
@@ -213,7 +214,7 @@ def provisional_drag(drift_ned_m: tuple[float, float], cable_l_m: float,
     (m/s, NED x y) blows A past the vehicle's velocity ``vel_mps``. The trailing then grows by 2·tan θ / A per m/s
     of speed into the wind: the smaller the airspeed assumed, the faster (c is the payload's, A the weather's)."""
     d = math.hypot(*drift_ned_m)
-    tan_th = math.tan(math.asin(min(d / cable_l_m, 1.0)))
+    tan_th = math.tan(math.asin(min(d / cable_l_m, MAX_DRIFT_SIN)))
     a = max(PROVISIONAL_AIRSPEED_MPS, math.sqrt(tan_th / PROVISIONAL_C_MAX))
     return tan_th / (a * a), (float(vel_mps[0]) + a * drift_ned_m[0] / d, float(vel_mps[1]) + a * drift_ned_m[1] / d)
 
