@@ -144,11 +144,13 @@ class DragIdentifier:
         return r * r
 
     def _track(self, t_s: float, eq_rad: float) -> None:
-        """Fold u, and the wind estimate while c is known, into their spreads at ``t_s`` (s), once the payload hangs
-        in a wind (``eq_rad``, its drag angle, beyond TRACK_MIN_RAD: a payload on the ground has none)."""
+        """Fold u (unless c is declared: then its spread is never asked for), and the wind estimate while c is
+        known, into their spreads at ``t_s`` (s), once the payload hangs in a wind (``eq_rad``, its drag angle,
+        beyond TRACK_MIN_RAD: a payload on the ground has none)."""
         if eq_rad < TRACK_MIN_RAD:
             return
-        self._u_spread.fold(t_s, self._u)
+        if self.c_declared <= 0.0:
+            self._u_spread.fold(t_s, self._u)
         if self.c > 0.0:
             self._w.fold(t_s, self.wind_estimate)
 
