@@ -92,16 +92,17 @@ def cell_mission(cell: Cell, seed: int, base: ForestSpec, declare_drag: bool = T
     """The forest of ``seed`` flown with the cell's payload and wind. ``declare_drag``: the mission declares the
     payload's and the airframe's drag coefficients as it declares the mass and cable (``[payload] drag_n_per_mps2``
     and ``airframe_drag_n_per_mps2``, the world's own where the wind drags, 0 in calm air and eq. 49, which drag
-    nothing); False: neither (the companion identifies the payload's; the lift-off gate is off)."""
+    nothing); False: the airframe's only, the vehicle's own (the companion identifies the payload's)."""
     spec = cell_spec(cell, base)
     m = generate_forest(seed, spec)
     vehicle = replace(m.vehicle, m=cell.mass_kg, l=cell.cable_m)
     vehicle.validate()
     wind = wind_config(cell.wind, seed, spec.altitude_m, cell.mass_kg)
     payload = m.payload
-    if declare_drag and wind.is_physical:
+    if wind.is_physical:
         k_airframe, k_payload = map(float, wind.drag_coefficients())
-        payload = replace(payload, drag_n_per_mps2=k_payload, airframe_drag_n_per_mps2=k_airframe)
+        payload = replace(payload, drag_n_per_mps2=k_payload if declare_drag else 0.0,
+                          airframe_drag_n_per_mps2=k_airframe)
     return m.with_(vehicle=vehicle, wind=wind, payload=payload,
                    name=f"{m.name}-m{cell.mass_kg:g}-l{cell.cable_m:g}-{cell.wind}")
 

@@ -158,7 +158,7 @@ def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--envelope-drag", choices=("declared", "identified"), default="declared",
                    help="the drag coefficients: the payload's and the airframe's declared in each mission as its "
                         "mass and cable are (the world's own where the wind drags; default), or the payload's left to "
-                        "the companion to identify in flight (the airframe's then undeclared: no lift-off hold)")
+                        "the companion to identify in flight (the airframe's, the vehicle's own, still declared)")
     p.add_argument("--envelope-winds", default=None, metavar="NAME,..",
                    help="grid winds: calm, paper (eq. 49), light (3 m/s mean), moderate (6 m/s mean); default all")
 

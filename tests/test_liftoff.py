@@ -30,6 +30,7 @@ from companion.flight.liftoff import (
     payload_reach_m,
     ring_entry_m,
 )
+from companion.planning.timing import PROVISIONAL_C_MAX
 from companion.report.metrics import compute_metrics
 from lab.envelope import Cell, cell_mission
 from lab.forests import ForestSpec
@@ -95,13 +96,30 @@ def test_the_climb_waits_below_the_lift_off_while_blocked_and_lifts_once_clear()
     lull = (0.0, -_push_for(3.0))
     assert gate.target_z(1.5, (0.0, 0.0), -2.6, lull, [TRUNK], -3.3) == -3.3  # clear: climbs on, and stays open
     assert gate.open and gate.target_z(1.6, (0.0, 0.0), -2.7, gust, [TRUNK], -3.3) == -3.3
-    assert gate.facts() == {"armed": True, "waited_s": 1.0, "held_by": gate.worst, "lean_m": 0.0}
+    assert gate.facts() == {"armed": True, "payload_drag_declared": True, "waited_s": 1.0, "held_by": gate.worst,
+                            "lean_m": 0.0}
 
 
-def test_a_gate_without_both_drags_declared_never_holds():
+def test_a_gate_without_the_airframes_drag_declared_never_holds():
     gate = LiftOffGate(0.0, C_PAY, MT, 3.0, -3.0)
     assert gate.open and not gate.armed
     assert gate.target_z(0.0, (0.0, 0.0), -1.0, (0.0, -5.0), [TRUNK], -3.3) == -3.3
+
+
+def test_a_payload_drag_left_to_identify_is_judged_at_the_provisional_cap_and_leans_nowhere():
+    """The airframe's drag declared, the payload's not (0): the gate is armed, the reach is the one a payload of the
+    provisional drag's cap would swing to, and the climb lifts from straight above the payload."""
+    gate = LiftOffGate(K_AIR, 0.0, MT, 3.0, -3.0, origin_xy=(1.0, 2.0))
+    assert gate.armed and not gate.open
+    wind = (0.0, -_push_for(6.0))  # 6 m/s towards the trunk: 0.1 kg's true reach clears it, the cap's does not
+    assert payload_reach_m(_push_for(6.0), MT, K_AIR, C_PAY, 3.0) < 1.81 - TRUNK.radius_m - TRUNK.safe_distance_m
+    assert blocking_trunk((0.0, 0.0), (0.0, -1.0), payload_reach_m(_push_for(6.0), MT, K_AIR, PROVISIONAL_C_MAX, 3.0),
+                          [TRUNK]) is TRUNK
+    assert gate.target_z(0.0, (0.0, 0.0), -1.0, wind, [TRUNK], -3.3) == pytest.approx(-3.0 + WAIT_BELOW_M)
+    assert gate.worst["reach_m"] == pytest.approx(
+        payload_reach_m(_push_for(6.0), MT, K_AIR, PROVISIONAL_C_MAX, 3.0), abs=1e-3)
+    assert gate.lift_point(wind) == (1.0, 2.0)
+    assert not gate.facts()["payload_drag_declared"]
 
 
 def test_blocked_for_the_whole_wait_is_no_route():
@@ -141,6 +159,22 @@ def test_forest_27s_gust_at_the_lift_off_no_longer_blows_the_payload_into_the_tr
     rep = compute_metrics(flog, mission)
     assert rep["collisions"] == 0 and rep["min_clearance_m"] > 0.3 and rep["reached_goal"]
     assert 0.5 < waited[-1] < 10.0
+
+
+@pytest.mark.parametrize(("mass_kg", "cable_m"), [(0.1, 3.0), (0.1, 2.0)])
+def test_forest_27s_gust_with_the_payloads_drag_unknown_waits_longer_and_stays_clear(mass_kg, cable_m):
+    """The same flights with only the airframe's drag declared (the vehicle's; the payload's left to identify): the
+    reach is judged at the provisional drag's cap, so the climb waits longer than with the drag declared (4.4 s
+    against 2.8 and 0.9) and the flight is clean (a disarmed gate: -0.11 m on 3 m)."""
+    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
+    mission = cell_mission(Cell(mass_kg, cable_m, "moderate"), 27, spec, declare_drag=False)
+    assert mission.payload.airframe_drag_n_per_mps2 > 0.0 and mission.payload.drag_n_per_mps2 == 0.0
+    cores = []
+    flog = fly_inprocess(mission, on_tick=lambda core, t: cores.append(core) if not cores else None)
+    rep = compute_metrics(flog, mission)
+    assert rep["collisions"] == 0 and rep["min_clearance_m"] > 0.3 and rep["reached_goal"]
+    gate = cores[0].lift_gate
+    assert gate.armed and 3.0 < gate.waited_s < 10.0 and not gate.facts()["payload_drag_declared"]
 
 
 def _in_steady_wind(cable_m: float, mean_mps: float):

@@ -15,7 +15,10 @@ that gives the wind speed, and so the payload's reach at the lift-off,
 
     reach = l·sin(min(OVERSHOOT·θ_eq(|w| + GUST_MPS), π/2))     downwind of the airframe,
 
-which :class:`LiftOffGate` checks against every trunk's safety ring. While it is blocked the climb holds
+which :class:`LiftOffGate` checks against every trunk's safety ring. A payload whose drag the mission leaves to
+be identified (``[payload] drag_n_per_mps2`` 0) is judged at the provisional drag's cap
+(:data:`~companion.planning.timing.PROVISIONAL_C_MAX`, rad per (m/s)², the most the flight budgets before it knows
+c), and the climb does not lean upwind for it (its θ_eq unknown). While it is blocked the climb holds
 :data:`WAIT_BELOW_M` under the lift-off height (the payload still on the ground); it lifts off once the reach is
 clear, and after :data:`MAX_WAIT_S` blocked the flight says there is no route. The push is measured only where
 the force observer runs (controller ``smc_ff`` with a swing input); elsewhere the gate sees no wind and never holds.
@@ -39,6 +42,7 @@ from companion.control.drag_id import declared_drag_c
 from companion.core.mission import Mission
 from companion.core.obstacles import Obstacle
 from companion.core.vehicle_params import VehicleParams
+from companion.planning.timing import PROVISIONAL_C_MAX
 
 WAIT_BELOW_M = 0.4  # (m) the climb waits this far below the height at which the cable lifts the payload
 GUST_MPS = 2.0  # (m/s) the reach is judged in a wind this much stronger than measured
@@ -115,15 +119,17 @@ def blocking_trunk(xy: tuple[float, float], unit: tuple[float, float], reach_m: 
 
 
 class LiftOffGate:
-    """Whether the climb may lift the payload now (see module docstring). ``k_airframe`` (N per (m/s)²) and
-    ``c_payload`` (rad per (m/s)²) > 0 arm it; ``lift_z_ned_m`` where the cable lifts the payload (NED z, m)."""
+    """Whether the climb may lift the payload now (see module docstring). ``k_airframe`` (N per (m/s)²) > 0 arms
+    it; ``c_payload`` (rad per (m/s)²) the payload's drag angle, 0 when unknown (the reach is then judged at
+    :data:`PROVISIONAL_C_MAX`); ``lift_z_ned_m`` where the cable lifts the payload (NED z, m)."""
 
     def __init__(self, k_airframe: float, c_payload: float, m_total_kg: float, cable_m: float,
                  lift_z_ned_m: float, origin_xy: tuple[float, float] = (0.0, 0.0)) -> None:
         self.k_airframe, self.c_payload = k_airframe, c_payload
+        self.c_reach = c_payload if c_payload > 0.0 else PROVISIONAL_C_MAX  # (rad per (m/s)²) the reach's drag
         self.m_total_kg, self.cable_m = m_total_kg, cable_m
         self.wait_z_ned_m = lift_z_ned_m + WAIT_BELOW_M
-        self.armed = k_airframe > 0.0 and c_payload > 0.0
+        self.armed = k_airframe > 0.0
         self.open = not self.armed
         self.t_blocked_s: float | None = None  # when the current block began (s)
         self.waited_s = 0.0  # (s) blocked in all
@@ -154,7 +160,7 @@ class LiftOffGate:
         dt = 0.0 if self._t_prev is None else t_s - self._t_prev
         self._t_prev = t_s
         h = math.hypot(*push_mps2)
-        reach = payload_reach_m(h, self.m_total_kg, self.k_airframe, self.c_payload, self.cable_m)
+        reach = payload_reach_m(h, self.m_total_kg, self.k_airframe, self.c_reach, self.cable_m)
         hit = blocking_trunk(xy, (push_mps2[0] / h, push_mps2[1] / h), reach, obstacles) if h > 1e-6 else None
         if hit is None:
             self.t_blocked_s = None
@@ -174,12 +180,13 @@ class LiftOffGate:
         return max(self.wait_z_ned_m, climb_z_ned_m)
 
     def facts(self) -> dict[str, Any]:
-        """The report's ``lift_off``: armed (both drags declared), seconds blocked (from the first blocked tick,
+        """The report's ``lift_off``: armed (the airframe's drag declared), whether the payload's drag was
+        (else the reach was judged at the provisional cap), seconds blocked (from the first blocked tick,
         climbing below the wait height included), the largest reach that blocked it, and how far upwind of the
         payload the climb leaned to lift it (m, :meth:`lift_point`)."""
         lean = math.hypot(self.lift_xy[0] - self.origin_xy[0], self.lift_xy[1] - self.origin_xy[1])
-        return {"armed": self.armed, "waited_s": round(self.waited_s, 3), "held_by": self.worst,
-                "lean_m": round(lean, 3)}
+        return {"armed": self.armed, "payload_drag_declared": self.c_payload > 0.0,
+                "waited_s": round(self.waited_s, 3), "held_by": self.worst, "lean_m": round(lean, 3)}
 
     def timed_out(self, t_s: float) -> bool:
         """Blocked for :data:`MAX_WAIT_S` without a break (warned of once: the flight ends ``no_route``)."""
@@ -193,8 +200,8 @@ def lift_gate(mission: Mission, params: VehicleParams, z0_ned_m: float, climb_z_
               origin_xy: tuple[float, float] = (0.0, 0.0)) -> LiftOffGate:
     """The gate of a flight that starts at ``z0_ned_m`` and ``origin_xy`` (NED, m) and climbs to ``climb_z_ned_m``
     (NED z, m) with ``params``:
-    armed when the climb lifts the payload off the ground and ``mission``'s ``[payload]`` declares both drag
-    coefficients, open otherwise."""
+    armed when the climb lifts the payload off the ground and ``mission``'s ``[payload]`` declares the airframe's
+    drag coefficient, open otherwise; the payload's drag from the mission too, or unknown."""
     pay = mission.payload
     lifts = z0_ned_m > -params.l and climb_z_ned_m < -params.l
     k_a = pay.airframe_drag_n_per_mps2 if lifts else 0.0
