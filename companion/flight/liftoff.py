@@ -18,7 +18,7 @@ that gives the wind speed, and so the payload's reach at the lift-off,
 which :class:`LiftOffGate` checks against every trunk's safety ring. A payload whose drag the mission leaves to
 be identified (``[payload] drag_n_per_mps2`` 0) is judged at the provisional drag's cap
 (:data:`~companion.planning.timing.PROVISIONAL_C_MAX`, rad per (m/s)², the most the flight budgets before it knows
-c), and the climb does not lean upwind for it (its θ_eq unknown). While it is blocked the climb holds
+c), and the climb leans for it as for half the cap (below). While it is blocked the climb holds
 :data:`WAIT_BELOW_M` under the lift-off height (the payload still on the ground); it lifts off once the reach is
 clear, and after :data:`MAX_WAIT_S` blocked the flight says there is no route. The push is measured only where
 the force observer runs (controller ``smc_ff`` with a swing input); elsewhere the gate sees no wind and never holds.
@@ -28,6 +28,10 @@ ground by l·sin θ_eq (:func:`equilibrium_offset_m`, the measured wind, no gust
 :data:`LIFT_MARGIN_M` clear of every trunk's ring, :func:`clear_offset_m`), so the cable lifts the payload near its
 drag equilibrium instead of releasing it at the vertical, whence it swung to twice θ_eq (0.1 kg on 2 m in a steady
 6 m/s wind: 1.93·θ_eq before, 1.48·θ_eq so; docs/measurements.md). The point is frozen once the payload is lifted.
+Lifted from a lean θ_L, a payload whose drag angle is θ_eq swings to max(θ_L, 2·θ_eq − θ_L): for a payload whose
+drag is unknown the lean is taken at half the cap (:data:`LEAN_CAP_SHARE`). That keeps the swing within θ_L for
+every payload up to it (more than lifting from above only where θ_eq < θ_L/2, a small swing either way) and lowers
+it for every payload beyond (the twenty-first sitting's grid: docs/measurements.md).
 The climb does not wait for the airframe to get there: waiting, it met other gusts, and the swing was no smaller.
 """
 
@@ -50,6 +54,7 @@ OVERSHOOT = 2.0  # the payload released into its drag equilibrium swings to this
 MAX_WAIT_S = 30.0  # (s) blocked this long: no route
 PAYLOAD_R_M = 0.05  # (m) the payload's own radius beyond the point mass
 LIFT_MARGIN_M = 0.1  # (m) the way to the lift point keeps this much beyond a trunk's safety ring (tracking)
+LEAN_CAP_SHARE = 0.5  # a payload of unknown drag is leaned for as for this share of PROVISIONAL_C_MAX
 
 log = logging.getLogger(__name__)
 
@@ -121,12 +126,14 @@ def blocking_trunk(xy: tuple[float, float], unit: tuple[float, float], reach_m: 
 class LiftOffGate:
     """Whether the climb may lift the payload now (see module docstring). ``k_airframe`` (N per (m/s)²) > 0 arms
     it; ``c_payload`` (rad per (m/s)²) the payload's drag angle, 0 when unknown (the reach is then judged at
-    :data:`PROVISIONAL_C_MAX`); ``lift_z_ned_m`` where the cable lifts the payload (NED z, m)."""
+    :data:`PROVISIONAL_C_MAX`, the lean at :data:`LEAN_CAP_SHARE` of it); ``lift_z_ned_m`` where the cable lifts
+    the payload (NED z, m)."""
 
     def __init__(self, k_airframe: float, c_payload: float, m_total_kg: float, cable_m: float,
                  lift_z_ned_m: float, origin_xy: tuple[float, float] = (0.0, 0.0)) -> None:
         self.k_airframe, self.c_payload = k_airframe, c_payload
         self.c_reach = c_payload if c_payload > 0.0 else PROVISIONAL_C_MAX  # (rad per (m/s)²) the reach's drag
+        self.c_lean = c_payload if c_payload > 0.0 else LEAN_CAP_SHARE * PROVISIONAL_C_MAX  # (rad per (m/s)²)
         self.m_total_kg, self.cable_m = m_total_kg, cable_m
         self.wait_z_ned_m = lift_z_ned_m + WAIT_BELOW_M
         self.armed = k_airframe > 0.0
@@ -145,7 +152,7 @@ class LiftOffGate:
         :func:`equilibrium_offset_m` while the payload lies on the ground (the gate not yet open), as far as the
         way there stays clear of ``obstacles`` for an airframe of ``airframe_r_m`` (m); then frozen."""
         if self.armed and not self.open:
-            off = equilibrium_offset_m(push_mps2, self.m_total_kg, self.k_airframe, self.c_payload, self.cable_m)
+            off = equilibrium_offset_m(push_mps2, self.m_total_kg, self.k_airframe, self.c_lean, self.cable_m)
             dx, dy = clear_offset_m(self.origin_xy, off, obstacles, airframe_r_m + LIFT_MARGIN_M)
             self.lift_xy = (self.origin_xy[0] + dx, self.origin_xy[1] + dy)
         return self.lift_xy
