@@ -254,3 +254,16 @@ def test_in_a_steady_wind_the_cable_lifts_the_payload_at_its_drag_equilibrium():
     cruise = int(np.flatnonzero(np.array(flog.phase) == "cruise")[0])
     swing = np.nanmax(np.abs(np.asarray(flog.arr("swing"))[lift:cruise + 250, :2]))
     assert swing < 1.4 * theta_eq
+
+
+def test_the_summary_says_when_an_unknown_drag_was_judged_at_the_cap():
+    from companion.report.run_folder import lift_off_lines
+
+    held = {"reach_m": 1.9, "t_s": 2.0, "trunk_x_m": 0.2, "trunk_y_m": -1.81}
+    known = lift_off_lines({"armed": True, "payload_drag_declared": True, "waited_s": 2.2, "held_by": held,
+                            "lean_m": 0.4})
+    unknown = lift_off_lines({"armed": True, "payload_drag_declared": False, "waited_s": 2.2, "held_by": held,
+                              "lean_m": 0.4})
+    assert len(known) == len(unknown) == 2
+    assert "judged at the cap" in unknown[0] and "judged at the cap" not in known[0]
+    assert known[1].endswith("its drag angle") and unknown[1].endswith("half the cap's drag")

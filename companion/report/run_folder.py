@@ -174,8 +174,9 @@ def lift_off_lines(lift: dict[str, Any] | None) -> list[str]:
                    f"({_fmt(held.get('trunk_x_m'), '', 1)}, {_fmt(held.get('trunk_y_m'), '', 1)})"
                    + ("" if lift.get("payload_drag_declared", True) else ", its drag not declared: judged at the cap"))
     if (lift.get("lean_m") or 0.0) >= 0.01:
+        angle = "its drag angle" if lift.get("payload_drag_declared", True) else "the angle of half the cap's drag"
         out.append(f"  lift-off            leaned {_fmt(lift['lean_m'], ' m')} upwind of the payload, to lift it at "
-                   "its drag angle")
+                   + angle)
     return out
 
 
