@@ -146,8 +146,9 @@ def test_a_plan_is_re_timed_when_the_wind_it_was_timed_in_changed_by_more_than_2
 def test_a_declared_payload_drag_flies_a_light_turbulence_flight_within_the_bound_sooner():
     """Forest 6, Table 1's payload (0.25 kg on 1 m), light turbulence: identified in flight, the drag is known only
     after the speed-up it should have shaped (0.307 rad at the full acceleration on 2026-12-04; 0.211 rad at 0.7 of
-    it; since 2026-12-05, twentieth sitting, 0.185 rad with a provisional drag budgeted, in 11.54 s); declared as mass
-    and cable are, it is budgeted from take-off: calmer (0.171 rad) and 10 % faster (10.41 s)."""
+    it; since 2026-12-05, twentieth sitting, 0.185 rad with a provisional drag budgeted, in 11.54 s; twenty-first, with
+    the airframe's drag declared, 0.174 rad in 10.79 s); declared as mass and cable are, it is budgeted from take-off:
+    calmer (0.171 rad) and faster (10.41 s)."""
     base = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
     gains = load_gains(DEFAULT_GAINS)
     out = {}
@@ -159,7 +160,7 @@ def test_a_declared_payload_drag_flies_a_light_turbulence_flight_within_the_boun
         assert arrived.any() and "hold" in log.phase
         out[declared] = (float(np.nanmax(np.abs(log.arr("swing")[:, :2]))), float(log.arr("t")[np.argmax(arrived)]))
     assert out[True][0] < 0.2 and out[False][0] < 0.2, out
-    assert out[True][1] < 0.95 * out[False][1], out
+    assert out[True][0] < out[False][0] and out[True][1] < 0.98 * out[False][1], out
 
 
 def _reference_speeds(wind_after, t_switch=1.0, t_end=4.0, dt=0.004):
