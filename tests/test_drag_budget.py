@@ -65,6 +65,26 @@ def test_no_drag_is_none():
     assert ident.c == 0.0
 
 
+def test_the_report_gives_the_drag_declared_and_identified_or_why_not():
+    mg = 0.1 * 9.81
+    ident = DragIdentifier()
+    why = "too little speed change to fit it (Σ|Δv|² 0.0 of 10 (m/s)²)"
+    assert ident.facts(0.1, 9.81) == {"declared_n_per_mps2": None, "identified_n_per_mps2": None,
+                                      "identified_detail": why}
+    _feed(ident, C_TRUE, (0.0, -3.0))
+    f = ident.facts(0.1, 9.81)
+    assert f["declared_n_per_mps2"] is None and f["identified_detail"] is None
+    assert f["identified_n_per_mps2"] == pytest.approx(C_TRUE * mg, rel=0.1)
+    declared = DragIdentifier(c_declared=C_TRUE)  # declared, the fit still runs and is reported beside it
+    _feed(declared, 0.3 * C_MIN, (0.0, -3.0))
+    f = declared.facts(0.1, 9.81)
+    assert f["declared_n_per_mps2"] == pytest.approx(C_TRUE * mg, abs=1e-5) and f["identified_n_per_mps2"] is None
+    assert f["identified_detail"].startswith("the fit's c, 0.0003") and declared.c == C_TRUE
+    against = DragIdentifier()  # a wind along the path at 1.5x the vehicle's speed: the slope comes out negative
+    _feed(against, C_TRUE, lambda t: (1.5 * min(1.85 * t, 5.0, max(0.0, 1.85 * (9.0 - t))), -1.0))
+    assert against.c == 0.0 and "swamped" in against.facts(0.1, 9.81)["identified_detail"]
+
+
 def test_the_timing_keeps_the_speed_up_and_the_trailing_within_the_budget():
     path = np.stack([np.linspace(0.0, 20.0, 41), np.zeros(41)], axis=1)
     kw = dict(a_max_mps2=1.85, v_max_mps=6.0, heading=np.array([1.0, 0.0]))

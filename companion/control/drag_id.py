@@ -104,12 +104,32 @@ class DragIdentifier:
     def c(self) -> float:
         """The drag angle per (m/s)² of airspeed (rad): the declared one, else the identified one (0 while unknown or
         below :data:`C_MIN`)."""
-        if self.c_declared > 0.0:
-            return self.c_declared
+        return self.c_declared if self.c_declared > 0.0 else self._fitted()
+
+    def _fitted(self) -> float:
+        """The regression's own c (rad per (m/s)²; 0 while it gives none), declared or not."""
         if self.sxx < SXX_MIN or self.sxy <= 0.0:
             return 0.0
         c = (self.sxy / self.sxx) ** 2
         return c if c >= C_MIN else 0.0
+
+    def facts(self, payload_kg: float, g_mps2: float) -> dict[str, float | str | None]:
+        """The report's ``payload_drag`` for a payload of ``payload_kg`` (kg): k = c·m·g (N per (m/s)²) declared and
+        identified in flight (the regression runs whether or not k is declared), or why it gave none."""
+        mg = payload_kg * g_mps2
+        fit = self._fitted()
+        why = None
+        if fit <= 0.0:
+            if self.sxx < SXX_MIN:
+                why = f"too little speed change to fit it (Σ|Δv|² {self.sxx:.1f} of {SXX_MIN:g} (m/s)²)"
+            elif self.sxy <= 0.0:
+                why = "the wind's own changes swamped the vehicle's (the fit's slope is not positive)"
+            else:
+                why = (f"the fit's c, {(self.sxy / self.sxx) ** 2:.5f} rad per (m/s)², is below the {C_MIN:g} it takes "
+                       "for a drag")
+        return {"declared_n_per_mps2": round(self.c_declared * mg, 5) if self.c_declared > 0.0 else None,
+                "identified_n_per_mps2": round(fit * mg, 5) if fit > 0.0 else None,
+                "identified_detail": why}
 
     @property
     def wind_estimate(self) -> tuple[float, float]:

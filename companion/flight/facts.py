@@ -35,6 +35,8 @@ def pilot_facts(p: Pilot) -> dict[str, Any]:
         "mission_frame": p.frame.facts(),
         "arrival": dict(p.core.arrival),
         "lift_off": p.core.lift_gate.facts(),  # how long the climb held the payload on the ground for the wind
+        # the payload's drag coefficient declared and identified in flight (N per (m/s)²), or why not
+        "payload_drag": p.core.drag_id.facts(p.core.params.m, p.core.params.g),
         # scans mapped, refused by reason, returns dropped, the map's counts (None: perception never started)
         "perception": p.sensing.facts(),
     }

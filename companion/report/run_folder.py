@@ -145,6 +145,7 @@ def summary_text(rep: dict[str, Any]) -> str:
         f"  sim time            {_fmt(rep.get('sim_time_s'), ' s')}   wall time {_fmt(rep.get('wall_time_s'), ' s')}",
     ]
     lines += waypoint_lines(rep) + payload_lines(rep.get("payload")) + lift_off_lines(rep.get("lift_off"))
+    lines += drag_lines(rep.get("payload_drag"), rep.get("wind"))
     truth = rep.get("wind_truth")
     if truth:  # a flight against the bundled vehicle in a physical wind (companion.report.wind_truth)
         lines.append(f"  the wind alone      held still {_fmt(truth.get('held_swing_max_rad'), ' rad', 3)}, drag angle "
@@ -178,6 +179,23 @@ def lift_off_lines(lift: dict[str, Any] | None) -> list[str]:
         out.append(f"  lift-off            leaned {_fmt(lift['lean_m'], ' m')} upwind of the payload, to lift it at "
                    + angle)
     return out
+
+
+def drag_lines(drag: dict[str, Any] | None, wind: dict[str, Any] | None) -> list[str]:
+    """The summary's payload-drag line (N per (m/s)²): declared, identified in flight (or why not), and the world's
+    own where the bundled vehicle flew a physical wind (``wind``, the report's); none when there is nothing to say."""
+    world = None
+    if wind and wind.get("model") == "turbulence":
+        world = 0.5 * float(wind.get("air_density_kgpm3", 1.225)) * float(wind.get("payload_drag_area_m2", 0.0))
+    if not drag or (world is None and drag.get("declared_n_per_mps2") is None
+                    and drag.get("identified_n_per_mps2") is None):
+        return []
+    ident = drag.get("identified_n_per_mps2")
+    parts = [f"declared {_fmt(drag.get('declared_n_per_mps2'), '', 4)}"]
+    parts += [] if ident is None else [f"identified {ident:.4f}"]
+    parts += [] if world is None else [f"world {world:.4f}"]
+    line = "  payload drag        " + ", ".join(parts) + " N per (m/s)²"
+    return [line if ident is not None else f"{line}; not identified: {drag.get('identified_detail')}"]
 
 
 def payload_lines(pay: dict[str, Any] | None) -> list[str]:
