@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.control.drag_id import C_MIN, DragIdentifier, declared_drag_c
+from companion.control.drag_id import C_MIN, RATIO_SAMPLES_MIN, DragIdentifier, declared_drag_c
 from companion.control.swing_bias import TAU_S
 from companion.launch.fly import DEFAULT_GAINS, load_gains
 from companion.planning.timing import (
@@ -65,12 +65,49 @@ def test_no_drag_is_none():
     assert ident.c == 0.0
 
 
+def _hover_in_turbulence(ident: DragIdentifier, c: float, k_a: float, mt: float, mg: float, t_end: float = 6.0,
+                         dt: float = 0.004, on_ground_s: float = 0.0) -> list[float]:
+    """A hover (no speed change: nothing for the regression) in a crosswind gusting 4-10 m/s: the drag angle
+    e = c·|a|·a and the push d = (k_a + c·m·g)·|a|·a/(M + m), both low-passed like the observers'; the payload on
+    the ground (no drag angle) for ``on_ground_s``. Returns c after each step."""
+    eq, push, out = np.zeros(2), np.zeros(2), []
+    for k in range(int(t_end / dt)):
+        t = k * dt
+        a = np.array([1.0 + math.sin(0.7 * t), -7.0 - 3.0 * math.sin(1.3 * t + 0.5)])
+        e = c * float(np.hypot(*a)) * a if t >= on_ground_s else np.zeros(2)
+        d = (k_a + c * mg) * float(np.hypot(*a)) * a / mt
+        eq += dt / (TAU_S + dt) * (np.array([e[0], -e[1]]) - eq)
+        push += dt / (0.3 + dt) * (d - push)
+        ident.update(t, (float(eq[0]), float(eq[1])), (0.0, 0.0, 0.0), (float(push[0]), float(push[1])))
+        out.append(ident.c)
+    return out
+
+
+def test_with_the_airframes_drag_known_the_report_gets_c_from_the_push_without_a_speed_change():
+    # the report's estimate (the one to declare next time); the flight does not use it (docs/measurements.md)
+    k_a, mt, mg = 0.0245, 1.35, 0.1 * 9.81  # the bundled airframe's drag, Table 1's airframe and a 0.1 kg payload
+    ident = DragIdentifier(k_airframe=k_a, m_total_kg=mt, payload_weight_n=mg)
+    cs = _hover_in_turbulence(ident, C_TRUE, k_a, mt, mg, t_end=1.9)
+    assert ident.facts(0.1, 9.81)["from_push_n_per_mps2"] is None  # fewer than RATIO_SAMPLES_MIN samples of wind
+    cs = _hover_in_turbulence(ident, C_TRUE, k_a, mt, mg)
+    assert ident.sxx == 0.0 and max(cs) == 0.0  # the regression had nothing; the flight's c stays unknown
+    f = ident.facts(0.1, 9.81)
+    assert f["from_push_n_per_mps2"] == pytest.approx(C_TRUE * mg, rel=0.05) and f["identified_n_per_mps2"] is None
+    assert ident.n_ratio >= RATIO_SAMPLES_MIN
+    blind = DragIdentifier()  # the airframe's drag unknown: no ratio
+    _hover_in_turbulence(blind, C_TRUE, k_a, mt, mg)
+    assert blind.n_ratio == 0 and blind.facts(0.1, 9.81)["from_push_n_per_mps2"] is None
+    grounded = DragIdentifier(k_airframe=k_a, m_total_kg=mt, payload_weight_n=mg)  # the push alone is not counted
+    _hover_in_turbulence(grounded, C_TRUE, k_a, mt, mg, t_end=3.0, on_ground_s=3.0)
+    assert grounded.n_ratio == 0
+
+
 def test_the_report_gives_the_drag_declared_and_identified_or_why_not():
     mg = 0.1 * 9.81
     ident = DragIdentifier()
     why = "too little speed change to fit it (Σ|Δv|² 0.0 of 10 (m/s)²)"
     assert ident.facts(0.1, 9.81) == {"declared_n_per_mps2": None, "identified_n_per_mps2": None,
-                                      "identified_detail": why}
+                                      "identified_detail": why, "from_push_n_per_mps2": None}
     _feed(ident, C_TRUE, (0.0, -3.0))
     f = ident.facts(0.1, 9.81)
     assert f["declared_n_per_mps2"] is None and f["identified_detail"] is None

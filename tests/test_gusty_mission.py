@@ -36,6 +36,8 @@ def test_the_gusty_forest_is_flown_clean_and_calmer_than_a_payload_held_still(tm
     assert (drag["identified_n_per_mps2"] is None) != (drag["identified_detail"] is None)
     summary = (run / "summary.txt").read_text()
     assert "payload drag        declared —, " in summary and ", world 0.0061 N per (m/s)²" in summary
+    # the ratio of the payload's drag angle to the airframe's push: within 15 % of the world's 0.0061
+    assert drag["from_push_n_per_mps2"] == pytest.approx(0.5 * 1.225 * 0.01, rel=0.15)
     assert "to lift it at the angle of half the cap's drag" in summary
 
 
@@ -44,6 +46,8 @@ def test_the_drag_line_is_left_out_when_there_is_nothing_to_say():
     assert drag_lines(none, {"model": "paper"}) == [] and drag_lines(None, None) == []
     known = drag_lines(none | {"declared_n_per_mps2": 0.0061}, None)
     assert known == ["  payload drag        declared 0.0061 N per (m/s)²; not identified: too little"]
-    fit = {"declared_n_per_mps2": None, "identified_n_per_mps2": 0.0049, "identified_detail": None}
+    fit = {"declared_n_per_mps2": None, "identified_n_per_mps2": 0.0049, "identified_detail": None,
+           "from_push_n_per_mps2": 0.0058}
     world = {"model": "turbulence", "payload_drag_area_m2": 0.01, "air_density_kgpm3": 1.225}
-    assert drag_lines(fit, world) == ["  payload drag        declared —, identified 0.0049, world 0.0061 N per (m/s)²"]
+    assert drag_lines(fit, world) == ["  payload drag        declared —, identified 0.0049, from the push 0.0058, "
+                                      "world 0.0061 N per (m/s)²"]

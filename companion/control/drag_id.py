@@ -19,6 +19,17 @@ for the flight (c is the payload's, not the weather's); the wind then follows as
 eq. 49 (no payload drag) the regression's slope is noise about zero: a c below :data:`C_MIN` is taken as none, so
 those flights are planned exactly as before.
 
+With the airframe's drag coefficient k_a declared (``[payload] airframe_drag_n_per_mps2``), the wind's push on the
+whole system, d = (k_a + k)·|a|·a/(M + m) (:class:`~companion.control.disturbance.ForceObserver`), measures the same
+relative wind at the same moment, so the ratio of the two needs no speed change: with r = e·d/|d|² (a regression
+through the origin over the flight's samples, a push of at least :data:`RATIO_PUSH_MIN_MPS2` and a drag angle of
+at least :data:`TRACK_MIN_RAD`, the payload lifted), c = r·k_a/((M + m) − r·m·g), given after
+:data:`RATIO_SAMPLES_MIN` samples (0.85–1.01 of the world's c on six grid flights in light and moderate turbulence,
+where the regression's median was 0.65–0.75 and often none). It is the report's estimate of the payload's drag, the
+one to declare for the next flight; the flight itself does not use it. Flown with it, the grid was faster and
+swung and hit more (docs/measurements.md, twenty-first sitting): the timing's care before c is known carries those
+flights, not c's accuracy.
+
 A payload whose drag the mission declares (``[payload] drag_n_per_mps2`` = k, as it declares mass and cable) has
 c = k/(m·g) from take-off (``c_declared``): no speed-up is waited for, and the wind follows from the equilibrium at
 once, the hover before the cruise included. In turbulence one speed-up cannot separate c from the wind's own change
@@ -47,6 +58,8 @@ GUST_SIGMAS = 3.0
 TRACK_MIN_RAD = 0.01  # (rad) a smaller drag angle is no wind to learn the turbulence from (a payload on the ground)
 #: (rad per (m/s)²) a smaller c is none: 0.03 rad of trailing at 5 m/s (the swing observer's error is <= 0.017 rad)
 C_MIN = 0.0012
+RATIO_PUSH_MIN_MPS2 = 0.3  # (m/s²) a smaller push is too near the observer's own error (0.06) to divide by
+RATIO_SAMPLES_MIN = 20  # samples (every SAMPLE_S) before the ratio's c is given: 2 s of wind
 
 
 def declared_drag_c(drag_n_per_mps2: float, payload_kg: float, g_mps2: float) -> float:
@@ -88,9 +101,14 @@ class DragIdentifier:
     """c (rad per (m/s)²) and the wind (m/s, NED x y) from the swing's wind equilibrium; see module docstring.
     ``c_declared`` (> 0): the payload's declared c (:func:`declared_drag_c`), used instead of the regression's."""
 
-    def __init__(self, tau_s: float = TAU_S, c_declared: float = 0.0) -> None:
+    def __init__(self, tau_s: float = TAU_S, c_declared: float = 0.0, k_airframe: float = 0.0,
+                 m_total_kg: float = 1.0, payload_weight_n: float = 1.0) -> None:
         self.tau_s = tau_s
         self.c_declared = c_declared
+        #: the airframe's drag coefficient (N per (m/s)², 0: unknown), the system's mass (kg), the payload's weight (N)
+        self.k_airframe, self.m_total_kg, self.payload_weight_n = k_airframe, m_total_kg, payload_weight_n
+        self.sed = self.sdd = 0.0  # Σ e·d (rad·m/s²) and Σ |d|² ((m/s²)²) of the ratio's samples
+        self.n_ratio = 0
         self._vf: tuple[float, float] | None = None
         self._t: float | None = None
         self._hist: deque[tuple[float, float, float, float, float]] = deque()  # (t, ux, uy, vx, vy)
@@ -106,6 +124,15 @@ class DragIdentifier:
         below :data:`C_MIN`)."""
         return self.c_declared if self.c_declared > 0.0 else self._fitted()
 
+    def _from_push(self) -> float:
+        """c (rad per (m/s)²) from the ratio of the drag angle to the push (module docstring; the report's, not the
+        flight's); 0 while it gives none (too few samples, a ratio at or below zero or past the system's own)."""
+        if self.n_ratio < RATIO_SAMPLES_MIN or self.sed <= 0.0:
+            return 0.0
+        r = self.sed / self.sdd
+        den = self.m_total_kg - r * self.payload_weight_n
+        return r * self.k_airframe / den if den > 0.0 else 0.0
+
     def _fitted(self) -> float:
         """The regression's own c (rad per (m/s)²; 0 while it gives none), declared or not."""
         if self.sxx < SXX_MIN or self.sxy <= 0.0:
@@ -114,10 +141,12 @@ class DragIdentifier:
         return c if c >= C_MIN else 0.0
 
     def facts(self, payload_kg: float, g_mps2: float) -> dict[str, float | str | None]:
-        """The report's ``payload_drag`` for a payload of ``payload_kg`` (kg): k = c·m·g (N per (m/s)²) declared and
-        identified in flight (the regression runs whether or not k is declared), or why it gave none."""
+        """The report's ``payload_drag`` for a payload of ``payload_kg`` (kg): k = c·m·g (N per (m/s)²) declared,
+        identified in flight by the regression (which runs whether or not k is declared) or why it gave none, and
+        from the push's ratio (None without the airframe's drag or enough wind)."""
         mg = payload_kg * g_mps2
         fit = self._fitted()
+        ratio = self._from_push()
         why = None
         if fit <= 0.0:
             if self.sxx < SXX_MIN:
@@ -129,7 +158,8 @@ class DragIdentifier:
                        "for a drag")
         return {"declared_n_per_mps2": round(self.c_declared * mg, 5) if self.c_declared > 0.0 else None,
                 "identified_n_per_mps2": round(fit * mg, 5) if fit > 0.0 else None,
-                "identified_detail": why}
+                "identified_detail": why,
+                "from_push_n_per_mps2": round(ratio * mg, 5) if ratio > 0.0 else None}
 
     @property
     def wind_estimate(self) -> tuple[float, float]:
@@ -174,9 +204,11 @@ class DragIdentifier:
         if self.c > 0.0:
             self._w.fold(t_s, self.wind_estimate)
 
-    def update(self, t_s: float, eq_rad: tuple[float, float] | None, vel_ned_mps) -> None:
+    def update(self, t_s: float, eq_rad: tuple[float, float] | None, vel_ned_mps,
+               push_mps2: tuple[float, float] = (0.0, 0.0)) -> None:
         """Feed the equilibrium (α_eq, β_eq) (rad, :attr:`SwingBias.mean`; None: no swing input, the differences'
-        history is forgotten) and the airframe's velocity (m/s, NED) at ``t_s`` (s)."""
+        history is forgotten), the airframe's velocity (m/s, NED) and the wind's push on the system (m/s², NED x y,
+        :attr:`ForceObserver.mean`; read only with the airframe's drag known) at ``t_s`` (s)."""
         if eq_rad is None:
             self.reset()
             return
@@ -194,6 +226,8 @@ class DragIdentifier:
         if t_s < self._next_s:
             return
         self._next_s = t_s + SAMPLE_S
+        if self.k_airframe > 0.0:
+            self._ratio_sample(ex, ey, push_mps2)
         h = self._hist
         h.append((t_s, self._u[0], self._u[1], self._vf[0], self._vf[1]))
         while len(h) > 1 and h[1][0] <= t_s - LAG_S + 1e-9:
@@ -204,6 +238,17 @@ class DragIdentifier:
         dvx, dvy = self._vf[0] - vx0, self._vf[1] - vy0
         self.sxy -= (self._u[0] - ux0) * dvx + (self._u[1] - uy0) * dvy
         self.sxx += dvx * dvx + dvy * dvy
+
+    def _ratio_sample(self, ex: float, ey: float, push_mps2: tuple[float, float]) -> None:
+        """Fold one sample of the drag angle e (rad, NED x y) against the push d (m/s²) into the ratio's sums, when
+        both are large enough to mean a wind on a lifted payload."""
+        dx, dy = float(push_mps2[0]), float(push_mps2[1])
+        dd = dx * dx + dy * dy
+        if dd < RATIO_PUSH_MIN_MPS2 * RATIO_PUSH_MIN_MPS2 or math.hypot(ex, ey) < TRACK_MIN_RAD:
+            return
+        self.sed += ex * dx + ey * dy
+        self.sdd += dd
+        self.n_ratio += 1
 
     def reset(self) -> None:
         """Forget the differences' history (the swing input dropped out); the sums are kept."""

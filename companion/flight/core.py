@@ -237,7 +237,8 @@ class FlightCore(CoreOrders, HopMixin):
                                 self.params.l)
             push_offset(self.controller, self.push, est.t_s, est.vel_ned_mps, est.euler_rad, self._thrust_prev,
                         None if ctl_swing is None else swing, swing_acc_raw, trust)
-            self.drag_id.update(est.t_s, None if ctl_swing is None else self.swing_bias.mean, est.vel_ned_mps)
+            self.drag_id.update(est.t_s, None if ctl_swing is None else self.swing_bias.mean, est.vel_ned_mps,
+                                self.push.mean)
             if self.drag_id.c > 0.0:  # a payload drag, declared or identified: the wind drags, its push is taken off
                 self.push.lower_band(dt)
         ctl = self.controller.update(

@@ -131,8 +131,10 @@ class HopMixin:
                                     self.cfg.feedforward.rate_filter_s)
         self.push = ForceObserver(params.M + params.m, params.m, params.l, self.cfg.feedforward.rate_filter_s,
                                   airframe_drag_declared=self.mission.payload.airframe_drag_n_per_mps2 > 0.0)
-        self.drag_id = DragIdentifier(c_declared=declared_drag_c(self.mission.payload.drag_n_per_mps2, params.m,
-                                                                 params.g))
+        pay = self.mission.payload
+        self.drag_id = DragIdentifier(c_declared=declared_drag_c(pay.drag_n_per_mps2, params.m, params.g),
+                                      k_airframe=pay.airframe_drag_n_per_mps2, m_total_kg=params.M + params.m,
+                                      payload_weight_n=params.m * params.g)
         self._airframe_r = params.r_uav + params.L_uav
         # the speed cap inside the space the range sensor saw free: what passes before a lower cap takes effect is
         # a scan, a re-plan, and the reference's lag behind the plan (shaped: half its shapers' widths; a velocity

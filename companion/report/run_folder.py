@@ -182,17 +182,20 @@ def lift_off_lines(lift: dict[str, Any] | None) -> list[str]:
 
 
 def drag_lines(drag: dict[str, Any] | None, wind: dict[str, Any] | None) -> list[str]:
-    """The summary's payload-drag line (N per (m/s)²): declared, identified in flight (or why not), and the world's
-    own where the bundled vehicle flew a physical wind (``wind``, the report's); none when there is nothing to say."""
+    """The summary's payload-drag line (N per (m/s)²): declared, identified in flight (or why not), from the push's
+    ratio (:mod:`companion.control.drag_id`), and the world's own where the bundled vehicle flew a physical wind
+    (``wind``, the report's); none when there is nothing to say."""
     world = None
     if wind and wind.get("model") == "turbulence":
         world = 0.5 * float(wind.get("air_density_kgpm3", 1.225)) * float(wind.get("payload_drag_area_m2", 0.0))
-    if not drag or (world is None and drag.get("declared_n_per_mps2") is None
-                    and drag.get("identified_n_per_mps2") is None):
+    keys = ("declared_n_per_mps2", "identified_n_per_mps2", "from_push_n_per_mps2")
+    said = [drag.get(k) for k in keys] if drag else []
+    if not drag or (world is None and all(v is None for v in said)):
         return []
-    ident = drag.get("identified_n_per_mps2")
-    parts = [f"declared {_fmt(drag.get('declared_n_per_mps2'), '', 4)}"]
+    ident, push = said[1], said[2]
+    parts = [f"declared {_fmt(said[0], '', 4)}"]
     parts += [] if ident is None else [f"identified {ident:.4f}"]
+    parts += [] if push is None else [f"from the push {push:.4f}"]
     parts += [] if world is None else [f"world {world:.4f}"]
     line = "  payload drag        " + ", ".join(parts) + " N per (m/s)²"
     return [line if ident is not None else f"{line}; not identified: {drag.get('identified_detail')}"]
