@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from companion.core.mission import Mission
+from companion.core.wind import WindConfig
 from companion.report.metrics import FlightLog, compute_metrics, estimation_error, waypoint_lines
 from companion.report.wind_truth import report_wind_truth
 
@@ -187,7 +188,7 @@ def drag_lines(drag: dict[str, Any] | None, wind: dict[str, Any] | None) -> list
     (``wind``, the report's); none when there is nothing to say."""
     world = None
     if wind and wind.get("model") == "turbulence":
-        world = 0.5 * float(wind.get("air_density_kgpm3", 1.225)) * float(wind.get("payload_drag_area_m2", 0.0))
+        world = float(WindConfig(**wind).drag_coefficients()[1])
     keys = ("declared_n_per_mps2", "identified_n_per_mps2", "from_push_n_per_mps2")
     said = [drag.get(k) for k in keys] if drag else []
     if not drag or (world is None and all(v is None for v in said)):
