@@ -24,11 +24,10 @@ whole system, d = (k_a + k)·|a|·a/(M + m) (:class:`~companion.control.disturba
 relative wind at the same moment, so the ratio of the two needs no speed change: with r = e·d/|d|² (a regression
 through the origin over the flight's samples, a push of at least :data:`RATIO_PUSH_MIN_MPS2` and a drag angle of
 at least :data:`TRACK_MIN_RAD`, the payload lifted), c = r·k_a/((M + m) − r·m·g), given after
-:data:`RATIO_SAMPLES_MIN` samples (0.85–1.01 of the world's c on six grid flights in light and moderate turbulence,
-where the regression's median was 0.65–0.75 and often none). It is the report's estimate of the payload's drag, the
-one to declare for the next flight; the flight itself does not use it. Flown with it, the grid was faster and
-swung and hit more (docs/measurements.md, twenty-first sitting): the timing's care before c is known carries those
-flights, not c's accuracy.
+:data:`RATIO_SAMPLES_MIN` samples. It is the report's estimate of the payload's drag, the one to declare for the
+next flight (median 0.99 of the world's in light turbulence, 0.88 in moderate; the regression's often none); the
+flight itself does not use it: flown with it, the grid swung and hit more (docs/measurements.md, twenty-first
+sitting).
 
 A payload whose drag the mission declares (``[payload] drag_n_per_mps2`` = k, as it declares mass and cable) has
 c = k/(m·g) from take-off (``c_declared``): no speed-up is waited for, and the wind follows from the equilibrium at
