@@ -141,7 +141,8 @@ def fly_inprocess(
     on_tick: Callable[[FlightCore, float], None] | None = None,
     air_mode: int = AIR_MODE_ALL,
 ) -> FlightLog:
-    """Fly ``mission`` from take-off to the end of the hold (or timeout); returns the flight log.
+    """Fly ``mission`` from take-off to the end of the hold (or timeout); returns the flight log, its ``outcome``
+    the core's verdict (``completed``, ``timeout``, ``no_route``; None if it had not ended).
 
     ``swing_sensor`` False flies without swing measurement (full-cable envelope, no feed-forward).
     ``swing_source`` overrides it: ``"cable_sensor"``, ``"none"`` or ``"estimate"`` (the swing estimator fed
@@ -195,4 +196,5 @@ def fly_inprocess(
         tick += 1
     flog.wall_time_s = time.perf_counter() - wall0
     flog.obstacle_clock_t0_s = core.t0_s  # where the report places the moving obstacles (report.scoring)
+    flog.outcome = core.result
     return flog

@@ -115,16 +115,15 @@ def _warm_vehicle() -> Any:
 
 def _fly_inprocess(job: Job) -> dict[str, Any]:
     """The flight of ``job`` by :func:`lab.inprocess.fly_inprocess`, its report written as ``fly``'s is, with the
-    ``no_route`` outcome when the flight core ended so (its phases say; the report does not keep them)."""
+    flight core's verdict as the outcome (``completed``, ``timeout``, ``no_route``), as ``fly`` reports it."""
     from companion.launch.fly import DEFAULT_GAINS, load_gains
     from companion.report.run_folder import write_run
     from lab.inprocess import fly_inprocess
 
     gains = load_gains(job.gains or DEFAULT_GAINS)
     flog = fly_inprocess(job.mission, gains=gains)
-    outcome = "no_route" if "no_route" in flog.phase else "completed"
-    extra = {"outcome": outcome, "wall_time_s": flog.wall_time_s, "mode": "inprocess", "simulated": True,
-             "wind": {"model": job.mission.wind.model, "scale": job.mission.wind.scale},
+    extra = {"outcome": flog.outcome or "timeout", "wall_time_s": flog.wall_time_s, "mode": "inprocess",
+             "simulated": True, "wind": {"model": job.mission.wind.model, "scale": job.mission.wind.scale},
              "vehicle": job.mission.vehicle.as_dict(), "run_dir": str(job.run_dir)}
     return write_run(flog, job.mission, extra, job.run_dir, plots=job.plots)
 

@@ -166,3 +166,15 @@ def test_evaluate_and_the_flight_report_score_a_crossing_trunk_alike(tmp_path):
     npz = tmp_path / "run" / "flight_log.npz"
     assert rep["min_clearance_m"] == pytest.approx(_brute_clearance(npz, trunk, airframe, clock), abs=1e-9)
     assert _brute_clearance(npz, trunk, airframe, None) < 0.0
+
+
+def test_a_flight_out_of_time_in_process_reports_timeout(tmp_path):
+    # the Table 2 forest with 3 s to fly it: the in-process report's outcome is the flight core's verdict
+    # ("timeout", as fly reports it), not "completed"
+    from dataclasses import replace
+
+    from lab.runner import Job, run_job
+
+    mission = replace(load_mission(Path(__file__).parents[1] / "config" / "missions" / "forest.toml"), timeout_s=3.0)
+    r = run_job(Job("short", mission, tmp_path / "run", mode="inprocess"))
+    assert (r["class"], r["outcome"], r["reached_goal"], r["collisions"]) == ("stuck", "timeout", False, 0)
