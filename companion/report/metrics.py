@@ -148,8 +148,7 @@ class FlightLog:
     phase: list[str] = field(default_factory=list)
     envelope_mode: list[str] = field(default_factory=list)
     wall_time_s: float | None = None
-    #: the flight core's verdict (``completed``, ``timeout``, ``no_route``) where the runner recorded it, else None
-    outcome: str | None = None
+    outcome: str | None = None  # the flight core's verdict (completed, timeout, no_route) where the runner set it
 
     def append(self, t_s: float, pos, vel, euler, swing, payload_pos, cmd: Any | None = None,
                swing_used=None) -> None:
