@@ -36,7 +36,7 @@ from companion.flight.command import LIFT_MARGIN_M, Command, climb_altitude_ned_
 from companion.flight.core_hop import HopMixin
 from companion.flight.core_orders import DESCENT_MPS, TIMED_PHASES, CoreOrders
 from companion.flight.legs import Legs, capped, leg_plan, legs_done, planned_swing_acc
-from companion.flight.liftoff import LiftOffGate, lift_gate
+from companion.flight.liftoff import LiftOffGate, lean_gain_per_s, lift_gate
 from companion.flight.loop_margin import LoopMargin
 from companion.flight.phase import CorePhase
 from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator
@@ -305,7 +305,8 @@ class FlightCore(CoreOrders, HopMixin):
             gate = self.lift_gate
             if gate.armed:  # upwind of the payload, to lift it at its drag equilibrium (companion.flight.liftoff)
                 lx, ly = gate.lift_point(self.push.mean, obs, self._airframe_r)
-                vdx, vdy = self.cfg.planner.ka * (lx - ref.p[0]), self.cfg.planner.ka * (ly - ref.p[1])
+                k = lean_gain_per_s(self.params.l, self.cfg.planner)
+                vdx, vdy = k * (lx - ref.p[0]), k * (ly - ref.p[1])
             vdz = self._vertical_speed(gate.target_z(est.t_s, (float(pos[0]), float(pos[1])), ref.p[2],
                                                      self.push.mean, obs, self._climb_z))
         elif self.phase == CorePhase.CRUISE:

@@ -33,6 +33,10 @@ drag is unknown the lean is taken at half the cap (:data:`LEAN_CAP_SHARE`). That
 every payload up to it (more than lifting from above only where θ_eq < θ_L/2, a small swing either way) and lowers
 it for every payload beyond (the twenty-first sitting's grid: docs/measurements.md).
 The climb does not wait for the airframe to get there: waiting, it met other gusts, and the swing was no smaller.
+It heads there at the planner's gain ka, or faster where the climb reaches the lift-off height in under three
+time constants (:func:`lean_gain_per_s`: 3/s on 0.5 m, lifted 1 s into the climb; 0.1 kg in a steady 7 m/s wind
+swings to 1.29·θ_eq, not 1.59·θ_eq). A faster gain on every cable chased the push's gusts on long ones
+(docs/measurements.md).
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ from companion.control.drag_id import declared_drag_c
 from companion.core.mission import Mission
 from companion.core.obstacles import Obstacle
 from companion.core.vehicle_params import VehicleParams
+from companion.planning.params import PlannerParams
 from companion.planning.timing import PROVISIONAL_C_MAX
 
 WAIT_BELOW_M = 0.4  # (m) the climb waits this far below the height at which the cable lifts the payload
@@ -57,6 +62,15 @@ LIFT_MARGIN_M = 0.1  # (m) the way to the lift point keeps this much beyond a tr
 LEAN_CAP_SHARE = 0.5  # a payload of unknown drag is leaned for as for this share of PROVISIONAL_C_MAX
 
 log = logging.getLogger(__name__)
+
+
+def lean_gain_per_s(cable_m: float, p: PlannerParams) -> float:
+    """(1/s) the climb's reference gain toward the lift point: the planner's ``ka``, or faster where the climb
+    reaches the lift-off height (``cable_m`` up, accelerating at half ``az_max_mps2`` to ``vz_max_mps``) in less
+    than three of its time constants."""
+    a, v = 0.5 * p.az_max_mps2, p.vz_max_mps
+    t = math.sqrt(2.0 * cable_m / a) if cable_m <= v * v / (2.0 * a) else v / a + (cable_m - v * v / (2.0 * a)) / v
+    return max(p.ka, 3.0 / t)
 
 
 def wind_sq_from_push(push_mps2: float, m_total_kg: float, k_airframe: float) -> float:
