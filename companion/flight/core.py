@@ -36,7 +36,7 @@ from companion.flight.command import LIFT_MARGIN_M, Command, climb_altitude_ned_
 from companion.flight.core_hop import HopMixin
 from companion.flight.core_orders import DESCENT_MPS, TIMED_PHASES, CoreOrders
 from companion.flight.legs import Legs, capped, leg_plan, legs_done, planned_swing_acc
-from companion.flight.liftoff import LiftOffGate, lean_gain_per_s, lift_gate
+from companion.flight.liftoff import LiftOffGate, lift_gate
 from companion.flight.loop_margin import LoopMargin
 from companion.flight.phase import CorePhase
 from companion.planning import PlanInput, Planner, PlanOutput, ReferenceGenerator
@@ -106,7 +106,8 @@ class FlightCore(CoreOrders, HopMixin):
         self.swing_wait_s = 0.0
         self.t_swing_wait_s: float | None = None  # when the climb started waiting for the estimate
         self._climb_z = float(mission.start_ned_m[2])  # where the climb ends (NED z, m; see climb_altitude_ned_m)
-        self.lift_gate = lift_gate(mission, self.params, 0.0, 0.0)  # open; armed by _start for a lift-off climb
+        # open; armed by _start for a lift-off climb
+        self.lift_gate = lift_gate(mission, self.params, self.cfg.planner, 0.0, 0.0)
         self.timed_out = False
         self.t0_s: float | None = None
         self.t_prev_s: float | None = None
@@ -266,7 +267,7 @@ class FlightCore(CoreOrders, HopMixin):
         self.t0_s = est.t_s
         self.yaw_rad = float(est.euler_rad[2])
         self._climb_z = climb_altitude_ned_m(z, float(self.mission.start_ned_m[2]), self.params.l)
-        self.lift_gate = lift_gate(self.mission, self.params, z, self._climb_z,
+        self.lift_gate = lift_gate(self.mission, self.params, self.cfg.planner, z, self._climb_z,
                                    (float(est.pos_ned_m[0]), float(est.pos_ned_m[1])))
         if abs(z - self._climb_z) < ARRIVE_VERT_M:
             self.phase = self._after_climb()
@@ -304,9 +305,7 @@ class FlightCore(CoreOrders, HopMixin):
             vdx = vdy = 0.0
             gate = self.lift_gate
             if gate.armed:  # upwind of the payload, to lift it at its drag equilibrium (companion.flight.liftoff)
-                lx, ly = gate.lift_point(self.push.mean, obs, self._airframe_r)
-                k = lean_gain_per_s(self.params.l, self.cfg.planner)
-                vdx, vdy = k * (lx - ref.p[0]), k * (ly - ref.p[1])
+                vdx, vdy = gate.lean_velocity((ref.p[0], ref.p[1]), self.push.mean, obs, self._airframe_r)
             vdz = self._vertical_speed(gate.target_z(est.t_s, (float(pos[0]), float(pos[1])), ref.p[2],
                                                      self.push.mean, obs, self._climb_z))
         elif self.phase == CorePhase.CRUISE:

@@ -144,8 +144,10 @@ class LiftOffGate:
     the payload (NED z, m)."""
 
     def __init__(self, k_airframe: float, c_payload: float, m_total_kg: float, cable_m: float,
-                 lift_z_ned_m: float, origin_xy: tuple[float, float] = (0.0, 0.0)) -> None:
+                 lift_z_ned_m: float, origin_xy: tuple[float, float] = (0.0, 0.0),
+                 lean_gain_per_s: float = PlannerParams.ka) -> None:
         self.k_airframe, self.c_payload = k_airframe, c_payload
+        self.lean_gain_per_s = lean_gain_per_s  # (1/s) the climb's reference gain toward the lift point
         self.c_reach = c_payload if c_payload > 0.0 else PROVISIONAL_C_MAX  # (rad per (m/s)²) the reach's drag
         self.c_lean = c_payload if c_payload > 0.0 else LEAN_CAP_SHARE * PROVISIONAL_C_MAX  # (rad per (m/s)²)
         self.m_total_kg, self.cable_m = m_total_kg, cable_m
@@ -170,6 +172,14 @@ class LiftOffGate:
             dx, dy = clear_offset_m(self.origin_xy, off, obstacles, airframe_r_m + LIFT_MARGIN_M)
             self.lift_xy = (self.origin_xy[0] + dx, self.origin_xy[1] + dy)
         return self.lift_xy
+
+    def lean_velocity(self, ref_xy: tuple[float, float], push_mps2: tuple[float, float],
+                      obstacles: Sequence[Obstacle], airframe_r_m: float) -> tuple[float, float]:
+        """(m/s, NED x y) the climb's horizontal reference velocity from ``ref_xy`` (m) toward :meth:`lift_point`
+        (arguments as there): its gain times the way left."""
+        lx, ly = self.lift_point(push_mps2, obstacles, airframe_r_m)
+        k = self.lean_gain_per_s
+        return k * (lx - ref_xy[0]), k * (ly - ref_xy[1])
 
     def target_z(self, t_s: float, xy: tuple[float, float], ref_z_ned_m: float, push_mps2: tuple[float, float],
                  obstacles: Sequence[Obstacle], climb_z_ned_m: float) -> float:
@@ -217,14 +227,14 @@ class LiftOffGate:
         return out
 
 
-def lift_gate(mission: Mission, params: VehicleParams, z0_ned_m: float, climb_z_ned_m: float,
-              origin_xy: tuple[float, float] = (0.0, 0.0)) -> LiftOffGate:
+def lift_gate(mission: Mission, params: VehicleParams, planner: PlannerParams, z0_ned_m: float,
+              climb_z_ned_m: float, origin_xy: tuple[float, float] = (0.0, 0.0)) -> LiftOffGate:
     """The gate of a flight that starts at ``z0_ned_m`` and ``origin_xy`` (NED, m) and climbs to ``climb_z_ned_m``
-    (NED z, m) with ``params``:
+    (NED z, m) with ``params``, leaning at :func:`lean_gain_per_s` for its cable and ``planner``:
     armed when the climb lifts the payload off the ground and ``mission``'s ``[payload]`` declares the airframe's
     drag coefficient, open otherwise; the payload's drag from the mission too, or unknown."""
     pay = mission.payload
     lifts = z0_ned_m > -params.l and climb_z_ned_m < -params.l
     k_a = pay.airframe_drag_n_per_mps2 if lifts else 0.0
     return LiftOffGate(k_a, declared_drag_c(pay.drag_n_per_mps2, params.m, params.g), params.M + params.m, params.l,
-                       -params.l, origin_xy)
+                       -params.l, origin_xy, lean_gain_per_s(params.l, planner))
