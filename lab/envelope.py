@@ -37,6 +37,8 @@ log = logging.getLogger(__name__)
 MASSES_KG = (0.1, 0.25, 0.5, 0.8)
 CABLES_M = (0.5, 1.0, 2.0, 3.0)
 WINDS = ("calm", "paper", "light", "moderate")
+#: what each grid mission declares of the drags (:func:`cell_mission`)
+DRAG_DECLARATIONS = ("declared", "identified", "none")
 GROUND_CLEARANCE_M = 1.0  # the payload hangs at least this far above the ground in every cell (m)
 TRUNK_ABOVE_M = 3.0  # trunks stand this far above the flight altitude (m): a flight under the canopy
 #: the swing each wind may cost (rad): the issue's bound, up to light turbulence 0.25, moderate 0.35
@@ -88,11 +90,14 @@ def cell_spec(cell: Cell, base: ForestSpec) -> ForestSpec:
     return base.with_(altitude_m=altitude, trunk_height_m=max(base.trunk_height_m, altitude + TRUNK_ABOVE_M))
 
 
-def cell_mission(cell: Cell, seed: int, base: ForestSpec, declare_drag: bool = True) -> Mission:
-    """The forest of ``seed`` flown with the cell's payload and wind. ``declare_drag``: the mission declares the
-    payload's and the airframe's drag coefficients as it declares the mass and cable (``[payload] drag_n_per_mps2``
-    and ``airframe_drag_n_per_mps2``, the world's own where the wind drags, 0 in calm air and eq. 49, which drag
-    nothing); False: the airframe's only, the vehicle's own (the companion identifies the payload's)."""
+def cell_mission(cell: Cell, seed: int, base: ForestSpec, drags: str = "declared") -> Mission:
+    """The forest of ``seed`` flown with the cell's payload and wind. ``drags`` (:data:`DRAG_DECLARATIONS`):
+    ``declared``, the mission declares the payload's and the airframe's drag coefficients as it declares the mass
+    and cable (``[payload] drag_n_per_mps2`` and ``airframe_drag_n_per_mps2``, the world's own where the wind drags,
+    0 in calm air and eq. 49, which drag nothing); ``identified``, the airframe's only, the vehicle's own (the
+    companion identifies the payload's); ``none``, neither (the companion assumes a typical airframe's)."""
+    if drags not in DRAG_DECLARATIONS:
+        raise ValueError(f"drags: one of {', '.join(DRAG_DECLARATIONS)}, got {drags!r}")
     spec = cell_spec(cell, base)
     m = generate_forest(seed, spec)
     vehicle = replace(m.vehicle, m=cell.mass_kg, l=cell.cable_m)
@@ -101,20 +106,20 @@ def cell_mission(cell: Cell, seed: int, base: ForestSpec, declare_drag: bool = T
     payload = m.payload
     if wind.is_physical:
         k_airframe, k_payload = map(float, wind.drag_coefficients())
-        payload = replace(payload, drag_n_per_mps2=k_payload if declare_drag else 0.0,
-                          airframe_drag_n_per_mps2=k_airframe)
+        payload = replace(payload, drag_n_per_mps2=k_payload if drags == "declared" else 0.0,
+                          airframe_drag_n_per_mps2=k_airframe if drags != "none" else 0.0)
     return m.with_(vehicle=vehicle, wind=wind, payload=payload,
                    name=f"{m.name}-m{cell.mass_kg:g}-l{cell.cable_m:g}-{cell.wind}")
 
 
 def build_jobs(cells: list[Cell], n: int, seed0: int, base: ForestSpec, mode: str, out: Path,
-               declare_drag: bool = True) -> list[Job]:
-    """One job per (cell, seed); ``declare_drag`` as :func:`cell_mission`."""
+               drags: str = "declared") -> list[Job]:
+    """One job per (cell, seed); ``drags`` as :func:`cell_mission`."""
     jobs = []
     for c in cells:
         for seed in range(seed0, seed0 + n):
             run_dir = out / "runs" / f"m{c.mass_kg:g}" / f"l{c.cable_m:g}" / c.wind / f"s{seed}"
-            jobs.append(Job(key=f"{c.key}|{seed}", mission=cell_mission(c, seed, base, declare_drag),
+            jobs.append(Job(key=f"{c.key}|{seed}", mission=cell_mission(c, seed, base, drags),
                             run_dir=run_dir, mode=mode, plots=False, keep_run_dir=False))
     return jobs
 
@@ -184,12 +189,12 @@ def table_markdown(cells: list[Cell], per: dict[str, dict[str, Any]]) -> str:
 
 
 def envelope(cells: list[Cell], n: int, *, seed0: int = 0, base: ForestSpec | None = None, mode: str = "mavlink",
-             workers: int = 2, out: Path, progress: bool = True, declare_drag: bool = True) -> dict[str, Any]:
+             workers: int = 2, out: Path, progress: bool = True, drags: str = "declared") -> dict[str, Any]:
     """Fly the grid and write ``envelope.md``, ``envelope.json``, ``results.jsonl`` and ``envelope.png``;
-    ``declare_drag`` as :func:`cell_mission`."""
+    ``drags`` as :func:`cell_mission`."""
     base = base or ForestSpec(density_per_100m2=4.0, width_m=6.0)
     out.mkdir(parents=True, exist_ok=True)
-    jobs = build_jobs(cells, n, seed0, base, mode, out, declare_drag)
+    jobs = build_jobs(cells, n, seed0, base, mode, out, drags)
     wall0 = time.monotonic()
     results = run_jobs(jobs, workers, progress)
     wall = time.monotonic() - wall0
@@ -199,13 +204,14 @@ def envelope(cells: list[Cell], n: int, *, seed0: int = 0, base: ForestSpec | No
     per = summarise(results, cells)
     summary = {"mode": mode, "n_per_cell": n, "seed0": seed0, "density_per_100m2": base.density_per_100m2,
                "width_m": base.width_m, "length_m": base.length_m,
-               "payload_drag": "declared" if declare_drag else "identified", "wall_s": wall, "missions": len(results),
+               "payload_drag": drags, "wall_s": wall, "missions": len(results),
                "cells": [{"mass_kg": c.mass_kg, "cable_m": c.cable_m, "wind": c.wind, **per[c.key]} for c in cells]}
     (out / "envelope.json").write_text(json.dumps(summary, indent=2) + "\n")
     from lab.figures import plot_envelope
 
     png = plot_envelope(summary, out / "envelope.png")
-    drag = "drags declared" if declare_drag else "payload drag identified"
+    drag = {"declared": "drags declared", "identified": "payload drag identified",
+            "none": "no drag declared"}[drags]
     head = (f"# Payload envelope: {n} forests per cell ({base.density_per_100m2:g} trunks/100 m², "
             f"{base.width_m:g} m corridor, {mode} mode, {drag}), "
             f"{len(results)} flights in {wall:.0f} s\n\n")

@@ -155,10 +155,11 @@ def add_evaluate_arguments(p: argparse.ArgumentParser) -> None:
                         "(8 trunks/100 m2 unless --density says otherwise; lab/perception_eval.py)")
     p.add_argument("--envelope-masses", default=None, metavar="KG,..", help="grid masses (default 0.1,0.25,0.5,0.8)")
     p.add_argument("--envelope-cables", default=None, metavar="M,..", help="grid cable lengths (default 0.5,1,2,3)")
-    p.add_argument("--envelope-drag", choices=("declared", "identified"), default="declared",
+    p.add_argument("--envelope-drag", choices=("declared", "identified", "none"), default="declared",
                    help="the drag coefficients: the payload's and the airframe's declared in each mission as its "
-                        "mass and cable are (the world's own where the wind drags; default), or the payload's left to "
-                        "the companion to identify in flight (the airframe's, the vehicle's own, still declared)")
+                        "mass and cable are (the world's own where the wind drags; default); identified: the "
+                        "payload's left to the companion to identify in flight (the airframe's, the vehicle's own, "
+                        "still declared); none: neither declared (the companion assumes a typical airframe's)")
     p.add_argument("--envelope-winds", default=None, metavar="NAME,..",
                    help="grid winds: calm, paper (eq. 49), light (3 m/s mean), moderate (6 m/s mean); default all")
 
@@ -178,7 +179,7 @@ def _run_envelope(args: argparse.Namespace, planner: str, out: Path) -> int:
     except ValueError as exc:
         raise ConfigError(f"evaluate --envelope: {exc}") from None
     envelope(cells, args.n, seed0=args.seed0, base=base, mode=args.mode, workers=args.workers, out=out,
-             progress=not args.no_progress, declare_drag=args.envelope_drag == "declared")
+             progress=not args.no_progress, drags=args.envelope_drag)
     print((out / "envelope.md").read_text())
     print(f"written: {out}/envelope.md, envelope.json, envelope.png, results.jsonl")
     return 0

@@ -146,7 +146,7 @@ def test_light_turbulence_keeps_the_swing_bound():
     # forest 0, Table 1's payload (0.25 kg on 1 m) in light turbulence (3 m/s mean from the east, Dryden, seeded):
     # the payload trailed 0.309 rad at the end of the acceleration before its drag was budgeted (bound 0.25)
     cell = Cell(0.25, 1.0, "light")
-    mis = cell_mission(cell, 0, ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped"), declare_drag=False)
+    mis = cell_mission(cell, 0, ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped"), drags="identified")
     log = fly_inprocess(mis)
     sw = log.arr("swing")
     worst = float(np.max(np.abs(sw[:, :2])))
@@ -210,7 +210,7 @@ def test_a_declared_payload_drag_flies_a_light_turbulence_flight_within_the_boun
     gains = load_gains(DEFAULT_GAINS)
     out = {}
     for declared in (False, True):
-        mis = cell_mission(Cell(0.25, 1.0, "light"), 6, base, declare_drag=declared)
+        mis = cell_mission(Cell(0.25, 1.0, "light"), 6, base, drags="declared" if declared else "identified")
         assert (mis.payload.drag_n_per_mps2 > 0.0) == declared
         log = fly_inprocess(mis, gains=gains)
         arrived = np.hypot(*(log.arr("pos")[:, :2] - np.asarray(mis.goal_ned_m[:2])).T) < 0.1
@@ -338,7 +338,7 @@ def test_a_wind_whose_drag_is_not_yet_known_slows_the_speed_up(mass_kg, forest):
     from companion.report.metrics import compute_metrics
 
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
-    mis = cell_mission(Cell(mass_kg, 0.5, "light"), forest, spec, declare_drag=False)
+    mis = cell_mission(Cell(mass_kg, 0.5, "light"), forest, spec, drags="identified")
     assert mis.payload.drag_n_per_mps2 == 0.0
     rep = compute_metrics(fly_inprocess(mis), mis)
     assert rep["max_swing_rad"] <= 0.25 and rep["collisions"] == 0 and rep["reached_goal"]
@@ -353,7 +353,7 @@ def test_a_trailing_that_shows_up_during_the_speed_up_re_times_the_plan(mass_kg,
     from companion.report.metrics import compute_metrics
 
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
-    mis = cell_mission(Cell(mass_kg, cable_m, "light"), forest, spec, declare_drag=False)
+    mis = cell_mission(Cell(mass_kg, cable_m, "light"), forest, spec, drags="identified")
     timed = []
     flog = fly_inprocess(mis, on_tick=lambda core, t: timed.append((core.planner.plan_timed.drag_c, core.drag_id.c)))
     rep = compute_metrics(flog, mis)
@@ -413,7 +413,7 @@ def test_a_gust_is_budgeted_when_the_moderate_turbulence_leaves_the_drag_unident
     from companion.report.metrics import compute_metrics
 
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
-    mis = cell_mission(Cell(0.25, cable_m, "moderate"), 84, spec, declare_drag=False)
+    mis = cell_mission(Cell(0.25, cable_m, "moderate"), 84, spec, drags="identified")
     cs = []
     flog = fly_inprocess(mis, gains=load_gains(DEFAULT_GAINS), on_tick=lambda core, t: cs.append(core.drag_id.c))
     rep = compute_metrics(flog, mis)

@@ -50,7 +50,11 @@ def test_cells_declare_the_payload_s_drag_where_the_wind_drags():
     assert k > 0.0 and light.payload.drag_n_per_mps2 == pytest.approx(k)
     assert k_air > 0.0 and light.payload.airframe_drag_n_per_mps2 == pytest.approx(k_air)  # the lift-off gate
     assert light.companion_params().m == 0.1  # only the drag is declared: mass and cable are the vehicle's
-    assert cell_mission(Cell(0.1, 1.0, "light"), 2, base, declare_drag=False).payload.drag_n_per_mps2 == 0.0
+    ident = cell_mission(Cell(0.1, 1.0, "light"), 2, base, drags="identified").payload
+    assert ident.drag_n_per_mps2 == 0.0 and ident.airframe_drag_n_per_mps2 == pytest.approx(k_air)
+    assert cell_mission(Cell(0.1, 1.0, "light"), 2, base, drags="none").payload.is_default  # a user's first mission
+    with pytest.raises(ValueError, match="drags"):
+        cell_mission(Cell(0.1, 1.0, "light"), 2, base, drags="guessed")
     for wind in ("calm", "paper"):  # no drag in the world: nothing to declare (and those flights fly as before)
         assert cell_mission(Cell(0.1, 1.0, wind), 2, base).payload.is_default
     from companion.core.mission import mission_to_toml
@@ -70,9 +74,10 @@ def test_grid_arguments_are_checked():
 def test_a_small_grid_flies_and_writes_its_table_and_figure(tmp_path):
     cells = [Cell(0.25, 1.0, "calm"), Cell(0.25, 2.0, "paper")]
     summary = envelope(cells, 1, base=ForestSpec(density_per_100m2=4.0, length_m=10.0, planner="shaped"),
-                       mode="inprocess", workers=1, out=tmp_path, progress=False)
-    assert summary["missions"] == 2
+                       mode="inprocess", workers=1, out=tmp_path, progress=False, drags="none")
+    assert summary["missions"] == 2 and summary["payload_drag"] == "none"
     md = (tmp_path / "envelope.md").read_text()
+    assert "no drag declared" in md.splitlines()[0]
     assert "| 0.25 | 2 | paper |" in md
     assert (tmp_path / "envelope.png").stat().st_size > 10_000
     cells_out = json.loads((tmp_path / "envelope.json").read_text())["cells"]

@@ -64,7 +64,7 @@ def test_a_payload_lying_on_the_ground_reads_no_swing():
     # moderate turbulence, 0.1 kg: at lift-off the airframe drifts micrometres off the payload lying below it; the
     # direction of that "cable" is no swing (the companion over MAVLink reads a slack cable as zero swing)
     mis = cell_mission(Cell(0.1, 0.5, "moderate"), 1, ForestSpec(density_per_100m2=4.0, planner="shaped"),
-                       declare_drag=False)
+                       drags="identified")
     mis = mis.with_(timeout_s=3.0, hold_s=0.5)
     log = fly_inprocess(mis)
     pay = log.arr("payload_pos")

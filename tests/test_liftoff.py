@@ -170,7 +170,7 @@ def test_forest_27s_gust_with_the_payloads_drag_unknown_still_holds_the_lift_off
     reach is judged at the provisional drag's cap, the climb leans as for half of it, waits (2.2 and 1.4 s; 2.8 and
     0.9 with the drag declared) and the flight is clean (+0.99 and +1.27 m; a disarmed gate: -0.11 m on 3 m)."""
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
-    mission = cell_mission(Cell(mass_kg, cable_m, "moderate"), 27, spec, declare_drag=False)
+    mission = cell_mission(Cell(mass_kg, cable_m, "moderate"), 27, spec, drags="identified")
     assert mission.payload.airframe_drag_n_per_mps2 > 0.0 and mission.payload.drag_n_per_mps2 == 0.0
     cores = []
     flog = fly_inprocess(mission, on_tick=lambda core, t: cores.append(core) if not cores else None)

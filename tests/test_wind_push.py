@@ -178,7 +178,7 @@ def test_eq49_is_inside_the_bands_so_the_paper_flight_is_flown_as_before():
 ])
 def test_moderate_turbulence_forests_that_collided_are_clean(mass_kg, cable_m, forest):
     mis = cell_mission(Cell(mass_kg, cable_m, "moderate"), forest, ForestSpec(density_per_100m2=4.0, planner="shaped"),
-                       declare_drag=False)
+                       drags="identified")
     rep = compute_metrics(fly_inprocess(mis), mis)
     assert rep["collisions"] == 0, f"min clearance {rep['min_clearance_m']:.3f} m"
     assert rep["reached_goal"]
@@ -207,7 +207,7 @@ def test_an_identified_payload_drag_brings_the_band_down_without_a_step():
     # by the push mid speed-up: identified-drag light flights over 0.25 rad 8 -> 20 on forests 0-29); 17.8 s to the
     # goal before
     mis = cell_mission(Cell(0.8, 3.0, "light"), 16, ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped"),
-                       declare_drag=False)
+                       drags="identified")
     assert mis.payload.airframe_drag_n_per_mps2 > 0.0 and mis.payload.drag_n_per_mps2 == 0.0  # the vehicle's own
     mis = replace(mis, payload=replace(mis.payload, airframe_drag_n_per_mps2=0.0))
     bands = []
