@@ -19,6 +19,7 @@ from companion.core.mission import mission_to_toml
 from companion.core.obstacles import Obstacle
 from companion.core.wind import WindConfig
 from companion.flight.liftoff import (
+    ASSUMED_PUSH_FLOOR_MPS2,
     GUST_MPS,
     MAX_WAIT_S,
     OVERSHOOT,
@@ -28,8 +29,10 @@ from companion.flight.liftoff import (
     clear_offset_m,
     equilibrium_offset_m,
     lean_gain_per_s,
+    lift_gate,
     payload_reach_m,
     ring_entry_m,
+    typical_airframe_drag,
 )
 from companion.planning.params import PlannerParams
 from companion.planning.timing import PROVISIONAL_C_MAX
@@ -98,11 +101,12 @@ def test_the_climb_waits_below_the_lift_off_while_blocked_and_lifts_once_clear()
     lull = (0.0, -_push_for(3.0))
     assert gate.target_z(1.5, (0.0, 0.0), -2.6, lull, [TRUNK], -3.3) == -3.3  # clear: climbs on, and stays open
     assert gate.open and gate.target_z(1.6, (0.0, 0.0), -2.7, gust, [TRUNK], -3.3) == -3.3
-    assert gate.facts() == {"armed": True, "payload_drag_declared": True, "waited_s": 1.0, "held_by": gate.worst,
-                            "lean_m": 0.0}
+    assert gate.facts() == {"armed": True, "airframe_drag_declared": True, "payload_drag_declared": True,
+                            "waited_s": 1.0, "held_by": gate.worst, "lean_m": 0.0}
 
 
-def test_a_gate_without_the_airframes_drag_declared_never_holds():
+def test_a_gate_with_no_airframe_drag_never_holds():
+    """(lift_gate gives one where the climb does not lift the payload off the ground.)"""
     gate = LiftOffGate(0.0, C_PAY, MT, 3.0, -3.0)
     assert gate.open and not gate.armed
     assert gate.target_z(0.0, (0.0, 0.0), -1.0, (0.0, -5.0), [TRUNK], -3.3) == -3.3
@@ -123,6 +127,64 @@ def test_a_payload_drag_left_to_identify_is_judged_at_the_provisional_cap_and_le
     dx, dy = equilibrium_offset_m(wind, MT, K_AIR, 0.5 * PROVISIONAL_C_MAX, 3.0)
     assert dy > 0.0 and gate.lift_point(wind) == pytest.approx((1.0 + dx, 2.0 + dy))
     assert not gate.facts()["payload_drag_declared"]
+
+
+def test_an_airframe_drag_not_declared_is_a_typical_quadrotors_and_a_small_push_no_wind():
+    """A mission that declares no airframe drag: the gate assumes C_d·A 0.04 m² at 1.25 kg (the bundled model's,
+    scaled with the mass to the 2/3) and reads a push under the floor (eq. 49 pushes nearly that much and drags
+    nothing) as no wind. Past the floor it judges the reach as with a declared drag, but never leans: a lean for a
+    wind inferred from an assumed drag over-leans where the airframe drags more than assumed."""
+    assert typical_airframe_drag(1.25) == pytest.approx(K_AIR)
+    assert typical_airframe_drag(2.5) == pytest.approx(K_AIR * 2.0 ** (2.0 / 3.0))
+    gate = LiftOffGate(typical_airframe_drag(1.25), 0.0, MT, 3.0, -3.0, origin_xy=(1.0, 2.0),
+                       airframe_drag_declared=False)
+    assert gate.armed and not gate.open
+    small = (0.0, -0.95 * ASSUMED_PUSH_FLOOR_MPS2)  # 6 m/s: the cap's reach would touch the trunk (the test above)
+    assert gate.target_z(0.0, (0.0, 0.0), -1.0, small, [TRUNK], -3.3) == -3.3 and gate.worst is None
+    assert gate.lift_point(small, [TRUNK]) == (1.0, 2.0)
+    big = (0.0, -1.05 * ASSUMED_PUSH_FLOOR_MPS2)
+    assert gate.target_z(0.1, (0.0, 0.0), -1.0, big, [TRUNK], -3.3) == pytest.approx(-3.0 + WAIT_BELOW_M)
+    assert gate.lift_point(big) == (1.0, 2.0) and gate.lean_velocity((1.0, 2.0), big, [TRUNK], 0.3) == (0.0, 0.0)
+    facts = gate.facts()
+    assert not facts["airframe_drag_declared"] and not facts["payload_drag_declared"] and facts["held_by"]
+    assert facts["lean_m"] == 0.0
+    declared = LiftOffGate(K_AIR, 0.0, MT, 3.0, -3.0, origin_xy=(1.0, 2.0))  # the same drag, declared
+    assert declared.target_z(0.0, (0.0, 0.0), -1.0, small, [TRUNK], -3.3) == pytest.approx(-3.0 + WAIT_BELOW_M)
+    assert declared.lift_point(big)[1] > 2.3
+
+
+def test_lift_gate_assumes_the_airframes_drag_where_the_mission_declares_none():
+    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
+    planner = PlannerParams()
+    for drags, k_a in (("identified", K_AIR), ("none", typical_airframe_drag(1.25))):
+        mission = cell_mission(Cell(0.1, 3.0, "moderate"), 27, spec, drags=drags)
+        params = mission.companion_params()
+        gate = lift_gate(mission, params, planner, 0.0, -4.0)
+        assert gate.armed and gate.k_airframe == pytest.approx(k_a)
+        assert gate.airframe_drag_declared == (drags == "identified")
+        assert not lift_gate(mission, params, planner, -3.5, -4.0).armed  # the payload already hangs
+
+
+def test_the_paper_forests_eq49_push_stays_under_the_floor_so_its_climb_is_flown_as_before():
+    """Table 2's forest declares no drag and flies eq. 49, which pushes the airframe but drags nothing: the gate is
+    armed with the assumed drag, but the climb's push (at most 0.23 m/s²) stays under the floor (0.7): no hold, no
+    lean (its lockstep flight logs are byte-identical to those before the assumption, both planners)."""
+    from companion.core.mission import load_mission
+
+    mission = load_mission(ROOT / "config" / "missions" / "forest.toml")
+    assert mission.payload.airframe_drag_n_per_mps2 == 0.0 and not mission.wind.is_physical
+    cores, climb_push = [], []
+
+    def on_tick(core, t):
+        cores.append(core) if not cores else None
+        if str(core.phase) == "climb":
+            climb_push.append(math.hypot(*core.push.mean))
+
+    fly_inprocess(mission, on_tick=on_tick)
+    facts = cores[0].lift_gate.facts()
+    assert facts["armed"] and not facts["airframe_drag_declared"]
+    assert facts["waited_s"] == 0.0 and facts["held_by"] is None and facts["lean_m"] == 0.0
+    assert 0.1 < max(climb_push) < 0.5 * ASSUMED_PUSH_FLOOR_MPS2
 
 
 def test_blocked_for_the_whole_wait_is_no_route():
@@ -146,17 +208,23 @@ def test_the_airframe_lifts_the_payload_from_upwind_at_its_drag_equilibrium_then
     assert unarmed.lift_point(west) == (1.0, 2.0)
 
 
+def _disarm(core, t):
+    """An in-process flight's tick hook: the lift-off gate replaced by a disarmed one (no airframe drag at all)."""
+    if core.lift_gate.armed:
+        core.lift_gate = LiftOffGate(0.0, 0.0, 1.0, core.params.l, -core.params.l)
+
+
 @pytest.mark.parametrize(("mass_kg", "cable_m"), [(0.1, 3.0), (0.1, 2.0)])
 def test_forest_27s_gust_at_the_lift_off_no_longer_blows_the_payload_into_the_trunk(mass_kg, cable_m):
     """The grid's moderate-turbulence flights of forest 27: lifted in a 12-13.6 m/s gust, the payload hit the trunk
-    1.6 m from the take-off point. With the airframe's drag undeclared (the gate disarmed) they still do, or nearly
+    1.6 m from the take-off point. With the gate disarmed (as it was where the airframe's drag was not declared,
+until 2026-12-05) they still do, or nearly
     (clearance -0.11 and +0.02 m; -0.14 and -0.05 m before the swing observer's 0.25 s low-pass); declared, the climb
     waits (2.8 and 0.9 s) and the flight is clean."""
     spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
     mission = cell_mission(Cell(mass_kg, cable_m, "moderate"), 27, spec)
     assert mission.payload.airframe_drag_n_per_mps2 > 0.0
-    blind = replace(mission, payload=replace(mission.payload, airframe_drag_n_per_mps2=0.0))
-    assert compute_metrics(fly_inprocess(blind), blind)["min_clearance_m"] < 0.1
+    assert compute_metrics(fly_inprocess(mission, on_tick=_disarm), mission)["min_clearance_m"] < 0.1
     waited = []
     flog = fly_inprocess(mission, on_tick=lambda core, t: waited.append(core.lift_gate.waited_s))
     rep = compute_metrics(flog, mission)
@@ -178,6 +246,23 @@ def test_forest_27s_gust_with_the_payloads_drag_unknown_still_holds_the_lift_off
     assert rep["collisions"] == 0 and rep["min_clearance_m"] > 0.3 and rep["reached_goal"]
     gate = cores[0].lift_gate
     assert gate.armed and 0.5 < gate.waited_s < 10.0 and not gate.facts()["payload_drag_declared"]
+
+
+@pytest.mark.parametrize(("mass_kg", "cable_m"), [(0.1, 3.0), (0.1, 2.0)])
+def test_forest_27s_gust_with_no_drag_declared_holds_the_lift_off_on_a_typical_airframes_drag(mass_kg, cable_m):
+    """The same flights as a user's first mission would fly them, declaring no drag at all: the gate assumes a
+    typical airframe's drag (the bundled vehicle's here), the gust's push is far past the floor, and the climb waits
+    (no lean): +0.42 and +0.67 m clear (with no gate, as before 2026-12-05: -0.11 m, a collision, and +0.02 m)."""
+    spec = ForestSpec(density_per_100m2=4.0, width_m=6.0, planner="shaped")
+    mission = cell_mission(Cell(mass_kg, cable_m, "moderate"), 27, spec, drags="none")
+    assert mission.payload.is_default
+    cores = []
+    flog = fly_inprocess(mission, on_tick=lambda core, t: cores.append(core) if not cores else None)
+    rep = compute_metrics(flog, mission)
+    assert rep["collisions"] == 0 and rep["min_clearance_m"] > 0.3 and rep["reached_goal"]
+    facts = cores[0].lift_gate.facts()
+    assert facts["armed"] and not facts["airframe_drag_declared"] and 0.5 < facts["waited_s"] < 10.0
+    assert facts["lean_m"] == 0.0
 
 
 def _in_steady_wind(cable_m: float, mean_mps: float):
@@ -291,6 +376,9 @@ def test_the_summary_says_when_an_unknown_drag_was_judged_at_the_cap():
                             "lean_m": 0.4})
     unknown = lift_off_lines({"armed": True, "payload_drag_declared": False, "waited_s": 2.2, "held_by": held,
                               "lean_m": 0.4})
+    assumed = lift_off_lines({"armed": True, "airframe_drag_declared": False, "payload_drag_declared": False,
+                              "waited_s": 2.2, "held_by": held, "lean_m": 0.4})
+    assert "airframe's drag assumed" in assumed[0] and "airframe" not in unknown[0]
     assert len(known) == len(unknown) == 2
     assert "judged at the cap" in unknown[0] and "judged at the cap" not in known[0]
     assert known[1].endswith("its drag angle") and unknown[1].endswith("half the cap's drag")

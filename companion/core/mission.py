@@ -46,7 +46,8 @@ Format (TOML; every table strict: unknown keys, missing required keys and wrong 
 ``identify = true`` asks for :func:`companion.estimation.payload_id.identify_payload` on the values not given;
 ``drag_n_per_mps2`` is the payload's drag coefficient for the swing estimator and the shaped planner's drag budget
 (default 0: negligible drag, or identified in flight); ``airframe_drag_n_per_mps2`` the airframe's, from which the
-climb judges the wind before it lifts the payload (:mod:`companion.flight.liftoff`; default 0: not judged).
+climb judges the wind before it lifts the payload (:mod:`companion.flight.liftoff`; default 0: a typical
+quadrotor's assumed, and a small push read as no wind).
 :meth:`Mission.companion_params` is the model the companion should fly with before any identification.
 
 A start, goal or waypoint whose airframe circle (r_uav + L_uav) would overlap an obstacle's safety ring
@@ -119,7 +120,8 @@ class PayloadConfig:
     (k in p = −k·|v|·v, N per (m/s)²: ½·ρ·C_d·A, e.g. 0.043 for a 30 cm sphere; 0, the default, for a payload
     whose drag is negligible or unknown), which the swing estimator starts from and refines (docs/swing-estimation.md)
     and the shaped planner's speed-up budgets from take-off (:mod:`companion.control.drag_id`); the airframe's own
-    ``airframe_drag_n_per_mps2`` (0: unknown), for the wind before the lift-off (:mod:`companion.flight.liftoff`)."""
+    ``airframe_drag_n_per_mps2`` (0: unknown, a typical one assumed), for the wind before the lift-off
+    (:mod:`companion.flight.liftoff`)."""
 
     mass_kg: float | None = None
     cable_length_m: float | None = None

@@ -15,13 +15,17 @@ that gives the wind speed, and so the payload's reach at the lift-off,
 
     reach = l·sin(min(OVERSHOOT·θ_eq(|w| + GUST_MPS), π/2))     downwind of the airframe,
 
-which :class:`LiftOffGate` checks against every trunk's safety ring. A payload whose drag the mission leaves to
-be identified (``[payload] drag_n_per_mps2`` 0) is judged at the provisional drag's cap
+which :class:`LiftOffGate` checks against every trunk's safety ring. A mission that does not declare k_a (a user's
+first, most likely) gets a typical quadrotor's (:func:`typical_airframe_drag`: C_d·A 0.04 m² at 1.25 kg), and the
+gate then reads a push under :data:`ASSUMED_PUSH_FLOOR_MPS2` as no wind (eq. 49 pushes up to 0.37 m/s² in a climb,
+and it drags nothing) and only holds: a lean for a wind inferred from an assumed drag lifted heavy payloads far
+beyond their drag angle where the airframe's drag was twice the assumed one (docs/measurements.md). A payload whose
+drag the mission leaves to be identified (``[payload] drag_n_per_mps2`` 0) is judged at the provisional drag's cap
 (:data:`~companion.planning.timing.PROVISIONAL_C_MAX`, rad per (m/s)², the most the flight budgets before it knows
-c), and the climb leans for it as for half the cap (below). While it is blocked the climb holds
-:data:`WAIT_BELOW_M` under the lift-off height (the payload still on the ground); it lifts off once the reach is
-clear, and after :data:`MAX_WAIT_S` blocked the flight says there is no route. The push is measured only where
-the force observer runs (controller ``smc_ff`` with a swing input); elsewhere the gate sees no wind and never holds.
+c), and the climb leans for it as for half the cap (below). While it is blocked the climb holds :data:`WAIT_BELOW_M`
+under the lift-off height (the payload still on the ground); it lifts off once the reach is clear, and after
+:data:`MAX_WAIT_S` blocked the flight says there is no route. The push is measured only where the force observer
+runs (controller ``smc_ff`` with a swing input); elsewhere the gate sees no wind and never holds.
 
 The same wind says where to lift from: during the climb the reference moves upwind of the payload lying on the
 ground by l·sin θ_eq (:func:`equilibrium_offset_m`, the measured wind, no gust; only as far as the way stays
@@ -60,6 +64,15 @@ MAX_WAIT_S = 30.0  # (s) blocked this long: no route
 PAYLOAD_R_M = 0.05  # (m) the payload's own radius beyond the point mass
 LIFT_MARGIN_M = 0.1  # (m) the way to the lift point keeps this much beyond a trunk's safety ring (tracking)
 LEAN_CAP_SHARE = 0.5  # a payload of unknown drag is leaned for as for this share of PROVISIONAL_C_MAX
+#: an airframe whose drag the mission does not declare is taken to have a typical quadrotor's frontal C_d·A: this
+#: at TYPICAL_MASS_KG (the bundled model's), the area scaled with the mass to the 2/3, in AIR_DENSITY_KGPM3
+TYPICAL_DRAG_AREA_M2 = 0.04
+TYPICAL_MASS_KG = 1.25
+AIR_DENSITY_KGPM3 = 1.225
+#: (m/s²) with the airframe's drag assumed, a push below this is read as no wind: 1.5× the most eq. 49 (which drags
+#: nothing) pushes in a climb flown (0.37 m/s², the lockstep Table 2 missions); 5.5 m/s on the assumed airframe with
+#: 0.1 kg. Flown at 0.35-0.7 (docs/measurements.md, 2026-12-05, twenty-third sitting)
+ASSUMED_PUSH_FLOOR_MPS2 = 0.55
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +84,12 @@ def lean_gain_per_s(cable_m: float, p: PlannerParams) -> float:
     a, v = 0.5 * p.az_max_mps2, p.vz_max_mps
     t = math.sqrt(2.0 * cable_m / a) if cable_m <= v * v / (2.0 * a) else v / a + (cable_m - v * v / (2.0 * a)) / v
     return max(p.ka, 3.0 / t)
+
+
+def typical_airframe_drag(airframe_kg: float) -> float:
+    """(N per (m/s)²) ½·ρ·C_d·A assumed for a quadrotor of ``airframe_kg`` (kg) whose drag is not declared:
+    :data:`TYPICAL_DRAG_AREA_M2` at :data:`TYPICAL_MASS_KG`, the area scaled with the mass to the 2/3."""
+    return 0.5 * AIR_DENSITY_KGPM3 * TYPICAL_DRAG_AREA_M2 * (airframe_kg / TYPICAL_MASS_KG) ** (2.0 / 3.0)
 
 
 def wind_sq_from_push(push_mps2: float, m_total_kg: float, k_airframe: float) -> float:
@@ -141,12 +160,15 @@ class LiftOffGate:
     """Whether the climb may lift the payload now (see module docstring). ``k_airframe`` (N per (m/s)²) > 0 arms
     it; ``c_payload`` (rad per (m/s)²) the payload's drag angle, 0 when unknown (the reach is then judged at
     :data:`PROVISIONAL_C_MAX`, the lean at :data:`LEAN_CAP_SHARE` of it); ``lift_z_ned_m`` where the cable lifts
-    the payload (NED z, m)."""
+    the payload (NED z, m); ``airframe_drag_declared`` False: ``k_airframe`` is assumed, a push below
+    :data:`ASSUMED_PUSH_FLOOR_MPS2` is read as no wind, and the climb does not lean (:meth:`lift_point`)."""
 
     def __init__(self, k_airframe: float, c_payload: float, m_total_kg: float, cable_m: float,
                  lift_z_ned_m: float, origin_xy: tuple[float, float] = (0.0, 0.0),
-                 lean_gain_per_s: float = PlannerParams.ka) -> None:
+                 lean_gain_per_s: float = PlannerParams.ka, airframe_drag_declared: bool = True) -> None:
         self.k_airframe, self.c_payload = k_airframe, c_payload
+        self.airframe_drag_declared = airframe_drag_declared
+        self.push_floor_mps2 = 0.0 if airframe_drag_declared else ASSUMED_PUSH_FLOOR_MPS2  # (m/s²)
         self.lean_gain_per_s = lean_gain_per_s  # (1/s) the climb's reference gain toward the lift point
         self.c_reach = c_payload if c_payload > 0.0 else PROVISIONAL_C_MAX  # (rad per (m/s)²) the reach's drag
         self.c_lean = c_payload if c_payload > 0.0 else LEAN_CAP_SHARE * PROVISIONAL_C_MAX  # (rad per (m/s)²)
@@ -166,8 +188,9 @@ class LiftOffGate:
                    airframe_r_m: float = 0.0) -> tuple[float, float]:
         """(m, NED x y) where the airframe heads during the climb: upwind of the payload by
         :func:`equilibrium_offset_m` while the payload lies on the ground (the gate not yet open), as far as the
-        way there stays clear of ``obstacles`` for an airframe of ``airframe_r_m`` (m); then frozen."""
-        if self.armed and not self.open:
+        way there stays clear of ``obstacles`` for an airframe of ``airframe_r_m`` (m); then frozen. None with the
+        airframe's drag assumed: the payload's start."""
+        if self.armed and not self.open and self.airframe_drag_declared:
             off = equilibrium_offset_m(push_mps2, self.m_total_kg, self.k_airframe, self.c_lean, self.cable_m)
             dx, dy = clear_offset_m(self.origin_xy, off, obstacles, airframe_r_m + LIFT_MARGIN_M)
             self.lift_xy = (self.origin_xy[0] + dx, self.origin_xy[1] + dy)
@@ -191,6 +214,8 @@ class LiftOffGate:
         dt = 0.0 if self._t_prev is None else t_s - self._t_prev
         self._t_prev = t_s
         h = math.hypot(*push_mps2)
+        if h < self.push_floor_mps2:  # an assumed airframe drag: a push this small is no wind it can judge
+            h, push_mps2 = 0.0, (0.0, 0.0)
         reach = payload_reach_m(h, self.m_total_kg, self.k_airframe, self.c_reach, self.cable_m)
         hit = blocking_trunk(xy, (push_mps2[0] / h, push_mps2[1] / h), reach, obstacles) if h > 1e-6 else None
         if hit is None:
@@ -211,12 +236,14 @@ class LiftOffGate:
         return max(self.wait_z_ned_m, climb_z_ned_m)
 
     def facts(self) -> dict[str, Any]:
-        """The report's ``lift_off``: armed (the airframe's drag declared), whether the payload's drag was
-        (else the reach was judged at the provisional cap), seconds blocked (from the first blocked tick,
+        """The report's ``lift_off``: armed (the climb lifts the payload off the ground), whether the airframe's drag
+        was declared (else a typical one was assumed and a push under the floor ignored) and the payload's (else the
+        reach was judged at the provisional cap), seconds blocked (from the first blocked tick,
         climbing below the wait height included), the largest reach that blocked it, and how far upwind of the
         payload the climb leaned to lift it (m, :meth:`lift_point`)."""
         lean = math.hypot(self.lift_xy[0] - self.origin_xy[0], self.lift_xy[1] - self.origin_xy[1])
-        return {"armed": self.armed, "payload_drag_declared": self.c_payload > 0.0,
+        return {"armed": self.armed, "airframe_drag_declared": self.airframe_drag_declared,
+                "payload_drag_declared": self.c_payload > 0.0,
                 "waited_s": round(self.waited_s, 3), "held_by": self.worst, "lean_m": round(lean, 3)}
 
     def timed_out(self, t_s: float) -> bool:
@@ -231,10 +258,13 @@ def lift_gate(mission: Mission, params: VehicleParams, planner: PlannerParams, z
               climb_z_ned_m: float, origin_xy: tuple[float, float] = (0.0, 0.0)) -> LiftOffGate:
     """The gate of a flight that starts at ``z0_ned_m`` and ``origin_xy`` (NED, m) and climbs to ``climb_z_ned_m``
     (NED z, m) with ``params``, leaning at :func:`lean_gain_per_s` for its cable and ``planner``:
-    armed when the climb lifts the payload off the ground and ``mission``'s ``[payload]`` declares the airframe's
-    drag coefficient, open otherwise; the payload's drag from the mission too, or unknown."""
+    armed when the climb lifts the payload off the ground, open otherwise. The airframe's drag coefficient is
+    ``mission``'s ``[payload]`` one, or where it declares none :func:`typical_airframe_drag` (assumed: see
+    :class:`LiftOffGate`); the payload's drag from the mission too, or unknown."""
     pay = mission.payload
     lifts = z0_ned_m > -params.l and climb_z_ned_m < -params.l
-    k_a = pay.airframe_drag_n_per_mps2 if lifts else 0.0
-    return LiftOffGate(k_a, declared_drag_c(pay.drag_n_per_mps2, params.m, params.g), params.M + params.m, params.l,
-                       -params.l, origin_xy, lean_gain_per_s(params.l, planner))
+    declared = pay.airframe_drag_n_per_mps2 > 0.0
+    k_a = pay.airframe_drag_n_per_mps2 if declared else typical_airframe_drag(params.M)
+    return LiftOffGate(k_a if lifts else 0.0, declared_drag_c(pay.drag_n_per_mps2, params.m, params.g),
+                       params.M + params.m, params.l, -params.l, origin_xy, lean_gain_per_s(params.l, planner),
+                       declared)
