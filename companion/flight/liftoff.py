@@ -188,8 +188,8 @@ class LiftOffGate:
                    airframe_r_m: float = 0.0) -> tuple[float, float]:
         """(m, NED x y) where the airframe heads during the climb: upwind of the payload by
         :func:`equilibrium_offset_m` while the payload lies on the ground (the gate not yet open), as far as the
-        way there stays clear of ``obstacles`` for an airframe of ``airframe_r_m`` (m); then frozen. None with the
-        airframe's drag assumed: the payload's start."""
+        way there stays clear of ``obstacles`` for an airframe of ``airframe_r_m`` (m); then frozen. With the
+        airframe's drag assumed, not declared, the payload's start (no lean)."""
         if self.armed and not self.open and self.airframe_drag_declared:
             off = equilibrium_offset_m(push_mps2, self.m_total_kg, self.k_airframe, self.c_lean, self.cable_m)
             dx, dy = clear_offset_m(self.origin_xy, off, obstacles, airframe_r_m + LIFT_MARGIN_M)
