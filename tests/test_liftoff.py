@@ -101,8 +101,8 @@ def test_the_climb_waits_below_the_lift_off_while_blocked_and_lifts_once_clear()
     lull = (0.0, -_push_for(3.0))
     assert gate.target_z(1.5, (0.0, 0.0), -2.6, lull, [TRUNK], -3.3) == -3.3  # clear: climbs on, and stays open
     assert gate.open and gate.target_z(1.6, (0.0, 0.0), -2.7, gust, [TRUNK], -3.3) == -3.3
-    assert gate.facts() == {"armed": True, "airframe_drag_declared": True, "payload_drag_declared": True,
-                            "waited_s": 1.0, "held_by": gate.worst, "lean_m": 0.0}
+    assert gate.facts() == {"armed": True, "airframe_drag_declared": True, "airframe_drag_n_per_mps2": 0.0245,
+                            "payload_drag_declared": True, "waited_s": 1.0, "held_by": gate.worst, "lean_m": 0.0}
 
 
 def test_a_gate_with_no_airframe_drag_never_holds():
@@ -376,9 +376,9 @@ def test_the_summary_says_when_an_unknown_drag_was_judged_at_the_cap():
                             "lean_m": 0.4})
     unknown = lift_off_lines({"armed": True, "payload_drag_declared": False, "waited_s": 2.2, "held_by": held,
                               "lean_m": 0.4})
-    assumed = lift_off_lines({"armed": True, "airframe_drag_declared": False, "payload_drag_declared": False,
-                              "waited_s": 2.2, "held_by": held, "lean_m": 0.4})
-    assert "airframe's drag assumed" in assumed[0] and "airframe" not in unknown[0]
+    assumed = lift_off_lines({"armed": True, "airframe_drag_declared": False, "airframe_drag_n_per_mps2": 0.0245,
+                              "payload_drag_declared": False, "waited_s": 2.2, "held_by": held, "lean_m": 0.0})
+    assert "the airframe's drag assumed: 0.0245 N per (m/s)²" in assumed[0] and "airframe" not in unknown[0]
     assert len(known) == len(unknown) == 2
     assert "judged at the cap" in unknown[0] and "judged at the cap" not in known[0]
     assert known[1].endswith("its drag angle") and unknown[1].endswith("half the cap's drag")

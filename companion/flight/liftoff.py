@@ -237,13 +237,14 @@ class LiftOffGate:
 
     def facts(self) -> dict[str, Any]:
         """The report's ``lift_off``: armed (the climb lifts the payload off the ground), whether the airframe's drag
-        was declared (else a typical one was assumed and a push under the floor ignored) and the payload's (else the
+        was declared (else a typical one was assumed and a push under the floor ignored), the one used (N per
+        (m/s)²; 0 unarmed), whether the payload's was declared (else the
         reach was judged at the provisional cap), seconds blocked (from the first blocked tick,
         climbing below the wait height included), the largest reach that blocked it, and how far upwind of the
         payload the climb leaned to lift it (m, :meth:`lift_point`)."""
         lean = math.hypot(self.lift_xy[0] - self.origin_xy[0], self.lift_xy[1] - self.origin_xy[1])
         return {"armed": self.armed, "airframe_drag_declared": self.airframe_drag_declared,
-                "payload_drag_declared": self.c_payload > 0.0,
+                "airframe_drag_n_per_mps2": round(self.k_airframe, 5), "payload_drag_declared": self.c_payload > 0.0,
                 "waited_s": round(self.waited_s, 3), "held_by": self.worst, "lean_m": round(lean, 3)}
 
     def timed_out(self, t_s: float) -> bool:

@@ -171,11 +171,13 @@ def lift_off_lines(lift: dict[str, Any] | None) -> list[str]:
     out = []
     if lift.get("waited_s"):
         held = lift.get("held_by") or {}
+        why = "" if lift.get("payload_drag_declared", True) else ", its drag not declared: judged at the cap"
+        if not lift.get("airframe_drag_declared", True):
+            k_a = _fmt(lift.get("airframe_drag_n_per_mps2"), "", 4)
+            why += f"; the airframe's drag assumed: {k_a} N per (m/s)², a typical quadrotor's"
         out.append(f"  lift-off            held {_fmt(lift['waited_s'], ' s', 1)} for the wind: the payload would have "
                    f"swung {_fmt(held.get('reach_m'), ' m')} downwind, into the trunk at "
-                   f"({_fmt(held.get('trunk_x_m'), '', 1)}, {_fmt(held.get('trunk_y_m'), '', 1)})"
-                   + ("" if lift.get("payload_drag_declared", True) else ", its drag not declared: judged at the cap")
-                   + ("" if lift.get("airframe_drag_declared", True) else "; the airframe's drag assumed (typical)"))
+                   f"({_fmt(held.get('trunk_x_m'), '', 1)}, {_fmt(held.get('trunk_y_m'), '', 1)})" + why)
     if (lift.get("lean_m") or 0.0) >= 0.01:
         angle = "its drag angle" if lift.get("payload_drag_declared", True) else "the angle of half the cap's drag"
         out.append(f"  lift-off            leaned {_fmt(lift['lean_m'], ' m')} upwind of the payload, to lift it at "
