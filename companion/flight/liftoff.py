@@ -168,7 +168,6 @@ class LiftOffGate:
                  lean_gain_per_s: float = PlannerParams.ka, airframe_drag_declared: bool = True) -> None:
         self.k_airframe, self.c_payload = k_airframe, c_payload
         self.airframe_drag_declared = airframe_drag_declared
-        self.push_floor_mps2 = 0.0 if airframe_drag_declared else ASSUMED_PUSH_FLOOR_MPS2  # (m/s²)
         self.lean_gain_per_s = lean_gain_per_s  # (1/s) the climb's reference gain toward the lift point
         self.c_reach = c_payload if c_payload > 0.0 else PROVISIONAL_C_MAX  # (rad per (m/s)²) the reach's drag
         self.c_lean = c_payload if c_payload > 0.0 else LEAN_CAP_SHARE * PROVISIONAL_C_MAX  # (rad per (m/s)²)
@@ -214,7 +213,7 @@ class LiftOffGate:
         dt = 0.0 if self._t_prev is None else t_s - self._t_prev
         self._t_prev = t_s
         h = math.hypot(*push_mps2)
-        if h < self.push_floor_mps2:  # an assumed airframe drag: a push this small is no wind it can judge
+        if not self.airframe_drag_declared and h < ASSUMED_PUSH_FLOOR_MPS2:  # no wind an assumed drag can judge
             h, push_mps2 = 0.0, (0.0, 0.0)
         reach = payload_reach_m(h, self.m_total_kg, self.k_airframe, self.c_reach, self.cable_m)
         hit = blocking_trunk(xy, (push_mps2[0] / h, push_mps2[1] / h), reach, obstacles) if h > 1e-6 else None
