@@ -197,4 +197,5 @@ def fly_inprocess(
     flog.wall_time_s = time.perf_counter() - wall0
     flog.obstacle_clock_t0_s = core.t0_s  # where the report places the moving obstacles (report.scoring)
     flog.outcome = core.result
+    flog.planning = core.planner.facts()
     return flog

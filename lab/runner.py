@@ -124,7 +124,7 @@ def _fly_inprocess(job: Job) -> dict[str, Any]:
     flog = fly_inprocess(job.mission, gains=gains)
     extra = {"outcome": flog.outcome or "timeout", "wall_time_s": flog.wall_time_s, "mode": "inprocess",
              "simulated": True, "wind": {"model": job.mission.wind.model, "scale": job.mission.wind.scale},
-             "vehicle": job.mission.vehicle.as_dict(), "run_dir": str(job.run_dir)}
+             "vehicle": job.mission.vehicle.as_dict(), "run_dir": str(job.run_dir), "planning": flog.planning}
     return write_run(flog, job.mission, extra, job.run_dir, plots=job.plots)
 
 

@@ -29,6 +29,8 @@ def test_the_gusty_forest_is_flown_clean_and_calmer_than_a_payload_held_still(tm
     assert rep["wind"]["model"] == "turbulence" and rep["wind"]["intensity"] == "moderate"
     # the bound of issue 28 in moderate turbulence, and below what the wind alone does to a payload held still
     assert rep["max_swing_rad"] < 0.35 and rep["max_swing_rad"] < rep["wind_truth"]["held_swing_max_rad"]
+    # the planner's own facts reach the report over MAVLink too: its searches, and no goal the wind held in reach
+    assert rep["planning"]["searches"] > 0 and rep["planning"]["no_route_goal_in_wind_reach"] is False
     lift = rep["lift_off"]
     assert lift["armed"] and not lift["payload_drag_declared"] and lift["lean_m"] > 0.05
     drag = rep["payload_drag"]

@@ -27,8 +27,9 @@ class Command(NamedTuple):
     force_att_n / force_rep_n: the planner's attractive and repulsive parts (2,) (velocity units for the
     APF-as-gradient-flow, see :mod:`companion.planning.apf`); r_max_m: envelope radius used;
     envelope_mode: ``"swing"`` or ``"full_cable"``; phase; ff_accel (3,) m/s² anti-swing feed-forward;
-    plan_mode: ``"track"`` or ``"escape"`` (safe planner's trap escape), ``"brake"`` / ``"no_route"`` (shaped
-    planner stopping); no_route: the planner found no route to the goal (the mission ends ``no_route``).
+    plan_mode: ``"track"`` or ``"escape"`` (safe planner's trap escape), ``"brake"`` / ``"wait"`` / ``"no_route"``
+    (shaped planner stopping; waiting for the wind); no_route: the planner found no route to the goal (the mission
+    ends ``no_route``).
     A named tuple: immutable, and cheap to build every tick.
     """
 

@@ -34,6 +34,7 @@ def pilot_facts(p: Pilot) -> dict[str, Any]:
         "autopilot_params": p.params,
         "mission_frame": p.frame.facts(),
         "arrival": dict(p.core.arrival),
+        "planning": p.core.planner.facts(),  # the planner's counters: for the shaped one, its waits for the wind
         "lift_off": p.core.lift_gate.facts(),  # how long the climb held the payload on the ground for the wind
         # the payload's drag coefficient declared and identified in flight (N per (m/s)²), or why not
         "payload_drag": p.core.drag_id.facts(p.core.params.m, p.core.params.g),

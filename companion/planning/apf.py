@@ -72,6 +72,10 @@ class ApfPlanner:
     def resume(self) -> None:
         """Nothing to resume: the flight core flies on itself (:class:`~companion.planning.base.Planner`)."""
 
+    def facts(self) -> dict[str, int]:
+        """Nothing of its own to report: the paper's APFs keep no state between ticks."""
+        return {}
+
     def plan(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> PlanOutput:
         """Resultant force (eq. 26 / 28) at the measured position, read as desired velocity."""
         p = self.params

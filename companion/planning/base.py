@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import NamedTuple, Protocol, runtime_checkable
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -140,6 +140,10 @@ class Planner(Protocol):
     def resume(self) -> None:
         """Fly on after :meth:`stop` (a ground station's pause ended): the next :meth:`plan` plans from where the
         stop left the plan. A no-op for planners that give a desired velocity."""
+        ...
+
+    def facts(self) -> dict[str, Any]:
+        """What the report says of the planner's flight (its own counters; JSON-ready)."""
         ...
 
 

@@ -39,8 +39,10 @@ class PlannerParams:
     ``route_candidates`` the extra inflations (k·extra, k = 0 .. candidates−1) whose routes are timed and
     compared, ``replan_hysteresis_s`` how much
     faster (s) a new plan must be to replace a valid current one, ``no_route_confirm_s`` how long the route
-    search must fail before the planner declares that there is none, ``swing_sigma_k`` how many standard
-    deviations of the swing estimate's uncertainty widen the envelope, ``predict_growth_mps`` how fast the
+    search must fail before the planner declares that there is none, ``goal_wind_wait_s`` how long it waits in all,
+    with the goal within the wind's reach of a trunk, before it declares the same (:mod:`~.wind_wait`),
+    ``swing_sigma_k`` how many standard deviations of the swing estimate's uncertainty widen the envelope,
+    ``predict_growth_mps`` how fast the
     predicted position of a moving obstacle grows uncertain (m per s of look-ahead), ``error_hold_s`` how
     long a tracking-error peak is remembered in the margin, ``shaped_brake_mps2`` the deceleration allowed
     when the current speed is too high for what lies ahead (also the no-route stop), ``drag_swing_budget_rad``
@@ -83,6 +85,7 @@ class PlannerParams:
     route_candidates: int = 6
     replan_hysteresis_s: float = 0.15
     no_route_confirm_s: float = 0.5
+    goal_wind_wait_s: float = 30.0
     swing_sigma_k: float = 2.0
     predict_growth_mps: float = 0.1
     error_hold_s: float = 2.0

@@ -147,6 +147,10 @@ class SafePlanner:
     def stop(self) -> None:
         """Nothing to stop: the flight core holds the reference itself (:class:`~companion.planning.base.Planner`)."""
 
+    def facts(self) -> dict[str, int]:
+        """The report's part: how many trap escapes the flight took."""
+        return {"escapes": self.escapes}
+
     def resume(self) -> None:
         """Nothing to resume: the flight core flies on itself (:class:`~companion.planning.base.Planner`)."""
 

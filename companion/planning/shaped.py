@@ -26,7 +26,9 @@ ahead of now (so the reference being flown never jumps, see :mod:`companion.plan
    (:mod:`companion.planning.shaping`): the payload follows the planned path with swing |a_L|/g and no
    residual swing when it stops; ω is the model's (acceleration-controlled support).
 5. **Keeping a plan.** A valid current plan is replaced only by one faster by ``replan_hysteresis_s``.
-   If no candidate is valid (a moving obstacle in the way), the planner brakes along its heading and waits.
+   If no candidate is valid (a moving obstacle in the way, a gust's drift across a gap), the planner brakes
+   along its heading and waits (mode ``wait``); where the goal itself lies within the wind's reach of a trunk
+   for ``goal_wind_wait_s`` of waiting in all, it declares ``no_route`` (:mod:`~.wind_wait`).
 6. **No route.** If no route exists even at the bare safety ring r_o + Δd + r_uav + L_uav around the static
    obstacles (a goal fenced in), the planner brakes, and after ``no_route_confirm_s`` of consistent failure
    declares ``no_route`` (``PlanOutput.no_route``) and holds where it stopped; it does not circle.
@@ -49,14 +51,15 @@ from companion.core.obstacles import Obstacle
 from companion.planning import timing
 from companion.planning.base import PlanInput, PlanOutput, ReferenceSample
 from companion.planning.candidates import capsules, search_options, timed_routes, warm_up
-from companion.planning.clearance import Predicted, clearance
+from companion.planning.clearance import clearance
 from companion.planning.legs_route import remaining_vias, route_through
 from companion.planning.params import PlannerParams
 from companion.planning.route import find_route
-from companion.planning.shaped_obstacles import Replan, moved_off_prediction, obstacle_rings, obstacle_signature
+from companion.planning.shaped_obstacles import Replan, Searched, obstacle_rings, obstacle_signature
 from companion.planning.shaping import box_widths, pendulum_omega_rad_s, shaper_taus_s
 from companion.planning.timeline import Timeline
 from companion.planning.timing import Profile, brake_rows, sample_motion, state_at, stop_along
+from companion.planning.wind_wait import WindWait
 
 LEAD_ROWS = 5  # a replan changes the unshaped motion from this many grid steps ahead of now
 
@@ -93,11 +96,9 @@ class ShapedPlanner:
         self.replans = 0
         self.searches = 0
         self.splices = 0
+        self.wind_wait = WindWait(params.goal_wind_wait_s)  # waits for the wind; the goal within its reach
         self.last: dict = {}
-        self._search_t = -math.inf
-        self._search_sig: tuple = ()
-        self._search_pred: Predicted | None = None
-        self._search_ring_m = 0.0
+        self._searched = Searched(-math.inf, (), None, 0.0)  # the last route search's moment and what it saw
         self._search_goal: np.ndarray | None = None  # the goal of the last replan (a new one: search again)
         self.plan_option: tuple[bool, float] = (False, 0.0)
         self.plan_timed = self._search_timed = timing.TimedFor()  # the drag, wind and share the plan was timed for
@@ -154,6 +155,8 @@ class ShapedPlanner:
         t = inp.t_s
         if t >= self.next_replan_s - 1e-9:
             self._replan(inp, obstacles)
+            if self.wind_wait.replanned(t):  # the goal within the wind's reach of a trunk too long: no route
+                self.no_route = True
             period = 1.0 / self.params.replan_rate_hz
             self.next_replan_s = self.next_replan_s + period if t - self.next_replan_s < period else t + period
         row = self.tl.sample(t)
@@ -197,7 +200,7 @@ class ShapedPlanner:
         self._search_goal = goal
         ring_now = self.envelope_m(inp) + self.err_peak_m + math.hypot(*r.rings.pred.payload_shift)
         valid = cur_ok and self.plan_reaches_goal
-        why = self._changed(t, obstacles, r.rings.pred, ring_now) if valid else "invalid"
+        why = self._searched.why_again(t, obstacles, r.rings.pred, ring_now, p.route_refresh_s) if valid else "invalid"
         cap, sp0 = inp.v_cap_mps, math.hypot(float(v0[0]), float(v0[1]))  # the cap inside the space seen free
         if cap < CAP_STOP_MPS and (sp0 > CAP_STOP_MPS or cap < 0.05):  # nothing seen free to go on in: stop
             self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
@@ -212,8 +215,7 @@ class ShapedPlanner:
             self.last = {"kept": True, "reason": "valid, nothing changed"}
             return
         self.searches += 1
-        self._search_t, self._search_sig, self._search_pred = t, obstacle_signature(obstacles), r.rings.pred
-        self._search_ring_m, self._search_timed = ring_now, timed
+        self._searched, self._search_timed = Searched(t, obstacle_signature(obstacles), r.rings.pred, ring_now), timed
         options = None
         if why == "refresh":
             # nothing changed and the plan is good: re-time its own route and try one other option in turn
@@ -236,7 +238,8 @@ class ShapedPlanner:
         if cur_ok and self.plan_reaches_goal:
             self.last.update({"kept": True, "reason": "no better valid candidate"})
             return
-        self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
+        self._hold(k_r, k_now, p0, v0, cur_ok, "wait")
+        self.wind_wait.waiting(r.rings, goal)
 
     def _replan_inputs(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> Replan:
         """This replan's splice point, start state, goal, vias, obstacle rings and its plan check."""
@@ -338,6 +341,10 @@ class ShapedPlanner:
             self.last.update({"kept": True, "best_s": cand.duration_s})
         self.mode = "track"
 
+    def facts(self) -> dict:
+        """The report's part: route searches and splices, the waits for the wind (:mod:`~.wind_wait`)."""
+        return {"searches": self.searches, "splices": self.splices, **self.wind_wait.facts()}
+
     def stop(self) -> None:
         """Stop along the planned path as soon as the swing bound allows and hold there (a hold the flight
         sequence asked for); takes effect at the next call of :meth:`plan`."""
@@ -377,20 +384,3 @@ class ShapedPlanner:
         self.plan_reaches_goal = False
         self.plan_profile = None
         self.splices += 1
-
-    def _changed(self, t: float, obstacles: Sequence[Obstacle], pred: Predicted, ring_m: float) -> str | None:
-        """Why the route search must run again — ``"changed"``: obstacles appeared, vanished or changed, a moving
-        one is off its predicted track by more than 0.05 m, or the envelope or margin grew by more than 0.05 m;
-        ``"refresh"``: ``route_refresh_s`` passed since the last search — or None."""
-        if ring_m > self._search_ring_m + 0.05:
-            return "changed"
-        if obstacle_signature(obstacles) != self._search_sig:
-            return "changed"
-        old = self._search_pred
-        if old is None or len(old) != len(pred):
-            return "changed"
-        if np.any(pred.moving) and moved_off_prediction(old, pred, t - self._search_t):
-            return "changed"
-        if t - self._search_t >= self.params.route_refresh_s - 1e-9:
-            return "refresh"
-        return None

@@ -144,3 +144,30 @@ class Replan(NamedTuple):
     caps: tuple
     rings: Rings
     check: Callable
+
+
+class Searched(NamedTuple):
+    """What the last route search saw: when (s), the obstacle set's signature, their predictions and the ring (m)."""
+
+    t: float
+    sig: tuple
+    pred: Predicted | None
+    ring_m: float
+
+    def why_again(self, t: float, obstacles: Sequence[Obstacle], pred: Predicted, ring_m: float,
+                  refresh_s: float) -> str | None:
+        """Why the route search must run again — ``"changed"``: obstacles appeared, vanished or changed, a moving
+        one is off its predicted track by more than 0.05 m, or the envelope or margin grew by more than 0.05 m;
+        ``"refresh"``: ``refresh_s`` passed since the last search — or None."""
+        if ring_m > self.ring_m + 0.05:
+            return "changed"
+        if obstacle_signature(obstacles) != self.sig:
+            return "changed"
+        old = self.pred
+        if old is None or len(old) != len(pred):
+            return "changed"
+        if np.any(pred.moving) and moved_off_prediction(old, pred, t - self.t):
+            return "changed"
+        if t - self.t >= refresh_s - 1e-9:
+            return "refresh"
+        return None

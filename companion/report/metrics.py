@@ -149,6 +149,7 @@ class FlightLog:
     envelope_mode: list[str] = field(default_factory=list)
     wall_time_s: float | None = None
     outcome: str | None = None  # the flight core's verdict (completed, timeout, no_route) where the runner set it
+    planning: dict | None = None  # the planner's facts (``Planner.facts``) where the runner set them
 
     def append(self, t_s: float, pos, vel, euler, swing, payload_pos, cmd: Any | None = None,
                swing_used=None) -> None:

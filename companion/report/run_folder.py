@@ -146,6 +146,7 @@ def summary_text(rep: dict[str, Any]) -> str:
         f"  sim time            {_fmt(rep.get('sim_time_s'), ' s')}   wall time {_fmt(rep.get('wall_time_s'), ' s')}",
     ]
     lines += waypoint_lines(rep) + payload_lines(rep.get("payload")) + lift_off_lines(rep.get("lift_off"))
+    lines += wait_lines(rep.get("planning"))
     lines += drag_lines(rep.get("payload_drag"), rep.get("wind"))
     truth = rep.get("wind_truth")
     if truth:  # a flight against the bundled vehicle in a physical wind (companion.report.wind_truth)
@@ -183,6 +184,20 @@ def lift_off_lines(lift: dict[str, Any] | None) -> list[str]:
         out.append(f"  lift-off            leaned {_fmt(lift['lean_m'], ' m')} upwind of the payload, to lift it at "
                    + angle)
     return out
+
+
+def wait_lines(planning: dict[str, Any] | None) -> list[str]:
+    """The summary's line when the shaped planner waited for the wind (a gap the payload's swing fits), and why it
+    ended the flight where the goal lay within the wind's reach of a trunk (:mod:`companion.planning.wind_wait`)."""
+    if not planning or (planning.get("waited_s") or 0.0) < 0.05:
+        return []
+    line = f"  waited              {_fmt(planning['waited_s'], ' s', 1)} in all for the wind to leave a gap the payload"
+    line += " fits"
+    if planning.get("no_route_goal_in_wind_reach"):
+        line += (f"; the goal lay within its reach of the trunk at ({_fmt(planning.get('trunk_x_m'), '', 1)}, "
+                 f"{_fmt(planning.get('trunk_y_m'), '', 1)}) for {_fmt(planning.get('goal_in_wind_reach_s'), ' s', 0)}"
+                 ": no route")
+    return [line]
 
 
 def drag_lines(drag: dict[str, Any] | None, wind: dict[str, Any] | None) -> list[str]:
