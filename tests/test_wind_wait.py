@@ -57,6 +57,15 @@ def test_the_same_wind_blowing_away_from_the_trunk_does_not_stop_the_flight():
     assert wait_lines(pl.facts()) == []
 
 
+def test_the_summary_says_how_long_the_goal_lay_in_reach_when_a_lull_let_the_flight_through():
+    waited = {"waited_s": 23.61, "goal_in_wind_reach_s": 23.6, "no_route_goal_in_wind_reach": False,
+              "trunk_x_m": 19.7, "trunk_y_m": -1.68}
+    assert wait_lines(waited) == ["  waited              23.6 s in all for the wind to leave a gap the payload fits; "
+                                  "the goal lay within its reach of the trunk at (19.7, -1.7) for 23.6 s"]
+    gap = {"waited_s": 1.2, "goal_in_wind_reach_s": 0.0, "no_route_goal_in_wind_reach": False}
+    assert wait_lines(gap) == ["  waited              1.2 s in all for the wind to leave a gap the payload fits"]
+
+
 def test_the_wait_for_the_goal_is_a_configured_time():
     pl, rows = _fly_reference((0.0, -0.8), 8.0, PlannerParams(goal_wind_wait_s=5.0))
     t_nr = next(t for t, _p, _m, nr in rows if nr)
@@ -73,4 +82,5 @@ def test_forest_73_where_gusts_hold_the_payload_on_3_m_by_the_goals_trunk_ends_n
     rep = json.loads((tmp_path / "run" / "report.json").read_text())
     assert rep["planning"]["no_route_goal_in_wind_reach"] is True
     assert (rep["planning"]["trunk_x_m"], rep["planning"]["trunk_y_m"]) == (19.7, -1.68)
-    assert "the goal lay within its reach of the trunk at (19.7, -1.7)" in (tmp_path / "run" / "summary.txt").read_text()
+    summary = (tmp_path / "run" / "summary.txt").read_text()
+    assert "the goal lay within its reach of the trunk at (19.7, -1.7) for 30.0 s: no route" in summary

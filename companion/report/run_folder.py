@@ -187,16 +187,17 @@ def lift_off_lines(lift: dict[str, Any] | None) -> list[str]:
 
 
 def wait_lines(planning: dict[str, Any] | None) -> list[str]:
-    """The summary's line when the shaped planner waited for the wind (a gap the payload's swing fits), and why it
-    ended the flight where the goal lay within the wind's reach of a trunk (:mod:`companion.planning.wind_wait`)."""
+    """The summary's line when the shaped planner waited for the wind (a gap the payload's swing fits): how long,
+    how long of it the goal lay within the wind's reach of a trunk, and whether that ended the flight
+    (:mod:`companion.planning.wind_wait`)."""
     if not planning or (planning.get("waited_s") or 0.0) < 0.05:
         return []
-    line = f"  waited              {_fmt(planning['waited_s'], ' s', 1)} in all for the wind to leave a gap the payload"
-    line += " fits"
-    if planning.get("no_route_goal_in_wind_reach"):
+    line = (f"  waited              {_fmt(planning['waited_s'], ' s', 1)} in all for the wind to leave a gap the "
+            "payload fits")
+    if (planning.get("goal_in_wind_reach_s") or 0.0) >= 0.05:
         line += (f"; the goal lay within its reach of the trunk at ({_fmt(planning.get('trunk_x_m'), '', 1)}, "
-                 f"{_fmt(planning.get('trunk_y_m'), '', 1)}) for {_fmt(planning.get('goal_in_wind_reach_s'), ' s', 0)}"
-                 ": no route")
+                 f"{_fmt(planning.get('trunk_y_m'), '', 1)}) for {_fmt(planning.get('goal_in_wind_reach_s'), ' s', 1)}"
+                 + (": no route" if planning.get("no_route_goal_in_wind_reach") else ""))
     return [line]
 
 
