@@ -12,17 +12,14 @@ import pytest
 from companion.control.drag_id import C_MIN, RATIO_SAMPLES_MIN, DragIdentifier, declared_drag_c
 from companion.control.swing_bias import TAU_S
 from companion.launch.fly import DEFAULT_GAINS, load_gains
-from companion.planning.timing import (
-    DRAG_GUST_MPS,
+from companion.planning.drag_timing import (
     PROVISIONAL_AIRSPEED_MPS,
     PROVISIONAL_C_MAX,
-    DragBudget,
     budgeted_drag,
     provisional_drag,
-    sample_motion,
-    speed_profile,
     wind_changed,
 )
+from companion.planning.timing import DRAG_GUST_MPS, DragBudget, sample_motion, speed_profile
 from lab.envelope import Cell, cell_mission
 from lab.forests import ForestSpec
 from lab.inprocess import fly_inprocess

@@ -34,8 +34,8 @@ from companion.flight.liftoff import (
     ring_entry_m,
     typical_airframe_drag,
 )
+from companion.planning.drag_timing import PROVISIONAL_C_MAX
 from companion.planning.params import PlannerParams
-from companion.planning.timing import PROVISIONAL_C_MAX
 from companion.report.metrics import compute_metrics
 from lab.envelope import Cell, cell_mission
 from lab.forests import ForestSpec

@@ -21,7 +21,7 @@ gate then reads a push under :data:`ASSUMED_PUSH_FLOOR_MPS2` as no wind (eq. 49 
 and it drags nothing) and only holds: a lean for a wind inferred from an assumed drag lifted heavy payloads far
 beyond their drag angle where the airframe's drag was twice the assumed one (docs/measurements.md). A payload whose
 drag the mission leaves to be identified (``[payload] drag_n_per_mps2`` 0) is judged at the provisional drag's cap
-(:data:`~companion.planning.timing.PROVISIONAL_C_MAX`, rad per (m/s)², the most the flight budgets before it knows
+(:data:`~companion.planning.drag_timing.PROVISIONAL_C_MAX`, rad per (m/s)², the most the flight budgets before it knows
 c), and the climb leans for it as for half the cap (below). While it is blocked the climb holds :data:`WAIT_BELOW_M`
 under the lift-off height (the payload still on the ground); it lifts off once the reach is clear, and after
 :data:`MAX_WAIT_S` blocked the flight says there is no route. The push is measured only where the force observer
@@ -54,8 +54,8 @@ from companion.control.drag_id import declared_drag_c
 from companion.core.mission import Mission
 from companion.core.obstacles import Obstacle
 from companion.core.vehicle_params import VehicleParams
+from companion.planning.drag_timing import PROVISIONAL_C_MAX
 from companion.planning.params import PlannerParams
-from companion.planning.timing import PROVISIONAL_C_MAX
 
 WAIT_BELOW_M = 0.4  # (m) the climb waits this far below the height at which the cable lifts the payload
 GUST_MPS = 2.0  # (m/s) the reach is judged in a wind this much stronger than measured

@@ -48,7 +48,7 @@ import numpy as np
 
 from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
-from companion.planning import timing
+from companion.planning import drag_timing, timing
 from companion.planning.base import PlanInput, PlanOutput, ReferenceSample
 from companion.planning.candidates import capsules, search_options, timed_routes, warm_up
 from companion.planning.clearance import clearance
@@ -101,7 +101,7 @@ class ShapedPlanner:
         self._searched = Searched(-math.inf, (), None, 0.0)  # the last route search's moment and what it saw
         self._search_goal: np.ndarray | None = None  # the goal of the last replan (a new one: search again)
         self.plan_option: tuple[bool, float] = (False, 0.0)
-        self.plan_timed = self._search_timed = timing.TimedFor()  # the drag, wind and share the plan was timed for
+        self.plan_timed = self._search_timed = drag_timing.TimedFor()  # the drag, wind and share the plan was timed for
         self.plan_profile: Profile | None = None  # the unshaped plan being flown, from absolute row plan_k0
         self.plan_k0 = 0
         self.stop_requested = False
@@ -206,8 +206,8 @@ class ShapedPlanner:
             self._hold(k_r, k_now, p0, v0, cur_ok, "brake")
             return
         why = "cap" if why is None and sp0 > cap + CAP_SLACK_MPS else why  # too fast for it: re-timed, not optional
-        timed = timing.TimedFor(*timing.budgeted_drag(inp.drag_c, inp.wind_mps, inp.drift_ned_m, inp.cable_l_m,
-                                                      inp.vel_mps))
+        timed = drag_timing.TimedFor(*drag_timing.budgeted_drag(inp.drag_c, inp.wind_mps, inp.drift_ned_m,
+                                                                inp.cable_l_m, inp.vel_mps))
         if why is None and self.plan_timed.outdated(timed):
             why = "drag"  # timed for another payload drag or wind than measured now: re-timed, not optional
         p = p if cap >= p.shaped_v_max_mps else replace(p, shaped_v_max_mps=cap)
@@ -281,7 +281,7 @@ class ShapedPlanner:
         return True
 
     def _candidates(self, inp: PlanInput, r: Replan, p: PlannerParams, options, optional: bool,
-                    timed: timing.TimedFor):
+                    timed: drag_timing.TimedFor):
         """(the first timed route whose plan clears every obstacle as (candidate, rows, unshaped, shaped, base) or
         None, the last round's candidates, how many were checked); up to three rounds, capsules around moving
         obstacles at their conflict times after the first; timed for the drag and wind ``timed``."""
