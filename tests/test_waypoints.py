@@ -17,7 +17,8 @@ from companion.errors import ConfigError
 from companion.estimation.estimate import Estimate
 from companion.flight.core import FlightCore
 from companion.planning.fence_guard import fence_margin_m, fence_obstacles
-from companion.report.metrics import compute_metrics, waypoint_lines
+from companion.report.metrics import compute_metrics
+from companion.report.run_folder import waypoint_lines
 from lab.inprocess import fly_inprocess
 
 pytestmark = pytest.mark.shares_cores  # lockstep processes, no deadline: they may share the cores (conftest.py)

@@ -382,21 +382,3 @@ def fence_metrics(log: FlightLog, mission) -> dict[str, Any]:
     return {"min_margin_airframe_m": float(np.min(air)) if len(air) else None,
             "min_margin_payload_m": float(np.min(pm)) if np.any(ok) else None,
             "breaches": int(np.sum((air < 0.0) | (pm < 0.0)))}
-
-
-def waypoint_lines(rep: dict[str, Any]) -> list[str]:
-    """The summary's per-waypoint lines (none for a mission without waypoints) and its fence line."""
-    lines = []
-    for k, w in enumerate(rep.get("waypoints") or []):
-        at = "never" if w.get("reached_at_s") is None else f"{w['reached_at_s']:.2f} s"
-        sw, cl = w.get("leg_max_swing_rad"), w.get("leg_min_clearance_m")
-        label = "goal" if w["name"] == "goal" else f"waypoint {k + 1} {w['name'][:24]}"
-        lines.append(f"  {label:<36}reached {at:<9} leg: max swing {'—' if sw is None else f'{sw:.3f} rad'}, "
-                     f"min clearance {'—' if cl is None else f'{cl:.3f} m'}")
-    f = rep.get("fence")
-    if f:
-        def m(v: float | None) -> str:
-            return "—" if v is None else f"{v:.3f} m"
-        lines.append(f"  fence               min margin airframe {m(f.get('min_margin_airframe_m'))}, payload "
-                     f"{m(f.get('min_margin_payload_m'))}, breaches {f.get('breaches')}")
-    return lines

@@ -13,7 +13,7 @@ import numpy as np
 
 from companion.core.mission import Mission
 from companion.core.wind import WindConfig
-from companion.report.metrics import FlightLog, compute_metrics, estimation_error, waypoint_lines
+from companion.report.metrics import FlightLog, compute_metrics, estimation_error
 from companion.report.wind_truth import report_wind_truth
 
 log = logging.getLogger(__name__)
@@ -162,6 +162,24 @@ def summary_text(rep: dict[str, Any]) -> str:
     if rep.get("run_dir"):
         lines.append(f"  run folder          {rep['run_dir']}")
     return "\n".join(lines)
+
+
+def waypoint_lines(rep: dict[str, Any]) -> list[str]:
+    """The summary's per-waypoint lines (none for a mission without waypoints) and its fence line."""
+    lines = []
+    for k, w in enumerate(rep.get("waypoints") or []):
+        at = "never" if w.get("reached_at_s") is None else f"{w['reached_at_s']:.2f} s"
+        sw, cl = w.get("leg_max_swing_rad"), w.get("leg_min_clearance_m")
+        label = "goal" if w["name"] == "goal" else f"waypoint {k + 1} {w['name'][:24]}"
+        lines.append(f"  {label:<36}reached {at:<9} leg: max swing {'—' if sw is None else f'{sw:.3f} rad'}, "
+                     f"min clearance {'—' if cl is None else f'{cl:.3f} m'}")
+    f = rep.get("fence")
+    if f:
+        def m(v: float | None) -> str:
+            return "—" if v is None else f"{v:.3f} m"
+        lines.append(f"  fence               min margin airframe {m(f.get('min_margin_airframe_m'))}, payload "
+                     f"{m(f.get('min_margin_payload_m'))}, breaches {f.get('breaches')}")
+    return lines
 
 
 def lift_off_lines(lift: dict[str, Any] | None) -> list[str]:
