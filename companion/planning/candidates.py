@@ -29,6 +29,7 @@ from companion.planning.timeline import Timeline
 from companion.planning.timing import DragBudget, Profile, sample_motion, speed_profile
 
 CAPSULE_STEP_M = 0.45  # spacing of a capsule's discs: the union's edge sags < 3 cm for a 0.95 m ring
+APEX_WALL_M = 50.0  # (m) the radius of the disc that walls off a route's apex (the search on its other side)
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,6 +42,7 @@ class Candidate:
     extra_m: float
     reaches_goal: bool
     walled: bool = False
+
 
 
 def timed_routes(p0: np.ndarray, v0: np.ndarray, goal: np.ndarray, c: np.ndarray, ring: np.ndarray, hard: np.ndarray,
@@ -93,23 +95,29 @@ def timed_routes(p0: np.ndarray, v0: np.ndarray, goal: np.ndarray, c: np.ndarray
         out.sort(key=lambda cd: cd.duration_s)
         return out
     # the other side of the fastest route's apex
-    best = int(np.argmin([cd.duration_s for cd in out]))
-    path = paths[best]
-    line = goal - p0
-    dist = float(np.hypot(line[0], line[1]))
-    if dist > 1e-6:
-        nrm = np.array((-line[1], line[0])) / dist
-        dev = (path - p0[None, :]) @ nrm
-        i = int(np.argmax(np.abs(dev)))
-        if abs(dev[i]) > 0.5:
-            big = 50.0
-            side = math.copysign(1.0, float(dev[i]))
-            centre = path[i] + side * nrm * (big - 0.05)
-            n0 = len(out)
-            search(np.vstack([c, centre[None, :]]), np.r_[ring, big], np.r_[hard, big - 0.3], walled)
-            out[n0:] = [replace(cd, walled=True) for cd in out[n0:]]
+    centre = _apex_wall(paths[int(np.argmin([cd.duration_s for cd in out]))], p0, goal)
+    if centre is not None:
+        n0 = len(out)
+        search(np.vstack([c, centre[None, :]]), np.r_[ring, APEX_WALL_M], np.r_[hard, APEX_WALL_M - 0.3], walled)
+        out[n0:] = [replace(cd, walled=True) for cd in out[n0:]]
     out.sort(key=lambda cd: cd.duration_s)
     return out
+
+
+def _apex_wall(path: np.ndarray, p0: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+    """The centre (m) of a disc of radius :data:`APEX_WALL_M` walling off the apex of ``path`` (its point farthest
+    from the straight line ``p0`` → ``goal``, if more than 0.5 m off it; the disc's edge 0.05 m beyond), or None."""
+    line = goal - p0
+    dist = float(np.hypot(line[0], line[1]))
+    if dist <= 1e-6:
+        return None
+    nrm = np.array((-line[1], line[0])) / dist
+    dev = (path - p0[None, :]) @ nrm
+    i = int(np.argmax(np.abs(dev)))
+    if abs(dev[i]) <= 0.5:
+        return None
+    return path[i] + math.copysign(1.0, float(dev[i])) * nrm * (APEX_WALL_M - 0.05)
+
 
 def search_options(p: PlannerParams) -> list[tuple[bool, float]]:
     """Every (walled, extra) search option: the k·extra inflations, then the other side of the apex with the

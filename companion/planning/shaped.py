@@ -216,13 +216,7 @@ class ShapedPlanner:
             return
         self.searches += 1
         self._searched, self._search_timed = Searched(t, obstacle_signature(obstacles), r.rings.pred, ring_now), timed
-        options = None
-        if why == "refresh":
-            # nothing changed and the plan is good: re-time its own route and try one other option in turn
-            allo = search_options(p)
-            other = [o for o in allo if o != self.plan_option]
-            options = [self.plan_option] + ([other[self._rotation % len(other)]] if other else [])
-            self._rotation += 1
+        options = self._refresh_options(p) if why == "refresh" else None
         if why != "refresh" and not self._route_exists(r, p, cur_ok):
             return
         self.no_route_since_s = None
@@ -240,6 +234,13 @@ class ShapedPlanner:
             return
         self._hold(k_r, k_now, p0, v0, cur_ok, "wait")
         self.wind_wait.waiting(r.rings, goal)
+
+    def _refresh_options(self, p: PlannerParams) -> list[tuple[bool, float]]:
+        """Nothing changed and the plan is good: re-time its own route and try one other option in turn."""
+        other = [o for o in search_options(p) if o != self.plan_option]
+        k = self._rotation
+        self._rotation += 1
+        return [self.plan_option] + ([other[k % len(other)]] if other else [])
 
     def _replan_inputs(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> Replan:
         """This replan's splice point, start state, goal, vias, obstacle rings and its plan check."""
