@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -342,7 +343,7 @@ class ShapedPlanner:
             self.last.update({"kept": True, "best_s": cand.duration_s})
         self.mode = "track"
 
-    def facts(self) -> dict:
+    def facts(self) -> dict[str, Any]:
         """The report's part: route searches and splices, the waits for the wind (:mod:`~.wind_wait`)."""
         return {"searches": self.searches, "splices": self.splices, **self.wind_wait.facts()}
 
