@@ -4,8 +4,12 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
+import pytest
 
 from companion.core.model import VehicleParams
 from companion.core.obstacles import Obstacle
@@ -15,6 +19,7 @@ from lab.envelope import Cell, cell_mission
 from lab.forests import ForestSpec
 from lab.runner import Job, run_job
 
+ROOT = Path(__file__).resolve().parents[1]
 DT = 0.02
 GOAL = (10.0, 0.0)
 TRUNK = Obstacle(x_m=10.0, y_m=-1.5, radius_m=0.15, height_m=7.0)  # 1.5 m beside the goal, downwind of it
@@ -84,3 +89,58 @@ def test_forest_73_where_gusts_hold_the_payload_on_3_m_by_the_goals_trunk_ends_n
     assert (rep["planning"]["trunk_x_m"], rep["planning"]["trunk_y_m"]) == (19.7, -1.68)
     summary = (tmp_path / "run" / "summary.txt").read_text()
     assert "the goal lay within its reach of the trunk at (19.7, -1.7) for 30.0 s: no route" in summary
+
+
+#: a steady 10 m/s wind across the path and a trunk 1.5 m beside the goal: 0.1 kg on 3 m hangs 0.97 m downwind
+GOAL_IN_WIND = """
+[mission]
+name = "goal_in_wind"
+start_ned_m = [0.0, 0.0, -4.5]
+goal_ned_m = [10.0, 0.0, -4.5]
+planner = "shaped"
+controller = "smc_ff"
+timeout_s = 60.0
+hold_s = 2.0
+land = true
+
+[wind]
+model = "turbulence"
+mean_speed_mps = 10.0
+direction_deg = {direction}
+intensity = "none"
+altitude_m = 4.5
+payload_drag_area_m2 = 0.0054
+
+[vehicle]
+m = 0.1
+l = 3.0
+
+[payload]
+drag_n_per_mps2 = 0.0033
+airframe_drag_n_per_mps2 = 0.0245
+
+[[obstacles]]
+x_m = 10.0
+y_m = -1.5
+radius_m = 0.15
+height_m = 7.0
+"""
+
+
+@pytest.mark.shares_cores  # lockstep flights: no deadline (conftest.py)
+@pytest.mark.parametrize(("direction", "outcome", "code"), [(90.0, "no_route", 1), (270.0, "completed", 0)])
+def test_fly_against_the_bundled_vehicle_holds_off_a_goal_the_wind_blows_the_payload_from_onto_a_trunk(
+        tmp_path, direction, outcome, code):
+    # from the east the wind holds the payload toward the trunk at the goal: the flight waits 30 s, then ends
+    # no_route (exit 1) with the payload never near the trunk; from the west it flies to the goal
+    mission = tmp_path / "goal_in_wind.toml"
+    mission.write_text(GOAL_IN_WIND.format(direction=direction))
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--mission", str(mission),
+                        "--no-zenoh", "--no-plots", "--no-recording", "--run-dir", str(tmp_path / "run")],
+                       capture_output=True, text=True, timeout=240, cwd=ROOT)
+    rep = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert (r.returncode, rep["outcome"], rep["collisions"]) == (code, outcome, 0), r.stderr[-2000:]
+    assert rep["planning"]["no_route_goal_in_wind_reach"] is (outcome == "no_route")
+    if outcome == "no_route":
+        assert rep["planning"]["goal_in_wind_reach_s"] >= 30.0 and rep["min_clearance_m"] > 5.0
+        assert "no route" in (tmp_path / "run" / "summary.txt").read_text()
