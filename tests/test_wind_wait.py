@@ -19,6 +19,8 @@ from lab.envelope import Cell, cell_mission
 from lab.forests import ForestSpec
 from lab.runner import Job, run_job
 
+pytestmark = pytest.mark.shares_cores  # lockstep and in-process flights: no deadline (conftest.py)
+
 ROOT = Path(__file__).resolve().parents[1]
 DT = 0.02
 GOAL = (10.0, 0.0)
@@ -127,7 +129,6 @@ height_m = 7.0
 """
 
 
-@pytest.mark.shares_cores  # lockstep flights: no deadline (conftest.py)
 @pytest.mark.parametrize(("direction", "outcome", "code"), [(90.0, "no_route", 1), (270.0, "completed", 0)])
 def test_fly_against_the_bundled_vehicle_holds_off_a_goal_the_wind_blows_the_payload_from_onto_a_trunk(
         tmp_path, direction, outcome, code):
