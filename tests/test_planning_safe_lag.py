@@ -47,8 +47,8 @@ def test_lookahead_keeps_lagging_reference_out_of_the_ring():
     assert gap > -0.01
     # without the look-ahead the lagging reference coasts much closer (measured 0.14 m vs 0.35 m here; with a
     # swinging payload and tracking error on top, that is what cut into trunks in random forests)
-    gap_no_la, _, _ = _fly(replace(p, lookahead_s=1e-6, steer_lookahead_s=1e-6, goal_lookahead_s=1e-6),
-                           SLALOM, (10.0, 0.0))
+    gap_no_la, _, _ = _fly(replace(p, lookahead_s=1e-6, steer_lookahead_s=1e-6, goal_lookahead_s=1e-6,
+                                   vehicle_lookahead_s=1e-6), SLALOM, (10.0, 0.0))
     assert gap_no_la < gap - 0.1
 
 

@@ -18,7 +18,14 @@ length — and changes how it is enforced:
    loop 1/k_vel plus the acceleration lag, ~0.4 s): a barrier on the gap at x alone let the reference coast
    0.2–0.3 m into the ring in tight turns of random forests. So each gap is also measured at x + T·v_ref (T =
    ``lookahead_s`` for the barrier, ``steer_lookahead_s`` for steering) and the smaller one counts: the
-   planner acts on where the reference is going, a discrete second-order barrier.
+   planner acts on where the reference is going, a discrete second-order barrier. The vehicle lags the
+   reference in turn: when the reference brakes beside a trunk with the payload swinging towards it, the
+   feed-forward carries the airframe on after its payload, 0.4–0.5 m past the reference. So the barrier also
+   measures the gap at where the vehicle itself goes, p + T_v·v (T_v = ``vehicle_lookahead_s``, v the vehicle's
+   velocity relative to the obstacle), with the ring less the tracking-error margin (it is the vehicle's own
+   position). A predicted point past the obstacle's centre is measured along the normal at p, so a fast
+   approach never reads as the far side. (In dense forests, 700 in-process flights: 11 contacts to 0; see
+   docs/planning.md.)
 3. Velocity barrier (a control-barrier condition on a single integrator): the reference may approach an
    obstacle no faster than min(γ·g, sqrt(2·a_brake·g)); the braking term is the speed-dependent influence
    range. Inside the ring (g < 0) it is pushed out at γ·|g|. Enforced by projecting the desired velocity on
@@ -82,6 +89,19 @@ def _gap_at(x: float, y: float, o: Obstacle, ring_m: float) -> tuple[float, floa
     return dist - ring_m, 1.0, 0.0
 
 
+def _vehicle_gap(px: float, py: float, dx: float, dy: float, o: Obstacle, ring_m: float
+                 ) -> tuple[float, float, float]:
+    """(gap m, unit normal x, y) at the vehicle's predicted point (px + dx, py + dy): as :func:`_gap_at`, but a
+    point past the obstacle's centre (seen from (px, py)) is measured along the normal at (px, py), negative."""
+    qx, qy = px + dx, py + dy
+    g, nx, ny = _gap_at(qx, qy, o, ring_m)
+    _, n0x, n0y = _gap_at(px, py, o, ring_m)
+    along = (qx - o.x_m) * n0x + (qy - o.y_m) * n0y
+    if along < 0.0:
+        return along - ring_m, n0x, n0y
+    return g, nx, ny
+
+
 class SafePlanner:
     """Swing-aware barrier planner with trap escape (see module docstring).
 
@@ -121,6 +141,9 @@ class SafePlanner:
         base = r_env + margin
         vx, vy = float(inp.ref_vel_mps[0]), float(inp.ref_vel_mps[1])
         t_b, t_s = self.params.lookahead_s, self.params.steer_lookahead_s
+        t_v = self.params.vehicle_lookahead_s
+        pvx, pvy = float(inp.vel_mps[0]), float(inp.vel_mps[1])
+        bare = r_env + self.params.track_margin_m  # the ring at the vehicle's own position: no tracking error
         out = []
         for o in obstacles:
             if reach_z < -o.height_m:
@@ -134,6 +157,10 @@ class SafePlanner:
                 wx, wy = vx, vy
             gs, sx, sy = _gap_at(x + t_s * wx, y + t_s * wy, o, ring)
             gb, bx, by = _gap_at(x + t_b * wx, y + t_b * wy, o, ring)
+            gv, vnx, vny = _vehicle_gap(px, py, t_v * (pvx - o.vx_mps), t_v * (pvy - o.vy_mps), o,
+                                        o.radius_m + o.safe_distance_m + bare)
+            if gv < gb:
+                gb, bx, by = gv, vnx, vny
             if gs < g:
                 g, nx, ny = gs, sx, sy
             out.append((g, nx, ny, o, gb, bx, by, g0, n0x, n0y) if gb < g else (g, nx, ny, o, g, nx, ny, g0, n0x, n0y))
