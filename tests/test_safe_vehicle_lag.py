@@ -9,6 +9,11 @@ vehicle's own lag*).
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -18,6 +23,8 @@ from companion.planning.params import PlannerParams
 from companion.planning.safe import SafePlanner, _vehicle_gap
 from companion.report.metrics import clearances, compute_metrics
 
+pytestmark = pytest.mark.shares_cores  # in-process and lockstep flights: no deadline (conftest.py)
+ROOT = Path(__file__).resolve().parents[1]
 TRUNK = Obstacle(x_m=10.0, y_m=0.0, radius_m=0.25, height_m=4.0, safe_distance_m=0.1)
 
 
@@ -66,3 +73,53 @@ def test_dense_forests_where_the_airframe_ran_on_into_a_trunk_are_flown_clean(se
     clear = clearances(flog, mission.obstacles, mission.vehicle.r_uav + mission.vehicle.L_uav)
     assert min(clear) > 0.0, min(clear)
     assert compute_metrics(flog, mission)["reached_goal"]
+
+
+def test_safe_declares_no_route_once_the_goal_comes_no_closer() -> None:
+    """The planner alone: 20 s (``safe_no_progress_s``) of references no closer to the goal by 0.5 m end in
+    ``no_route`` with a zero desired velocity; any progress of 0.5 m restarts the count."""
+    params = PlannerParams()
+    planner = SafePlanner(params)
+    inp = _inp((8.2, 0.0), (0.0, 0.0), (0.0, 0.0))
+    for k in range(0, 1000):  # 19.98 s at 50 Hz, the reference standing 11.8 m from the goal
+        out = planner.plan(inp._replace(t_s=5.0 + 0.02 * k), [])
+    assert not out.no_route
+    moved = inp._replace(t_s=25.0, ref_pos_m=np.array((8.8, 0.0)))
+    assert not planner.plan(moved, []).no_route  # 0.6 m closer: progress, the count starts again
+    late = moved._replace(t_s=45.0)
+    out = planner.plan(late, [])
+    assert out.no_route and out.mode == "no_route" and not out.v_des_mps.any()
+
+
+def test_a_goal_ringed_by_trunks_ends_no_route_held_clear_not_circled_to_the_timeout(tmp_path) -> None:
+    """evaluate's fenced scenario flown with ``safe`` in-process: before, it circled the ring until the 60 s
+    timeout (class ``stuck``); now ``no_route``, no contact, well before the timeout."""
+    import json
+
+    from lab.evaluate import evaluate
+    from lab.forests import ForestSpec
+
+    out = tmp_path / "ev"
+    evaluate(["safe"], [8.0], 1, spec=ForestSpec(length_m=15.0, width_m=4.0), mode="inprocess", workers=1, out=out,
+             progress=False, scenarios=("fenced",))
+    (r,) = map(json.loads, (out / "results.jsonl").read_text().splitlines())
+    assert (r["class"], r["outcome"], r["collisions"]) == ("no_route", "no_route", 0), r
+    assert r["sim_time_s"] < 45.0
+
+
+def test_over_mavlink_a_ringed_goal_ends_no_route_exit_1_held_clear(tmp_path) -> None:
+    """The same over MAVLink: ``fly --sitl`` with the safe planner and a goal ringed by trunks (the fenced forest of
+    seed 11) ends ``no_route``, exit code 1, no contact, before the mission's 60 s timeout."""
+    from companion.core.mission import mission_to_toml
+    from lab.forests import ForestSpec, generate_forest
+
+    mission = generate_forest(11, ForestSpec(density_per_100m2=8.0, width_m=4.0, length_m=15.0, trap="fence"))
+    path = tmp_path / "fenced.toml"
+    path.write_text(mission_to_toml(mission))
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "-q", "fly", "--sitl", "--mission", str(path),
+                        "--no-zenoh", "--no-plots", "--no-recording", "--run-dir", str(tmp_path / "run")],
+                       capture_output=True, text=True, timeout=240, cwd=ROOT)
+    rep = json.loads((tmp_path / "run" / "report.json").read_text())
+    assert (r.returncode, rep["outcome"], rep["collisions"], rep["planner"]) == (1, "no_route", 0, "safe"), \
+        r.stderr[-2000:]
+    assert rep["sim_time_s"] < 50.0

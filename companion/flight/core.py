@@ -318,6 +318,8 @@ class FlightCore(CoreOrders, HopMixin):
                 v_cap_mps=self.cap.cap_mps(est.pos_ned_m, est.vel_ned_mps, r_max), **legs_in,
             )
             out = self.planner.plan(inp, obs)
+            if out.no_route and not self.no_route:
+                self.no_route_here(est.t_s)
             vdx, vdy = float(out.v_des_mps[0]), float(out.v_des_mps[1])
             vdx, vdy = capped(vdx, vdy, cap)  # the leg's speed limit
             vdz = self._vertical_speed(z_goal)
@@ -326,7 +328,8 @@ class FlightCore(CoreOrders, HopMixin):
             ka = self.cfg.planner.ka
             if self._braking:  # desired velocity 0 until the reference stands, then hold there
                 self._hold_ned_m = np.array(ref.p, dtype=np.float64)
-                self._braking = self.phase == CorePhase.HOLD_HERE and math.hypot(ref.v[0], ref.v[1]) > 0.02
+                self._braking = (self.phase in (CorePhase.HOLD_HERE, CorePhase.NO_ROUTE)
+                                 and math.hypot(ref.v[0], ref.v[1]) > 0.02)
             hop = self.hop_target_ned_m if self.phase == CorePhase.IDENTIFY else None
             hold = self._hold_ned_m if hop is None else hop
             vdx = ka * (float(hold[0]) - ref.p[0])
@@ -356,11 +359,7 @@ class FlightCore(CoreOrders, HopMixin):
         )
         out = self.planner.plan(inp, obs)
         if out.no_route and not self.no_route:
-            self.no_route = True
-            if self.phase == CorePhase.CRUISE:
-                self.phase = CorePhase.NO_ROUTE
-                self.t_no_route_s = est.t_s
-                log.warning("mission %s: no route to the goal; holding at (%.2f, %.2f)", m.name, ref.p[0], ref.p[1])
+            self.no_route_here(est.t_s)
         r = out.reference
         assert r is not None
         self._swing_nom = r.swing_nom

@@ -1,4 +1,5 @@
-"""The flight sequence's orders to the flight core: hold here, resume after a pause, descend (pure).
+"""The flight sequence's orders to the flight core: hold here, resume after a pause, descend; and the planner's
+"no route" (pure).
 
 A mixin of :class:`~companion.flight.core.FlightCore`: it reads and sets the core's phase, reference, hold point
 and planner.
@@ -6,6 +7,7 @@ and planner.
 
 from __future__ import annotations
 
+import logging
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -13,7 +15,10 @@ import numpy as np
 from companion.flight.phase import CorePhase
 
 if TYPE_CHECKING:
+    from companion.core.mission import Mission
     from companion.planning import Planner, ReferenceGenerator
+
+log = logging.getLogger(__name__)
 
 DESCENT_MPS = 0.5  # the companion's own landing descent (when the autopilot's land mode is not confirmed)
 #: where a time-parameterised planner gives the reference
@@ -31,6 +36,9 @@ class CoreOrders:
     _braking: bool
     _hold_ned_m: np.ndarray
     _paused_from: tuple[CorePhase, np.ndarray] | None
+    no_route: bool
+    t_no_route_s: float | None
+    mission: Mission
 
     def hold_here(self, brake: bool = False) -> None:
         """Stop the mission and hover where the reference is now (a hold the flight sequence asked for);
@@ -73,3 +81,14 @@ class CoreOrders:
         if self._timed and (self.phase in TIMED_PHASES or self._timed_stop):
             self.planner.stop()
             self._timed_stop = True
+
+    def no_route_here(self, t_s: float) -> None:
+        """The planner found no route: from the cruise, the no_route phase from ``t_s``, held where the reference
+        stops (a velocity planner's reference brakes at its own limits; a time-parameterised planner holds at the
+        end of its own stop)."""
+        self.no_route = True
+        if self.phase == CorePhase.CRUISE and self.ref is not None:
+            self.phase, self.t_no_route_s = CorePhase.NO_ROUTE, t_s
+            self._braking = not self._timed
+            log.warning("mission %s: no route to the goal; holding at (%.2f, %.2f)", self.mission.name,
+                        self.ref.p[0], self.ref.p[1])

@@ -26,7 +26,9 @@ class PlannerParams:
     ``steer_lookahead_s`` the same for its steering, ``a_goal_mps2`` braking deceleration towards the
     goal, ``goal_lookahead_s`` lag allowance of that braking, ``error_lookahead_s`` horizon of the predicted
     tracking error in the margin, ``vehicle_lookahead_s`` how far ahead (s, along the vehicle's own velocity) the
-    barrier also measures each gap from where the vehicle will be (see :mod:`companion.planning.safe`).
+    barrier also measures each gap from where the vehicle will be, ``safe_no_progress_s`` how long (s) the reference
+    may come no closer to the goal before the planner declares no route (see
+    :mod:`companion.planning.safe`).
 
     Shaped planner (:mod:`companion.planning.shaped`): ``shaped_a_max_mps2`` bound on the planned payload
     acceleration (the nominal swing is atan(a/g): 1.85 m/s² is 0.187 rad), ``shaped_v_max_mps`` speed cap,
@@ -75,6 +77,7 @@ class PlannerParams:
     goal_lookahead_s: float = 0.5
     error_lookahead_s: float = 0.3
     vehicle_lookahead_s: float = 0.8
+    safe_no_progress_s: float = 20.0
     shaped_a_max_mps2: float = 1.85
     shaped_v_max_mps: float = 6.0
     shaper_tau_s: tuple[float, float, float] = (0.3, 0.35, 0.4)

@@ -38,6 +38,9 @@ length — and changes how it is enforced:
 5. Local minima (trunk pairs, concave clusters): if the desired speed stays below ``stuck_speed_mps`` for
    ``stuck_time_s`` away from the goal, the turning side flips and stays locked until the vehicle is clear of
    all obstacles or closer to the goal than where it got stuck (boundary following, as in Bug algorithms).
+   Once the reference has come no closer to the goal by :data:`PROGRESS_M` for ``safe_no_progress_s``, there
+   is no route it can find: ``PlanOutput.no_route``, and the flight core brakes and holds there (before, a
+   goal ringed by trunks was circled until the mission's timeout).
 6. Goal approach: speed min(v_max, sqrt(2·a_goal·d'), ka·d) towards the goal, with the braking distance
    d' = d − T_g·v_along measured from where the lagging reference will be (T_g = ``goal_lookahead_s``):
    the reference stops at the goal instead of overshooting it and dragging the swinging payload past. A
@@ -102,6 +105,9 @@ def _vehicle_gap(px: float, py: float, dx: float, dy: float, o: Obstacle, ring_m
     return g, nx, ny
 
 
+PROGRESS_M = 0.5  # closer to the goal than the best so far by this much (m): progress
+
+
 class SafePlanner:
     """Swing-aware barrier planner with trap escape (see module docstring).
 
@@ -118,6 +124,9 @@ class SafePlanner:
         self.lock_goal_dist_m = math.inf
         self.slow_since_s: float | None = None
         self.escapes = 0
+        self.best_goal_m = math.inf  # the reference's least distance to the goal so far (m), and when it came
+        self.t_progress_s = 0.0
+        self.no_route = False
 
     def _gaps(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> list[tuple]:
         """(steering gap m, its unit normal x, y (from the obstacle), obstacle, barrier gap m, its normal x, y, gap
@@ -210,8 +219,12 @@ class SafePlanner:
         # 3. barrier projection: (allowed approach speed, normal) per obstacle, then three passes
         vx, vy, vn = self._project(vx, vy, self._barriers(gaps), inp.v_cap_mps)
 
-        # 5. local-minimum detector
+        # 5. local-minimum detector, and no route once both sides failed
         self._watch_stuck(inp.t_s, vn, dg, bool(near))
+        self._watch_progress(inp.t_s, dg)
+        if self.no_route:
+            return PlanOutput(v_des_mps=np.zeros(2), force_att=np.array((nom_x, nom_y)),
+                              force_rep=np.array((-nom_x, -nom_y)), mode="no_route", no_route=True)
         return PlanOutput(
             v_des_mps=np.array((vx, vy)), force_att=np.array((nom_x, nom_y)),
             force_rep=np.array((vx - nom_x, vy - nom_y)), mode="escape" if self.locked else "track",
@@ -313,6 +326,14 @@ class SafePlanner:
             if room > best_room + 1e-9:
                 best, best_room = s, room
         return best
+
+    def _watch_progress(self, t_s: float, dg: float) -> None:
+        """Declare no route once the goal, ``dg`` m away, came no closer by :data:`PROGRESS_M` for
+        ``safe_no_progress_s``."""
+        if dg < self.best_goal_m - PROGRESS_M or self.best_goal_m == math.inf:
+            self.best_goal_m, self.t_progress_s = dg, t_s
+        elif t_s - self.t_progress_s >= self.params.safe_no_progress_s:
+            self.no_route = True
 
     def _watch_stuck(self, t_s: float, v: float, dg: float, near: bool) -> None:
         p = self.params
