@@ -29,7 +29,23 @@ def test_long_cable_scales_the_swing_bounded_accelerations_with_the_pendulum_fre
     out = adapt_to_payload(cfg, vp).planner
     assert out.shaped_a_max_mps2 == pytest.approx(cfg.planner.shaped_a_max_mps2 * k)
     assert out.a_max_mps2 == pytest.approx(cfg.planner.a_max_mps2 * k)
+    assert out.a_brake_mps2 == pytest.approx(cfg.planner.a_brake_mps2 * k)  # the braking safe's barrier counts on
     assert out.shaped_v_max_mps == cfg.planner.shaped_v_max_mps  # only the accelerations change
+
+
+@pytest.mark.parametrize(("cell", "seed"), [(Cell(0.8, 3.0, "calm"), 0), (Cell(0.25, 3.0, "paper"), 1)])
+def test_safe_with_a_long_cable_brakes_as_its_reference_can_and_clears_the_trunks(cell, seed):
+    """The ``safe`` planner on envelope cells whose payload it swung into a trunk (flown in-process): its barrier
+    counted on braking at 1.2 m/s² while a 3 m cable's reference brakes at 0.58 of Table 1's (0.13 m and 0.03 m
+    into the trunk before). Clean now, the goal reached."""
+    from companion.launch.fly import DEFAULT_GAINS, load_gains
+    from companion.report.metrics import clearances, compute_metrics
+    from lab.inprocess import fly_inprocess
+
+    mission = cell_mission(cell, seed, ForestSpec(density_per_100m2=4.0, width_m=6.0)).with_(planner="safe")
+    flog = fly_inprocess(mission, gains=load_gains(DEFAULT_GAINS))
+    assert min(clearances(flog, mission.obstacles, mission.vehicle.r_uav + mission.vehicle.L_uav)) > 0.0
+    assert compute_metrics(flog, mission)["reached_goal"]
 
 
 def test_cells_fly_high_enough_for_the_payload_and_under_the_canopy():

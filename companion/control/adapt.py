@@ -106,7 +106,9 @@ def adapt_feedforward(cfg: ControllerConfig, vp: VehicleParams) -> FeedForwardGa
 
 
 def adapt_to_payload(cfg: ControllerConfig, vp: VehicleParams) -> ControllerConfig:
-    """``cfg`` with its swing-bounded planner accelerations scaled by :func:`accel_scale` and its anti-swing gains
+    """``cfg`` with its swing-bounded planner accelerations scaled by :func:`accel_scale` (the reference's, the goal
+    approach's, the shaped plan's, and the braking the ``safe`` barrier counts on: a 3 m cable's reference brakes at
+    0.58 of the 1 m one's, and a barrier that assumed more let its payload into the trunks) and its anti-swing gains
     placed for the cable (:func:`adapt_feedforward`); ``cfg`` itself for Table 1's payload and shorter cables."""
     k = accel_scale(vp)
     ff = adapt_feedforward(cfg, vp)
@@ -114,4 +116,5 @@ def adapt_to_payload(cfg: ControllerConfig, vp: VehicleParams) -> ControllerConf
         return cfg
     p = cfg.planner
     return replace(cfg, feedforward=ff, planner=replace(p, a_max_mps2=p.a_max_mps2 * k, a_goal_mps2=p.a_goal_mps2 * k,
+                                                        a_brake_mps2=p.a_brake_mps2 * k,
                                                         shaped_a_max_mps2=p.shaped_a_max_mps2 * k))
