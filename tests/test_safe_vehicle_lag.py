@@ -75,20 +75,37 @@ def test_dense_forests_where_the_airframe_ran_on_into_a_trunk_are_flown_clean(se
     assert compute_metrics(flog, mission)["reached_goal"]
 
 
+def _plan_standing(planner: SafePlanner, inp: PlanInput, t0_s: float, t1_s: float):
+    """Plan at 50 Hz from ``t0_s`` to before ``t1_s`` with the reference standing where ``inp`` has it; the last
+    output."""
+    out = None
+    for k in range(round((t1_s - t0_s) / 0.02)):
+        out = planner.plan(inp._replace(t_s=t0_s + 0.02 * k), [])
+    return out
+
+
 def test_safe_declares_no_route_once_the_goal_comes_no_closer() -> None:
-    """The planner alone: 20 s (``safe_no_progress_s``) of references no closer to the goal by 0.5 m end in
-    ``no_route`` with a zero desired velocity; any progress of 0.5 m restarts the count."""
-    params = PlannerParams()
-    planner = SafePlanner(params)
-    inp = _inp((8.2, 0.0), (0.0, 0.0), (0.0, 0.0))
-    for k in range(0, 1000):  # 19.98 s at 50 Hz, the reference standing 11.8 m from the goal
-        out = planner.plan(inp._replace(t_s=5.0 + 0.02 * k), [])
-    assert not out.no_route
-    moved = inp._replace(t_s=25.0, ref_pos_m=np.array((8.8, 0.0)))
-    assert not planner.plan(moved, []).no_route  # 0.6 m closer: progress, the count starts again
-    late = moved._replace(t_s=45.0)
-    out = planner.plan(late, [])
+    """The planner alone: 20 s (``safe_no_progress_s``) of plans with the reference no closer to the goal by 0.5 m
+    end in ``no_route`` with a zero desired velocity; 0.5 m of progress restarts the count."""
+    planner = SafePlanner(PlannerParams())
+    inp = _inp((8.2, 0.0), (0.0, 0.0), (0.0, 0.0))  # 11.8 m from the goal
+    assert not _plan_standing(planner, inp, 5.0, 24.98).no_route  # 19.96 s
+    moved = inp._replace(ref_pos_m=np.array((8.8, 0.0)))  # 0.6 m closer: the count starts again
+    assert not _plan_standing(planner, moved, 24.98, 44.96).no_route
+    out = _plan_standing(planner, moved, 44.96, 45.02)
     assert out.no_route and out.mode == "no_route" and not out.v_des_mps.any()
+
+
+def test_a_new_waypoint_or_a_pause_starts_the_progress_count_afresh() -> None:
+    """A leg's next target is farther than the last one came: no stall. Nor is a pause (no plans for 30 s) one."""
+    planner = SafePlanner(PlannerParams())
+    inp = _inp((8.2, 0.0), (0.0, 0.0), (0.0, 0.0))
+    _plan_standing(planner, inp, 5.0, 20.0)
+    far = inp._replace(goal_m=np.array((8.2, 15.0)))  # the next waypoint, 15 m away
+    assert not _plan_standing(planner, far, 20.0, 39.0).no_route  # 19 s on the new leg, 34 s in all
+    paused = _plan_standing(planner, far, 69.0, 69.1)  # 30 s of hold without plans, then on
+    assert not paused.no_route
+    assert _plan_standing(planner, far, 69.1, 89.2).no_route  # 20 s of planning without progress after it
 
 
 def test_a_goal_ringed_by_trunks_ends_no_route_held_clear_not_circled_to_the_timeout(tmp_path) -> None:

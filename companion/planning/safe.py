@@ -106,6 +106,7 @@ def _vehicle_gap(px: float, py: float, dx: float, dy: float, o: Obstacle, ring_m
 
 
 PROGRESS_M = 0.5  # closer to the goal than the best so far by this much (m): progress
+UNPLANNED_S = 0.5  # a gap this long between plans (a pause, a hold): the progress count starts afresh (s)
 
 
 class SafePlanner:
@@ -126,6 +127,7 @@ class SafePlanner:
         self.escapes = 0
         self.best_goal_m = math.inf  # the reference's least distance to the goal so far (m), and when it came
         self.t_progress_s = 0.0
+        self._counted: tuple[float, float, float] | None = None  # (goal x, y, time) of the last plan
         self.no_route = False
 
     def _gaps(self, inp: PlanInput, obstacles: Sequence[Obstacle]) -> list[tuple]:
@@ -221,7 +223,7 @@ class SafePlanner:
 
         # 5. local-minimum detector, and no route once both sides failed
         self._watch_stuck(inp.t_s, vn, dg, bool(near))
-        self._watch_progress(inp.t_s, dg)
+        self._watch_progress(inp.t_s, dg, float(inp.goal_m[0]), float(inp.goal_m[1]))
         if self.no_route:
             return PlanOutput(v_des_mps=np.zeros(2), force_att=np.array((nom_x, nom_y)),
                               force_rep=np.array((-nom_x, -nom_y)), mode="no_route", no_route=True)
@@ -327,10 +329,13 @@ class SafePlanner:
                 best, best_room = s, room
         return best
 
-    def _watch_progress(self, t_s: float, dg: float) -> None:
-        """Declare no route once the goal, ``dg`` m away, came no closer by :data:`PROGRESS_M` for
-        ``safe_no_progress_s``."""
-        if dg < self.best_goal_m - PROGRESS_M or self.best_goal_m == math.inf:
+    def _watch_progress(self, t_s: float, dg: float, gx: float, gy: float) -> None:
+        """Declare no route once the goal (gx, gy), ``dg`` m away, came no closer by :data:`PROGRESS_M` for
+        ``safe_no_progress_s`` of planning. A new goal (the next waypoint) or a gap in the plans (a pause, the
+        sequence's hold) starts the count afresh."""
+        last, self._counted = self._counted, (gx, gy, t_s)
+        afresh = last is None or (last[0], last[1]) != (gx, gy) or t_s - last[2] > UNPLANNED_S
+        if afresh or dg < self.best_goal_m - PROGRESS_M:
             self.best_goal_m, self.t_progress_s = dg, t_s
         elif t_s - self.t_progress_s >= self.params.safe_no_progress_s:
             self.no_route = True
