@@ -24,7 +24,7 @@ length — and changes how it is enforced:
    measures the gap at where the vehicle itself goes, p + T_v·v (T_v = ``vehicle_lookahead_s``, v the vehicle's
    velocity relative to the obstacle), with the ring less the tracking-error margin (it is the vehicle's own
    position). A predicted point past the obstacle's centre is measured along the normal at p, so a fast
-   approach never reads as the far side. (In dense forests, 700 in-process flights: 11 contacts to 0; see
+   approach never reads as the far side. (In dense forests, 800 in-process flights: 14 contacts to 0; see
    docs/planning.md.)
 3. Velocity barrier (a control-barrier condition on a single integrator): the reference may approach an
    obstacle no faster than min(γ·g, sqrt(2·a_brake·g)); the braking term is the speed-dependent influence
@@ -221,7 +221,7 @@ class SafePlanner:
         # 3. barrier projection: (allowed approach speed, normal) per obstacle, then three passes
         vx, vy, vn = self._project(vx, vy, self._barriers(gaps), inp.v_cap_mps)
 
-        # 5. local-minimum detector, and no route once both sides failed
+        # 5. local-minimum detector, and no route once the goal comes no closer
         self._watch_stuck(inp.t_s, vn, dg, bool(near))
         self._watch_progress(inp.t_s, dg, float(inp.goal_m[0]), float(inp.goal_m[1]))
         if self.no_route:
