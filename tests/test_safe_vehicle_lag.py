@@ -140,3 +140,6 @@ def test_over_mavlink_a_ringed_goal_ends_no_route_exit_1_held_clear(tmp_path) ->
     assert (r.returncode, rep["outcome"], rep["collisions"], rep["planner"]) == (1, "no_route", 0, "safe"), \
         r.stderr[-2000:]
     assert rep["sim_time_s"] < 50.0
+    plan = rep["planning"]  # why: how close it came, and how long it came no closer
+    assert plan["no_route_no_progress_s"] == 20.0 and 0.5 < plan["no_route_closest_to_goal_m"] < 5.0, plan
+    assert "no closer for 20 s: no route" in (tmp_path / "run" / "summary.txt").read_text()

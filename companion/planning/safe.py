@@ -185,9 +185,13 @@ class SafePlanner:
     def stop(self) -> None:
         """Nothing to stop: the flight core holds the reference itself (:class:`~companion.planning.base.Planner`)."""
 
-    def facts(self) -> dict[str, int]:
-        """The report's part: how many trap escapes the flight took."""
-        return {"escapes": self.escapes}
+    def facts(self) -> dict[str, float]:
+        """The report's part: how many trap escapes the flight took; after a no route, how close (m) the reference
+        came to the goal, and for how long (s) it came no closer."""
+        if not self.no_route:
+            return {"escapes": self.escapes}
+        return {"escapes": self.escapes, "no_route_closest_to_goal_m": round(self.best_goal_m, 3),
+                "no_route_no_progress_s": self.params.safe_no_progress_s}
 
     def resume(self) -> None:
         """Nothing to resume: the flight core flies on itself (:class:`~companion.planning.base.Planner`)."""

@@ -207,7 +207,10 @@ def lift_off_lines(lift: dict[str, Any] | None) -> list[str]:
 def wait_lines(planning: dict[str, Any] | None) -> list[str]:
     """The summary's line when the shaped planner waited for the wind (a gap the payload's swing fits): how long,
     how long of it the goal lay within the wind's reach of a trunk, and whether that ended the flight
-    (:mod:`companion.planning.wind_wait`)."""
+    (:mod:`companion.planning.wind_wait`); or when the safe planner came no closer to the goal (its no route)."""
+    if planning and planning.get("no_route_no_progress_s"):
+        return [f"  stalled             {_fmt(planning.get('no_route_closest_to_goal_m'), ' m', 2)} from the goal at "
+                f"best, no closer for {_fmt(planning['no_route_no_progress_s'], ' s', 0)}: no route"]
     if not planning or (planning.get("waited_s") or 0.0) < 0.05:
         return []
     line = (f"  waited              {_fmt(planning['waited_s'], ' s', 1)} in all for the wind to leave a gap the "
