@@ -144,16 +144,15 @@ class SafePlanner:
         # tracking error now and as predicted error_lookahead_s ahead (the error grows in hard turns, when the
         # anti-swing feed-forward moves the airframe after its payload): the larger one widens the margin
         t_e = self.params.error_lookahead_s
-        evx = float(inp.vel_mps[0]) - float(inp.ref_vel_mps[0])
-        evy = float(inp.vel_mps[1]) - float(inp.ref_vel_mps[1])
+        pvx, pvy = float(inp.vel_mps[0]), float(inp.vel_mps[1])  # the vehicle's velocity and the reference's
+        vx, vy = float(inp.ref_vel_mps[0]), float(inp.ref_vel_mps[1])
+        evx, evy = pvx - vx, pvy - vy
         err = max(math.hypot(px - x, py - y), math.hypot(px - x + t_e * evx, py - y + t_e * evy))
         margin = self.params.track_margin_m + err
         reach_z = inp.z_ned_m + inp.cable_l_m
         base = r_env + margin
-        vx, vy = float(inp.ref_vel_mps[0]), float(inp.ref_vel_mps[1])
         t_b, t_s = self.params.lookahead_s, self.params.steer_lookahead_s
         t_v = self.params.vehicle_lookahead_s
-        pvx, pvy = float(inp.vel_mps[0]), float(inp.vel_mps[1])
         bare = r_env + self.params.track_margin_m  # the ring at the vehicle's own position: no tracking error
         out = []
         for o in obstacles:
