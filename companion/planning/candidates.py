@@ -44,7 +44,6 @@ class Candidate:
     walled: bool = False
 
 
-
 def timed_routes(p0: np.ndarray, v0: np.ndarray, goal: np.ndarray, c: np.ndarray, ring: np.ndarray, hard: np.ndarray,
                  a_max: float, p: PlannerParams, options: Sequence[tuple[bool, float]] | None = None,
                  vias: Sequence[np.ndarray] = (), caps: Sequence[float] = (), drag: DragBudget | None = None
