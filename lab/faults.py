@@ -53,11 +53,36 @@ def vehicle_killed(workdir: Path, *, realtime: bool = False, after_s: float = 0.
         t_exit = time.monotonic()
     finally:
         fly.kill_all()
+    return _lost_vehicle_facts(run_dir, code, t_kill, t_exit)
+
+
+def vehicle_paused(workdir: Path, *, after_s: float = 0.5) -> dict[str, Any]:
+    """SIGSTOP the bundled vehicle mid-mission (lockstep) and leave it stopped: the companion must end with
+    ``link_lost`` within 2 s, and its report must tell a vehicle that is there but silent (``T (stopped)``) from a
+    dead one; the companion then stops it all the same."""
+    run_dir = workdir / "vehicle-paused"
+    fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh"))
+    try:
+        fly.wait_for("takeover → mission")
+        time.sleep(after_s)
+        (sim,) = fly.children()
+        t_stop = time.monotonic()
+        os.kill(sim, signal.SIGSTOP)
+        code = fly.finish(60)
+        t_exit = time.monotonic()
+    finally:
+        fly.kill_all()
+    return _lost_vehicle_facts(run_dir, code, t_stop, t_exit)
+
+
+def _lost_vehicle_facts(run_dir: Path, code: int, t_fault: float, t_exit: float) -> dict[str, Any]:
     rep = read_report(run_dir)
     done = done_wall(rep)
     return {"exit_code": code, "outcome": rep["outcome"], "final_phase": rep["final_phase"],
-            "detect_s": None if done is None else done - t_kill, "exit_s": t_exit - t_kill,
-            "detail": rep.get("outcome_detail"), "watchdog_since_rx": rep["loop"].get("watchdog_steps_since_rx")}
+            "detect_s": None if done is None else done - t_fault, "exit_s": t_exit - t_fault,
+            "detail": rep.get("outcome_detail"), "watchdog_since_rx": rep["loop"].get("watchdog_steps_since_rx"),
+            "vehicle_at_stop": (rep.get("sitl_vehicle") or {}).get("at_stop"),
+            "summary": (run_dir / "summary.txt").read_text()}
 
 
 def _mutations(rng: random.Random) -> list[bytes]:
@@ -330,6 +355,7 @@ def signed_forced_disarm(workdir: Path, *, n: int = 20) -> dict[str, Any]:
 
 SCENARIOS = {
     "vehicle_killed": vehicle_killed,
+    "vehicle_paused": vehicle_paused,
     "fuzz": fuzz,
     "tick_exception": tick_exception,
     "diverged": diverged,

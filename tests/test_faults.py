@@ -31,6 +31,20 @@ def test_vehicle_killed_is_link_lost_within_2_s(workdir, realtime):
     if not realtime:  # the report tells a vehicle gone quiet (our loop kept listening: a watchdog tick per 0.1 s)
         # from a stall of our own (none), for a link_lost nobody expected (docs/measurements.md, 2026-12-05)
         assert r["watchdog_since_rx"] is not None and r["watchdog_since_rx"] >= 5, r
+    # and says the vehicle's process was gone, not silent
+    assert r["vehicle_at_stop"] == {"exited": -9, "signal": "SIGKILL"}, r
+    assert "vehicle process     had exited (killed by SIGKILL) before the flight ended" in r["summary"]
+
+
+def test_vehicle_paused_is_link_lost_and_told_from_a_dead_one(workdir):
+    """A vehicle that is there but silent (SIGSTOP, as a stray signal or a starved process would leave it):
+    ``link_lost`` as for a dead one, and the report says which it was; the companion still stops it."""
+    r = faults.vehicle_paused(workdir)
+    assert r["outcome"] == "link_lost" and r["exit_code"] == 3, r
+    assert r["detect_s"] is not None and r["detect_s"] < 2.0, r
+    assert r["exit_s"] < 5.0, r  # the stopped vehicle was continued to act on the companion's SIGINT
+    assert str(r["vehicle_at_stop"].get("state", "")).startswith("T"), r
+    assert "vehicle process     still running when the link was lost: T" in r["summary"], r["summary"]
 
 
 @pytest.mark.paired  # wall clock, light: may run beside one other such test (tests/conftest.py)

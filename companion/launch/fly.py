@@ -89,6 +89,7 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
     error: BaseException | None = None
     refusal: Any = None  # the autopilot's mission refused before take-off (fly --mission autopilot)
     am_facts: dict[str, Any] | None = None
+    sitl: Any = None  # the bundled vehicle's process (fly --sitl)
     view = spec.view(mission, run_dir) if spec.view is not None else None
     with contextlib.ExitStack() as sync_stack:
         async with contextlib.AsyncExitStack() as stack:
@@ -105,7 +106,7 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
                     stack.callback(restore_affinity, old_affinity)
                     if cpu is not None:
                         log.info("lockstep: companion and vehicle pinned to CPU %d", cpu)
-                setup = await _start_sitl(spec, setup, mission, run_dir, stack)
+                setup, sitl = await _start_sitl(spec, setup, mission, run_dir, stack)
                 if warming is not None:
                     warming.join()
             if spec.narrate:
@@ -126,7 +127,7 @@ async def fly_mission(spec: FlySpec, mission: Mission) -> FlyResult:
                 error = exc
     assert runner is not None
     report = _write_report(runner, spec, mission, run_dir, zt_holder, view, time.monotonic() - wall0, error,
-                           refusal, am_facts)
+                           refusal, am_facts, None if sitl is None else sitl.facts())
     if error is not None:
         raise error
     return FlyResult(runner.outcome if refusal is None else refusal.outcome, report, run_dir)
@@ -168,8 +169,8 @@ def _warm_planner_beside(mission: Mission) -> threading.Thread | None:
 
 
 async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path,
-                      stack: contextlib.AsyncExitStack) -> Any:
-    """Start the bundled vehicle on free local ports; the set-up with its link."""
+                      stack: contextlib.AsyncExitStack) -> tuple[Any, Any]:
+    """Start the bundled vehicle on free local ports; the set-up with its link, and the vehicle's process."""
     from companion.launch.sitl import SitlProcess
 
     extra = ["--control-period-ms", str(round(1000.0 / setup.rate_hz)), *spec.sitl_args]
@@ -183,7 +184,7 @@ async def _start_sitl(spec: FlySpec, setup: Any, mission: Mission, run_dir: Path
         extra += ["--rt-priority", str(setup.rt_priority)]
     sitl = await stack.enter_async_context(SitlProcess(mission, run_dir, lockstep=setup.lockstep, extra_args=extra,
                                                        serial=spec.sitl_serial, fork=spec.vehicle_fork))
-    return replace(setup, connect=sitl.companion_url, sock=sitl.companion_sock)
+    return replace(setup, connect=sitl.companion_url, sock=sitl.companion_sock), sitl
 
 
 def _payload_refusal(spec: FlySpec, mission: Mission, run_dir: Path) -> FlyResult | None:
@@ -272,8 +273,10 @@ def _scan_input(zt: Any, run: Runner, prefix: str, vid: str) -> Any:
 
 def _write_report(runner: Runner, spec: FlySpec, mission: Mission, run_dir: Path, zt_holder: list[Any], view: Any,
                   wall: float, error: BaseException | None, refusal: Any = None,
-                  am_facts: dict[str, Any] | None = None) -> dict[str, Any]:
+                  am_facts: dict[str, Any] | None = None, sitl_facts: dict[str, Any] | None = None) -> dict[str, Any]:
     extra = runner.run_facts()
+    if sitl_facts is not None:  # the bundled vehicle as the flight's end found it: gone quiet, or gone
+        extra["sitl_vehicle"] = sitl_facts
     if error is not None:
         extra["outcome"] = "error"
         extra["outcome_detail"] = str(error)

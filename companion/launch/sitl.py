@@ -58,6 +58,26 @@ class VehicleFork(Protocol):
         ...
 
 
+def process_state(pid: int, returncode: int | None) -> dict[str, object]:
+    """How a child was doing: ``{"exited": code}`` once it has exited (negative: killed by that signal, with
+    ``signal`` its name), else ``{"state": "S (sleeping)", "wchan": kernel function it waits in}`` from Linux's
+    ``/proc`` (empty elsewhere). A vehicle that fell silent is told apart from a dead one by this."""
+    if returncode is not None:
+        out: dict[str, object] = {"exited": returncode}
+        if returncode < 0:
+            with contextlib.suppress(ValueError):
+                out["signal"] = signal.Signals(-returncode).name
+        return out
+    out = {}
+    with contextlib.suppress(OSError):
+        status = Path(f"/proc/{pid}/status").read_text()
+        out["state"] = next((ln.split(":", 1)[1].strip() for ln in status.splitlines() if ln.startswith("State:")),
+                            "?")
+    with contextlib.suppress(OSError):
+        out["wchan"] = Path(f"/proc/{pid}/wchan").read_text().strip() or "0"
+    return out
+
+
 class _PortTaken(Exception):
     """The vehicle could not bind its ports: another process took them after we chose them."""
 
@@ -95,6 +115,7 @@ class SitlProcess:
         self.ready_line = ""
         self._stderr_path = workdir / "sitl.log"
         self._stderr = None  # the log file's handle when this process opened it (not for a forked vehicle)
+        self.at_stop: dict[str, object] | None = None  # the vehicle as the flight's end found it (:meth:`facts`)
 
     @property
     def companion_url(self) -> str:
@@ -127,6 +148,13 @@ class SitlProcess:
         if self.serial:
             argv += ["--serial", f"{self.workdir / 'pty-vehicle'}:{PTY_BAUD}"]
         return argv + self.extra_args
+
+    def facts(self) -> dict[str, object]:
+        """The report's ``sitl_vehicle``: its pid, how the flight's end found it (``at_stop``: exited by itself, with
+        its code, or its scheduler state, e.g. ``T`` for stopped by a signal) and its final exit code."""
+        proc = self.proc
+        return {"pid": None if proc is None else proc.pid, "at_stop": self.at_stop,
+                "exit_code": None if proc is None else proc.returncode}
 
     async def __aenter__(self) -> SitlProcess:
         if self.serial:
@@ -236,9 +264,13 @@ class SitlProcess:
         """Stop the vehicle: SIGINT and up to 5 s to exit, then SIGKILL; at once with ``graceful=False`` (a
         vehicle still starting, e.g. importing or compiling its model, may not act on SIGINT for seconds)."""
         proc = self.proc
+        if proc is not None and self.at_stop is None:
+            self.at_stop = process_state(proc.pid, proc.returncode)
         if proc is not None and proc.returncode is None:
             with contextlib.suppress(ProcessLookupError):
                 proc.send_signal(signal.SIGINT if graceful else signal.SIGKILL)
+                if str(self.at_stop.get("state", "")).startswith("T"):  # stopped by a signal: let it act on ours
+                    proc.send_signal(signal.SIGCONT)
             try:
                 async with asyncio.timeout(5.0):
                     await proc.wait()

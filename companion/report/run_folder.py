@@ -146,7 +146,7 @@ def summary_text(rep: dict[str, Any]) -> str:
         f"  sim time            {_fmt(rep.get('sim_time_s'), ' s')}   wall time {_fmt(rep.get('wall_time_s'), ' s')}",
     ]
     lines += waypoint_lines(rep) + payload_lines(rep.get("payload")) + lift_off_lines(rep.get("lift_off"))
-    lines += wait_lines(rep.get("planning"))
+    lines += wait_lines(rep.get("planning")) + vehicle_lines(rep)
     lines += drag_lines(rep.get("payload_drag"), rep.get("wind"))
     truth = rep.get("wind_truth")
     if truth:  # a flight against the bundled vehicle in a physical wind (companion.report.wind_truth)
@@ -220,6 +220,19 @@ def wait_lines(planning: dict[str, Any] | None) -> list[str]:
                  f"{_fmt(planning.get('trunk_y_m'), '', 1)}) for {_fmt(planning.get('goal_in_wind_reach_s'), ' s', 1)}"
                  + (": no route" if planning.get("no_route_goal_in_wind_reach") else ""))
     return [line]
+
+
+def vehicle_lines(rep: dict[str, Any]) -> list[str]:
+    """The summary's line on the bundled vehicle's process (``fly --sitl``) when it had exited before the flight
+    ended, or the link to it was lost while it still ran (``sitl_vehicle.at_stop``: its scheduler state then)."""
+    at = (rep.get("sitl_vehicle") or {}).get("at_stop") or {}
+    if "exited" in at:
+        how = f"killed by {at['signal']}" if at.get("signal") else f"exit code {at['exited']}"
+        return [f"  vehicle process     had exited ({how}) before the flight ended"]
+    if rep.get("outcome") == "link_lost" and at:
+        return [f"  vehicle process     still running when the link was lost: {at.get('state', '?')}, waiting in "
+                f"{at.get('wchan', '?')}"]
+    return []
 
 
 def drag_lines(drag: dict[str, Any] | None, wind: dict[str, Any] | None) -> list[str]:
