@@ -128,9 +128,11 @@ def test_two_vehicles_two_companions_one_subscriber_through_a_router(tmp_path):
             )
             for vid in ("1", "2")
         ]
-        for f in flights:
+        for vid, f in zip(("1", "2"), flights, strict=True):
             _, err = f.communicate(timeout=240)
-            assert f.returncode == 0, err[-2000:]
+            rep = tmp_path / f"v{vid}" / "report.json"
+            vehicle = json.loads(rep.read_text()).get("sitl_vehicle") if rep.exists() else None
+            assert f.returncode == 0, f"{err[-2000:]}\nits vehicle's process: {vehicle}"
         _, serr = sub.communicate(timeout=60)
         assert sub.returncode == 0, serr[-2000:]
     finally:
