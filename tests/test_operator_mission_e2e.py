@@ -35,6 +35,7 @@ from _operator_helpers import (
 from pymavlink.dialects.v20 import common as M
 
 pytestmark = [pytest.mark.slow,
+              pytest.mark.paired,  # outcomes only, 0.4 of a core over 36 s: may run beside one other such test
               pytest.mark.skipif(shutil.which("mavproxy.py", path=str(MAVPROXY.parent)) is None,
                                  reason="MAVProxy is not installed in this environment")]
 FLY_ARGS = ["--mission", "autopilot", "--base-mission", "forest", "--planner", "safe"]

@@ -189,6 +189,7 @@ MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
 
 
 @pytest.mark.slow
+@pytest.mark.paired  # outcomes only, 0.4 of a core over 25 s: may run beside one other such test (tests/conftest.py)
 @pytest.mark.skipif(not MAVPROXY.exists(), reason="MAVProxy is not installed in this environment")
 def test_a_router_shares_the_serial_port_mavproxy(tmp_path):
     """The usual bench wiring: the autopilot on a serial TELEM port owned by a router (MAVProxy, master on the pty at
