@@ -41,38 +41,32 @@ from lab.procs import (
 # ------------------------------------------------------------------------------------------------ scenarios
 def vehicle_killed(workdir: Path, *, realtime: bool = False, after_s: float = 0.5) -> dict[str, Any]:
     """kill -9 the bundled vehicle mid-mission: the companion must end with ``link_lost`` within 2 s."""
-    run_dir = workdir / f"vehicle-killed-{'rt' if realtime else 'ls'}"
-    fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh", *(["--realtime"] if realtime else [])))
-    try:
-        fly.wait_for("takeover → mission")
-        time.sleep(after_s)
-        (sim,) = fly.children()
-        t_kill = time.monotonic()
-        os.kill(sim, signal.SIGKILL)
-        code = fly.finish(60)
-        t_exit = time.monotonic()
-    finally:
-        fly.kill_all()
-    return _lost_vehicle_facts(run_dir, code, t_kill, t_exit)
+    return _signal_the_vehicle(workdir / f"vehicle-killed-{'rt' if realtime else 'ls'}", signal.SIGKILL,
+                               realtime=realtime, after_s=after_s)
 
 
 def vehicle_paused(workdir: Path, *, after_s: float = 0.5) -> dict[str, Any]:
     """SIGSTOP the bundled vehicle mid-mission (lockstep) and leave it stopped: the companion must end with
     ``link_lost`` within 2 s, and its report must tell a vehicle that is there but silent (``T (stopped)``) from a
     dead one; the companion then stops it all the same."""
-    run_dir = workdir / "vehicle-paused"
-    fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh"))
+    return _signal_the_vehicle(workdir / "vehicle-paused", signal.SIGSTOP, realtime=False, after_s=after_s)
+
+
+def _signal_the_vehicle(run_dir: Path, sig: int, *, realtime: bool, after_s: float) -> dict[str, Any]:
+    """Fly the forest with the bundled vehicle, send it ``sig`` ``after_s`` into the mission, and return how the
+    companion took it (:func:`_lost_vehicle_facts`)."""
+    fly = Proc.start(fly_argv(run_dir, "--sitl", "--no-zenoh", *(["--realtime"] if realtime else [])))
     try:
         fly.wait_for("takeover → mission")
         time.sleep(after_s)
         (sim,) = fly.children()
-        t_stop = time.monotonic()
-        os.kill(sim, signal.SIGSTOP)
+        t_fault = time.monotonic()
+        os.kill(sim, sig)
         code = fly.finish(60)
         t_exit = time.monotonic()
     finally:
         fly.kill_all()
-    return _lost_vehicle_facts(run_dir, code, t_stop, t_exit)
+    return _lost_vehicle_facts(run_dir, code, t_fault, t_exit)
 
 
 def _lost_vehicle_facts(run_dir: Path, code: int, t_fault: float, t_exit: float) -> dict[str, Any]:
