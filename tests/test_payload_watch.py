@@ -121,6 +121,10 @@ def test_lockstep_flight_reports_the_identified_payload_beside_the_declared_one(
     pay = rep["payload"]
     assert pay["declared"] == {"mass_kg": 0.25, "cable_length_m": 1.0}
     assert pay["true"] == {"mass_kg": 0.35, "cable_length_m": 1.3}
+    # the clearance and collisions are scored where the true payload hung: 1.3 m below the airframe, not 1 m
+    log = np.load(run / "flight_log.npz")
+    hang = np.linalg.norm(log["payload_pos_ned_m"] - log["pos_ned_m"], axis=1)
+    assert np.nanmin(hang) == pytest.approx(1.3) and np.nanmax(hang) == pytest.approx(1.3)
     idf = pay["identified"]
     assert idf["ok"], idf
     assert idf["mass_kg"] == pytest.approx(0.35, rel=0.05) and idf["cable_length_m"] == pytest.approx(1.3, rel=0.05)

@@ -133,6 +133,7 @@ def spec_from_args(args: argparse.Namespace, mission: Mission) -> FlySpec:
         accept_unsigned=tuple(args.accept_unsigned), gcs_sysid=args.gcs_sysid,
         inject_tick_error_at_s=_env_float("SLUNGPILOT_INJECT_TICK_ERROR_AT_S"),
         perception={"auto": None, "on": True, "off": False}[getattr(args, "perception", "auto")],
+        scored_cable_m=getattr(args, "true_cable_length_m", None) if args.sitl else None,
     )
     setup.validate(RT_PRIORITY_MAX)
     sitl_args: list[str] = []

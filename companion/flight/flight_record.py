@@ -20,8 +20,8 @@ log = logging.getLogger(__name__)
 class FlightRecord:
     """The :class:`~companion.report.metrics.FlightLog` of one flight and the counts the report adds to it."""
 
-    def __init__(self, mission: Mission, state: VehicleState) -> None:
-        self.cable_m = mission.vehicle.l
+    def __init__(self, mission: Mission, state: VehicleState, cable_m: float | None = None) -> None:
+        self.cable_m = mission.vehicle.l if cable_m is None else cable_m  # where the log places the payload (m)
         self.state = state
         self.log = FlightLog(planner=mission.planner, controller=mission.controller, mission=mission.name,
                              obstacles=mission.obstacles)

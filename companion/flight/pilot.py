@@ -104,7 +104,7 @@ class Pilot:
         self.desk = OperatorDesk(setup.gcs_sysid, signing=setup.signing_key is not None)
         self.orders_log: list[dict] = []  # its orders as carried out: vehicle time t_s, monotonic wall_s (s)
         self.health = LinkHealth(period_s=self.period_s)
-        self.record = FlightRecord(mission, self.state)
+        self.record = FlightRecord(mission, self.state, setup.scored_cable_m)
         self.frame = MissionFrame(mission.start_ned_m, setup.start_here, setup.mission_origin_ned_m)
         self.obstacles = ObstacleView(mission.obstacles)
         #: the map of what the vehicle's own range sensors saw, and its feed (see ``FlightSetup.perception``)

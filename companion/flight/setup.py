@@ -39,7 +39,9 @@ class FlightSetup:
     resume, land, return) the companion obeys (None: any, unless signing is on, when none is obeyed);
     ``mission_origin_ned_m``: the mission frame's origin pinned (the autopilot's local NED, m; north and east,
     heights still follow home): the home an autopilot's mission was placed about at its download (None: the frame
-    follows home until the vehicle is ready).
+    follows home until the vehicle is ready). ``scored_cable_m``: the cable length (m) the flight's record places the
+    payload at, for its clearance and collisions: the bundled vehicle's true cable where it differs from the
+    mission's (``fly --sitl --true-cable-length-m``; None: the mission's). The pilot flies the mission's either way.
     """
 
     connect: str = "udpin://0.0.0.0:14540"
@@ -69,6 +71,7 @@ class FlightSetup:
     accept_unsigned: tuple[int, ...] = ()
     gcs_sysid: int | None = None
     mission_origin_ned_m: tuple[float, float, float] | None = None
+    scored_cable_m: float | None = None
 
     @property
     def period_s(self) -> float:
