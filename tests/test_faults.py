@@ -143,3 +143,18 @@ def test_an_unstable_control_loop_is_handed_to_the_vehicles_hold_then_lands(work
     assert r["states"][-3:] == ["hold", "land", "done"] and r["final_phase"] == "landed", r
     assert r["max_descent_mps"] < 1.5 and r["max_altitude_m"] < 5.0, r  # no fall, no flyaway
     assert r["rejected_telemetry"] == {}, r
+
+
+def test_the_summary_tells_a_gone_vehicle_from_a_silent_one():
+    """The summary's ``vehicle process`` line from the report's ``sitl_vehicle.at_stop`` (a zombie is gone too)."""
+    from companion.report.run_folder import vehicle_lines
+
+    def line(at: dict, outcome: str = "link_lost") -> list[str]:
+        return vehicle_lines({"outcome": outcome, "sitl_vehicle": {"at_stop": at}})
+
+    assert line({"exited": 1}) == ["  vehicle process     had exited (exit code 1) before the flight ended"]
+    assert "a zombie, not yet reaped" in line({"state": "Z (zombie)", "wchan": "0"})[0]
+    assert line({"state": "R (running)", "wchan": "0"}) == [
+        "  vehicle process     still running when the link was lost: R (running), waiting in 0"]
+    assert line({"state": "S (sleeping)", "wchan": "x"}, outcome="completed") == []  # nothing to say
+    assert vehicle_lines({"outcome": "link_lost"}) == []  # not the bundled vehicle

@@ -226,8 +226,9 @@ def vehicle_lines(rep: dict[str, Any]) -> list[str]:
     """The summary's line on the bundled vehicle's process (``fly --sitl``) when it had exited before the flight
     ended, or the link to it was lost while it still ran (``sitl_vehicle.at_stop``: its scheduler state then)."""
     at = (rep.get("sitl_vehicle") or {}).get("at_stop") or {}
-    if "exited" in at:
-        how = f"killed by {at['signal']}" if at.get("signal") else f"exit code {at['exited']}"
+    if "exited" in at or str(at.get("state", "")).startswith("Z"):  # Z: exited, not yet reaped
+        how = (f"killed by {at['signal']}" if at.get("signal") else
+               f"exit code {at['exited']}" if "exited" in at else "a zombie, not yet reaped")
         return [f"  vehicle process     had exited ({how}) before the flight ended"]
     if rep.get("outcome") == "link_lost" and at:
         return [f"  vehicle process     still running when the link was lost: {at.get('state', '?')}, waiting in "
