@@ -161,6 +161,20 @@ def test_arducopter_carrying_an_unknown_payload_hops_identifies_and_flies_it(tmp
     assert flown["reason"] or (flown["mass_identified"] and flown["cable_identified"])
 
 
+def _fly_arducopter_carrying(tmp_path: Path, true: tuple[float, float], *, declared: tuple[float, float], alt_m: float,
+                             identify: bool) -> tuple[subprocess.CompletedProcess, dict]:
+    """ArduCopter SITL with SIM_SLUP's payload ``true`` (kg, m), flying ``forest_arducopter_sitl`` declaring
+    ``declared`` at ``alt_m``."""
+    port = free_udp_port()
+    proc = sitl_external.start_arducopter(tmp_path, port, payload=True, mass_kg=true[0], cable_m=true[1])
+    try:
+        mission = _arducopter_mission(tmp_path, mass_kg=declared[0], cable_m=declared[1], alt_m=alt_m,
+                                      identify=identify)
+        return _fly(tmp_path / "run", port, "--mission", str(mission))
+    finally:
+        _stop(proc)
+
+
 def _arducopter_mission(tmp_path: Path, *, mass_kg: float, cable_m: float, alt_m: float, identify: bool) -> Path:
     """``forest_arducopter_sitl`` declaring another payload, flown at ``alt_m`` (a long cable needs the height)."""
     text = (ROOT / "config" / "missions" / "forest_arducopter_sitl.toml").read_text()
@@ -181,13 +195,7 @@ def test_arducopter_with_a_heavy_payload_on_a_2_m_cable_flies_the_forest(tmp_pat
     """Issue 28 on a real autopilot: SIM_SLUP's payload 0.6 kg on 2 m, declared so, flown at 3 m. Measured
     2026-12-06: completed, 10.07 s, 0.227 rad, 0.67 m clear (0.25 kg on 2 m: 10.11 s, 0.227 rad; on 3 m at 4 m:
     10.92 s, 0.182 rad); the paper's 1 m: 7.33 s, 0.36 rad."""
-    port = free_udp_port()
-    proc = sitl_external.start_arducopter(tmp_path, port, payload=True, mass_kg=0.6, cable_m=2.0)
-    try:
-        mission = _arducopter_mission(tmp_path, mass_kg=0.6, cable_m=2.0, alt_m=3.0, identify=False)
-        out, rep = _fly(tmp_path / "run", port, "--mission", str(mission))
-    finally:
-        _stop(proc)
+    out, rep = _fly_arducopter_carrying(tmp_path, (0.6, 2.0), declared=(0.6, 2.0), alt_m=3.0, identify=False)
     assert out.returncode == 0, out.stderr[-3000:]
     assert rep["outcome"] == "completed" and rep["collisions"] == 0 and rep["min_clearance_m"] > 0.3
     assert rep["max_swing_rad"] < 0.35, rep["max_swing_rad"]
@@ -199,13 +207,7 @@ def test_arducopter_with_a_payload_heavier_and_longer_than_declared_identifies_i
     on 1.54 m (40 % heavier, 30 % longer than declared) and ``identify = true``. Measured 2026-12-06: hop 0.5 m,
     identified 0.28 ± 0.06 kg on 2.02 ± 0.06 m, both flown; completed, 9.48 s, 0.255 rad (without identify: too
     little excitation in the cruise to identify, 0.306 rad, clean)."""
-    port = free_udp_port()
-    proc = sitl_external.start_arducopter(tmp_path, port, payload=True, mass_kg=0.35, cable_m=2.0)
-    try:
-        mission = _arducopter_mission(tmp_path, mass_kg=0.25, cable_m=1.54, alt_m=3.0, identify=True)
-        out, rep = _fly(tmp_path / "run", port, "--mission", str(mission))
-    finally:
-        _stop(proc)
+    out, rep = _fly_arducopter_carrying(tmp_path, (0.35, 2.0), declared=(0.25, 1.54), alt_m=3.0, identify=True)
     print(json.dumps(rep["payload"], indent=1))
     assert out.returncode == 0, out.stderr[-3000:]
     assert rep["outcome"] == "completed" and rep["collisions"] == 0
