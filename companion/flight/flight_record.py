@@ -20,8 +20,8 @@ log = logging.getLogger(__name__)
 class FlightRecord:
     """The :class:`~companion.report.metrics.FlightLog` of one flight and the counts the report adds to it."""
 
-    def __init__(self, mission: Mission, state: VehicleState, cable_m: float | None = None) -> None:
-        self.cable_m = mission.vehicle.l if cable_m is None else cable_m  # where the log places the payload (m)
+    def __init__(self, mission: Mission, state: VehicleState, true_cable_m: float | None = None) -> None:
+        self.true_cable_m = true_cable_m  # the cable the log places the payload on (m); None: the one flown
         self.state = state
         self.log = FlightLog(planner=mission.planner, controller=mission.controller, mission=mission.name,
                              obstacles=mission.obstacles)
@@ -38,8 +38,9 @@ class FlightRecord:
         return True
 
     def append(self, est: Estimate, cmd: Command | None, origin_ned_m: np.ndarray) -> None:
-        """One log row; the payload point from the cable angles when known, else the payload's own stream (its
-        position in the autopilot's local frame, moved by the mission frame's ``origin_ned_m``)."""
+        """One log row; the payload point from the cable angles when known (on the true cable where the set-up gives
+        it, else on the one flown: the mission's, or the identified one after a hop), else the payload's own stream
+        (its position in the autopilot's local frame, moved by the mission frame's ``origin_ned_m``)."""
         src = est.swing_source
         self.swing_sources[src] = self.swing_sources.get(src, 0) + 1
         if src != self._last_swing_source:
@@ -53,7 +54,8 @@ class FlightRecord:
         st = self.state
         swing = st.measured_swing()
         if swing is not None:
-            payload = est.pos_ned_m + payload_offset_ned_m(swing[0], swing[1], self.cable_m)
+            cable_m = self.state.cable_length_m if self.true_cable_m is None else self.true_cable_m
+            payload = est.pos_ned_m + payload_offset_ned_m(swing[0], swing[1], cable_m)
         elif st.payload_pos_ned_m is not None:
             payload = st.payload_pos_ned_m - origin_ned_m
         else:

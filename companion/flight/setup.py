@@ -41,7 +41,8 @@ class FlightSetup:
     heights still follow home): the home an autopilot's mission was placed about at its download (None: the frame
     follows home until the vehicle is ready). ``scored_cable_m``: the cable length (m) the flight's record places the
     payload at, for its clearance and collisions: the bundled vehicle's true cable where it differs from the
-    mission's (``fly --sitl --true-cable-length-m``; None: the mission's). The pilot flies the mission's either way.
+    mission's (``fly --sitl --true-cable-length-m``; None: the one flown, the mission's or the identified one after a
+    hop). The pilot flies the mission's (or the identified) either way.
     """
 
     connect: str = "udpin://0.0.0.0:14540"
