@@ -93,7 +93,10 @@ class Proc:
             return self.proc.wait(10)
 
     def kill_all(self) -> None:
-        """SIGKILL the process and its children (cleanup)."""
+        """SIGKILL the process and its children (cleanup); nothing once it has been reaped: its PID may be another
+        process's by then (PIDs wrap, at 32768 on the test VMs), and its children are no longer found by it."""
+        if self.proc.poll() is not None:
+            return
         for pid in [*self.children(), self.proc.pid]:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
