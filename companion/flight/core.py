@@ -318,7 +318,7 @@ class FlightCore(CoreOrders, HopMixin):
                 v_cap_mps=self.cap.cap_mps(est.pos_ned_m, est.vel_ned_mps, r_max), **legs_in,
             )
             out = self.planner.plan(inp, obs)
-            if out.no_route and not self.no_route:
+            if out.no_route:
                 self.no_route_here(est.t_s)
             vdx, vdy = float(out.v_des_mps[0]), float(out.v_des_mps[1])
             vdx, vdy = capped(vdx, vdy, cap)  # the leg's speed limit
@@ -358,7 +358,7 @@ class FlightCore(CoreOrders, HopMixin):
             gust_drag_tan=0.0 if swing is None else self.drag_id.gust_drag_tan, **legs_in,
         )
         out = self.planner.plan(inp, obs)
-        if out.no_route and not self.no_route:
+        if out.no_route:
             self.no_route_here(est.t_s)
         r = out.reference
         assert r is not None

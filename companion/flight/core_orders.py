@@ -85,7 +85,9 @@ class CoreOrders:
     def no_route_here(self, t_s: float) -> None:
         """The planner found no route: from the cruise, the no_route phase from ``t_s``, held where the reference
         stops (a velocity planner's reference brakes at its own limits; a time-parameterised planner holds at the
-        end of its own stop)."""
+        end of its own stop). Once per flight: later calls do nothing."""
+        if self.no_route:
+            return
         self.no_route = True
         if self.phase == CorePhase.CRUISE and self.ref is not None:
             self.phase, self.t_no_route_s = CorePhase.NO_ROUTE, t_s

@@ -54,7 +54,7 @@ class FlightRecord:
         st = self.state
         swing = st.measured_swing()
         if swing is not None:
-            cable_m = self.state.cable_length_m if self.true_cable_m is None else self.true_cable_m
+            cable_m = st.cable_length_m if self.true_cable_m is None else self.true_cable_m
             payload = est.pos_ned_m + payload_offset_ned_m(swing[0], swing[1], cable_m)
         elif st.payload_pos_ned_m is not None:
             payload = st.payload_pos_ned_m - origin_ned_m
